@@ -1,0 +1,44 @@
+/* selftest.cl: small kernels that expose the walk's building blocks to the test suite
+ * (Philox known answers, uniforms, the HG and Lambert samplers, the Fresnel laws) and to
+ * `warpe-cl devices`, which builds them to check that a device can compile our code. */
+
+__kernel void philox_kat(__global const uint4 *ctr, __global const uint2 *key, __global uint4 *out)
+{
+    size_t i = get_global_id(0);
+    out[i] = philox4x32_10(ctr[i], key[i]);
+}
+
+/* The first n_draws uniforms of each photon first_photon + i. */
+__kernel void photon_uniforms(const uint seed, const uint scenario, const ulong first_photon,
+                              const int n_draws, __global REAL *out)
+{
+    size_t i = get_global_id(0);
+    rng_t r;
+    rng_init(&r, seed, scenario, first_photon + i);
+    for (int j = 0; j < n_draws; ++j)
+        out[i * n_draws + j] = uniform(&r);
+}
+
+/* HG deflection cosines and Lambertian cosines from photon i's stream. */
+__kernel void sample_directions(const uint seed, const REAL g, __global REAL *hg_cos,
+                                __global REAL *lambert_mu)
+{
+    size_t i = get_global_id(0);
+    rng_t r;
+    rng_init(&r, seed, 0u, (ulong)i);
+    hg_cos[i] = hg_cos_theta(g, uniform(&r));
+    REAL ux, uy, uz;
+    lambert_up(&r, &ux, &uy, &uz);
+    lambert_mu[i] = -uz;
+}
+
+/* Fresnel reflectances on a grid of incidence cosines. */
+__kernel void fresnel_grid(__global const REAL *mu, const REAL n, const REAL k,
+                           __global REAL *r_external, __global REAL *r_internal)
+{
+    size_t i = get_global_id(0);
+    r_external[i] = fresnel_external(mu[i], n, k);
+    REAL m = mu[i];
+    r_internal[i] = n * sqrt(fmax((REAL)1 - m * m, (REAL)0)) >= (REAL)1
+                  ? (REAL)1 : fresnel_internal(m, n);
+}

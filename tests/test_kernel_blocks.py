@@ -1,0 +1,172 @@
+"""The kernel's building blocks against NumPy: Philox, uniforms, HG and Lambert samplers,
+Fresnel laws. Monte Carlo tolerances are 5 standard errors (false alarm ~6e-7 per check)."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+import pytest
+from scipy import stats
+
+from warpe_cl import radiative, rng
+
+KAT = [  # Random123 kat_vectors, philox4x32_10
+    ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+    ((0xFFFFFFFF,) * 4, (0xFFFFFFFF,) * 2, (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+    ((0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344), (0xA4093822, 0x299F31D0),
+     (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1)),
+]
+
+
+def _run(engine, kernel, n, *args):
+    kernel(engine.queue, (n,), None, *args)  # one retrieval per call: these kernels run once
+    engine.queue.finish()
+
+
+def test_philox_known_answers_in_kernel(engine, selftest):
+    ctx = engine.context
+    ctr = np.array([k[0] for k in KAT], dtype=np.uint32)
+    key = np.array([k[1] for k in KAT], dtype=np.uint32)
+    mf = cl.mem_flags
+    d_ctr = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=ctr)
+    d_key = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=key)
+    out = np.zeros((len(KAT), 4), dtype=np.uint32)
+    d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+    _run(engine, selftest["single"].philox_kat, len(KAT), d_ctr, d_key, d_out)
+    cl.enqueue_copy(engine.queue, out, d_out)
+    assert out.tolist() == [list(k[2]) for k in KAT]
+
+
+@pytest.mark.parametrize("precision", ["single", "double"])
+def test_kernel_streams_equal_numpy(engine, selftest, precision):
+    """The kernel's uniforms are bit-identical to the NumPy generator's, for photons beyond
+    2^32 too (the photon index fills two counter words)."""
+    if precision not in selftest:
+        pytest.skip("device has no fp64")  # pragma: no cover - PoCL and NVIDIA have fp64
+    real = np.float64 if precision == "double" else np.float32
+    n_photons, n_draws, first = 64, 11, 2 ** 32 - 20
+    out = np.zeros((n_photons, n_draws), dtype=real)
+    d_out = cl.Buffer(engine.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    _run(engine, selftest[precision].photon_uniforms, n_photons, np.uint32(12345),
+         np.uint32(678), np.uint64(first), np.int32(n_draws), d_out)
+    cl.enqueue_copy(engine.queue, out, d_out)
+    for i in range(n_photons):
+        words = np.concatenate([
+            rng.philox4x32(np.array([b, (first + i) & 0xFFFFFFFF, (first + i) >> 32, 0],
+                                    dtype=np.uint32), np.array([12345, 678], dtype=np.uint32))
+            for b in range(3)])[:n_draws]
+        expected = rng.uniform_from_uint32(words, precision=precision)
+        np.testing.assert_array_equal(out[i], expected.astype(real))
+
+
+def _directions(engine, selftest, g, n):
+    hg = np.zeros(n, dtype=np.float32)
+    lam = np.zeros(n, dtype=np.float32)
+    mf = cl.mem_flags
+    d_hg = cl.Buffer(engine.context, mf.WRITE_ONLY, hg.nbytes)
+    d_lam = cl.Buffer(engine.context, mf.WRITE_ONLY, lam.nbytes)
+    _run(engine, selftest["single"].sample_directions, n, np.uint32(99), np.float32(g), d_hg, d_lam)
+    cl.enqueue_copy(engine.queue, hg, d_hg)
+    cl.enqueue_copy(engine.queue, lam, d_lam)
+    return hg.astype(float), lam.astype(float)
+
+
+@pytest.mark.parametrize("g", [0.8, 0.0, -0.5])
+def test_hg_sampler_mean_and_distribution(engine, selftest, g):
+    n = 4_000_000
+    cos_t, _ = _directions(engine, selftest, g, n)
+    # mean cos(Theta) = g; Var = <cos^2> - g^2 with <cos^2> = (1 + 2 g^2)/3 for HG
+    sigma = np.sqrt((1 + 2 * g * g) / 3 - g * g) / np.sqrt(n)
+    assert abs(cos_t.mean() - g) < 5 * sigma
+    # binned against the HG cumulative distribution: chi2 with 39 dof, p > 1e-6
+    edges = np.linspace(-1, 1, 41)
+    if g == 0:
+        cdf = (edges + 1) / 2
+    else:
+        cdf = (1 - g * g) / (2 * g) * (1 / np.sqrt(1 + g * g - 2 * g * edges) - 1 / (1 + g))
+    expected = n * np.diff(cdf)
+    observed, _ = np.histogram(cos_t, edges)
+    chi2 = np.sum((observed - expected) ** 2 / expected)
+    assert stats.chi2.sf(chi2, len(expected) - 1) > 1e-6
+
+
+def test_lambert_sampler(engine, selftest):
+    n = 4_000_000
+    _, mu = _directions(engine, selftest, 0.8, n)
+    # <mu> = 2/3, Var(mu) = 1/2 - 4/9 = 1/18
+    assert abs(mu.mean() - 2 / 3) < 5 * np.sqrt(1 / 18 / n)
+    # cos-weighted: P(mu < x) = x^2
+    edges = np.linspace(0, 1, 41)
+    expected = n * np.diff(edges ** 2)
+    observed, _ = np.histogram(mu, edges)
+    chi2 = np.sum((observed - expected) ** 2 / expected)
+    assert stats.chi2.sf(chi2, len(expected) - 1) > 1e-6
+
+
+@pytest.mark.parametrize("n_k", [(1.30042, 1.272e-6), (1.4026, 8.47e-10), (1.92, 9.5e-6),
+                                 (1.5, 0.3), (1.0, 0.0)])
+def test_kernel_fresnel_matches_host(engine, selftest, n_k):
+    n, k = n_k
+    mu = np.linspace(0, 1, 1001)
+    for precision, tol in (("single", 2e-6), ("double", 1e-13)):
+        if precision not in selftest:
+            continue  # pragma: no cover
+        real = np.float64 if precision == "double" else np.float32
+        mu_r = mu.astype(real)
+        ext = np.zeros_like(mu_r)
+        inn = np.zeros_like(mu_r)
+        mf = cl.mem_flags
+        d_mu = cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=mu_r)
+        d_ext = cl.Buffer(engine.context, mf.WRITE_ONLY, ext.nbytes)
+        d_in = cl.Buffer(engine.context, mf.WRITE_ONLY, inn.nbytes)
+        _run(engine, selftest[precision].fresnel_grid, len(mu), d_mu, real(n), real(k), d_ext, d_in)
+        cl.enqueue_copy(engine.queue, ext, d_ext)
+        cl.enqueue_copy(engine.queue, inn, d_in)
+        np.testing.assert_allclose(
+            ext, radiative.fresnel_external(mu_r.astype(float), float(real(n)), float(real(k))),
+            atol=tol, rtol=0)
+        # R_int has an infinite slope at the critical angle: a float32 rounding (eps = 6e-8) of
+        # cos_t^2 = (1 - n^2) + n^2 mu^2 moves cos_t by eps n^2 / (2 cos_t), and R by at most
+        # |dR/dcos_t| <= 4 times that. The double kernel pins the formula to 1e-13 everywhere;
+        # the single one gets this conditioning bound added to its tolerance.
+        tol_in = tol
+        if precision == "single":
+            cos_t2 = (1 - n * n) + n * n * mu ** 2
+            cos_t = np.sqrt(np.where(cos_t2 > 0, cos_t2, np.inf))
+            tol_in = tol + 4 * 6e-8 * n * n / (2 * cos_t)
+        # the kernel sees n rounded to its precision; near the critical angle that matters
+        host_in = radiative.fresnel_internal(mu_r.astype(float), float(real(n)))
+        assert np.all(np.abs(inn - host_in) <= tol_in)
+
+
+def _complex_fresnel(mu, m):
+    """Plain complex-arithmetic Fresnel, vacuum -> m (an independent route to Hapke's form)."""
+    sin2 = 1 - mu ** 2
+    cos_t = np.sqrt(1 - sin2 / m ** 2 + 0j)
+    rs = (mu - m * cos_t) / (mu + m * cos_t)
+    rp = (m * mu - cos_t) / (m * mu + cos_t)
+    return 0.5 * (abs(rs) ** 2 + abs(rp) ** 2)
+
+
+@pytest.mark.parametrize("n,k", [(1.3, 0.0), (1.92, 9.5e-6), (2.5, 1.0), (1.4026, 8.47e-10)])
+def test_hapke_fresnel_equals_complex_fresnel(n, k):
+    mu = np.linspace(0.0, 1.0, 501)
+    np.testing.assert_allclose(radiative.fresnel_external(mu, n, k), _complex_fresnel(mu, n + 1j * k),
+                               rtol=1e-10, atol=1e-12)
+    assert radiative.fresnel_external(1.0, n, k) == pytest.approx(radiative.normal_reflectance(n, k),
+                                                                  rel=1e-12)
+
+
+@pytest.mark.parametrize("n", [1.30042, 1.4026, 1.0786, 1.4764, 1.92])
+def test_hemispherical_reciprocity(n):
+    """physics.md §8 check 6: S_i = 1 - (1 - S_e)/n^2 (and the §3.6 table)."""
+    s_e = radiative.hemispherical_external(n, 0.0)
+    s_i = radiative.hemispherical_internal(n)
+    assert s_i == pytest.approx(1 - (1 - s_e) / n ** 2, abs=1e-7)
+
+
+def test_hemispherical_table():
+    table = {1.30042: (0.0612, 0.4449), 1.4026: (0.0772, 0.5309), 1.0786: (0.0205, 0.1581),
+             1.4764: (0.0883, 0.5817)}
+    for n, (s_e, s_i) in table.items():
+        assert radiative.hemispherical_external(n) == pytest.approx(s_e, abs=6e-5)
+        assert radiative.hemispherical_internal(n) == pytest.approx(s_i, abs=6e-5)

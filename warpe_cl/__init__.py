@@ -1,0 +1,26 @@
+"""warpe-cl: laser travel time in icy and granular surfaces, by Monte Carlo in OpenCL.
+
+A laser altimeter (BELA, GALA, ATLAS) records the whole return pulse; light that enters an icy
+or granular surface comes back late, and the shape of the return carries the surface's
+microtexture. warpe-cl walks rays through a compact slab (Fresnel interfaces, a Lambertian
+floor) or a granular layer (no interface) with Henyey-Greenstein scattering, and tallies when
+and where every ray leaves, by component: specular, back-and-forth direct, back-and-forth
+diffuse, and multiple scattering.
+
+Quick start::
+
+    import warpe_cl
+    cfg = warpe_cl.load_preset("presets/radiative/slab_co2_1m.yaml",
+                               overrides={"simulation.photons": 1e5})
+    warpe_cl.radiative_parameters(cfg)   # tau0, omega, extinction_per_m, n_eff, k_eff, ...
+    ds = warpe_cl.simulate(cfg)          # xarray.Dataset: reflectance in ns-1 sr-1, fractions, ...
+
+The command line does the same: ``warpe-cl run PRESET.yaml --out result.nc --plot result.png``.
+"""
+from .config import load_preset
+from .radiative import radiative_parameters
+from .api import simulate
+from .io import package_version
+
+__version__ = package_version()
+__all__ = ["load_preset", "simulate", "radiative_parameters", "__version__"]

@@ -1,0 +1,155 @@
+"""The Python entry points: :func:`simulate` and :func:`walk_params`.
+
+    >>> import warpe_cl
+    >>> cfg = warpe_cl.load_preset("presets/radiative/slab_co2_1m.yaml",
+    ...                            overrides={"simulation.photons": 1e5})   # doctest: +SKIP
+    >>> ds = warpe_cl.simulate(cfg)                                          # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+import zlib
+
+from . import io, tally
+from .config import Config, load_preset, time_edges
+from .params import WalkParams
+from .radiative import radiative_parameters
+
+_engines: dict = {}
+
+
+def walk_params(cfg: Config, scenario: int = 0) -> tuple:
+    """The :class:`WalkParams` of a (single-point) configuration and its derived parameters.
+
+    Returns
+    -------
+    (WalkParams, dict)
+    """
+    derived = radiative_parameters(cfg)
+    params = WalkParams(
+        texture=cfg.get("medium.texture"),
+        bottom_interface=cfg.get("medium.bottom_interface"),
+        thickness=derived["thickness_m"],
+        extinction=derived["extinction_per_m"],
+        omega=derived["omega"],
+        g=cfg.get("medium.phase_g"),
+        n=derived["n_eff"],
+        k=derived["k_eff"],
+        albedo=cfg.get("medium.bottom_albedo"),
+        time_edges=time_edges(cfg),
+        max_time=cfg.get("simulation.max_time"),
+        max_flights=int(cfg.get("simulation.max_flights")),
+        fov=(90.0, 90.0, cfg.get("simulation.fov.bf_diffuse"), cfg.get("simulation.fov.scattering")),
+        rule=cfg.get("simulation.component_rule"),
+        seed=int(cfg.get("simulation.seed")),
+        scenario=scenario,
+    )
+    return params, derived
+
+
+def scenario_key(point: dict, cfg: Config) -> int:
+    """A deterministic 32-bit Philox key word for a sweep point (0 for a run without sweep):
+    the CRC-32 of its swept keys and their resolved values, so a point's random numbers do not
+    depend on the grid it belongs to or on the order points are computed in."""
+    if not point:
+        return 0
+    canonical = json.dumps({k: cfg.get(k) for k in sorted(point)}, sort_keys=True, default=str)
+    return zlib.crc32(canonical.encode())
+
+
+def get_engine(device: str | None = None):
+    """An :class:`~warpe_cl.engine.Engine` for ``device`` (kept for the process), or the
+    reference walk for ``"numpy"``."""
+    from .device import resolve_spec
+    spec = resolve_spec(device)
+    if spec not in _engines:
+        if spec == "numpy":
+            from .reference import ReferenceEngine  # noqa: PLC0415 - only when asked for
+            _engines[spec] = ReferenceEngine()
+        else:
+            from .engine import Engine
+            _engines[spec] = Engine(spec)
+    return _engines[spec]
+
+
+def _progress(total: int, enabled):
+    """A tqdm bar on stderr that appears only for runs of more than 2 s, on a terminal."""
+    if enabled is False:
+        return None, lambda: None
+    from tqdm.auto import tqdm
+    bar = tqdm(total=total, unit="ray", unit_scale=True, delay=2.0, leave=False,
+               disable=None if enabled is None else not enabled, file=sys.stderr)
+    state = {"done": 0}
+
+    def update(done):
+        bar.update(done - state["done"])
+        state["done"] = done
+    return update, bar.close
+
+
+def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):
+    """Run one scenario (a configuration without sweep) and return its Dataset."""
+    point = point or {}
+    t0 = time.perf_counter()
+    params, derived = walk_params(cfg, scenario_key(point, cfg))
+    engine = get_engine(device)
+    photons = int(cfg.get("simulation.photons"))
+    precision = cfg.get("simulation.precision")
+    update, close = _progress(photons, progress)
+    try:
+        counts = engine.run(params, photons, precision=precision, progress=update)
+    finally:
+        close()
+    arrays = tally.reduce_counts(counts, params, solid_angle=cfg.get("simulation.solid_angle"),
+                                 specular_lobe=cfg.get("simulation.specular_lobe"),
+                                 min_rays=int(cfg.get("simulation.min_rays")))
+    attrs = io.provenance({
+        "name": cfg.get("name"),
+        "description": cfg.get("description"),
+        "config": cfg.to_yaml(),
+        "source": str(cfg.source),
+        "seed": int(params.seed),
+        "scenario_key": int(params.scenario),
+        "precision": precision,
+        "mode": cfg.get("simulation.mode"),
+        "texture": params.texture,
+        "bottom_interface": params.bottom_interface if params.texture == "slab" else "none",
+        "engine": engine.name,
+        "kernel_sha256": engine.kernel_hash or "",
+        **engine.provenance,
+    })
+    ds = io.build_dataset(arrays, counts, params, derived, attrs)
+    ds["wall_time"] = ((), time.perf_counter() - t0, {"units": "s",
+                                                      "long_name": "time spent in simulate"})
+    return ds
+
+
+def simulate(cfg, *, device: str | None = None, progress=None, overrides=None):
+    """Simulate a preset: one scenario, or every point of its ``sweep:`` block.
+
+    Parameters
+    ----------
+    cfg : Config, dict, str or path
+        A loaded configuration, a dict of the YAML's shape, or a preset file.
+    device : str, optional
+        Device spec (interface.md §2), or ``"numpy"`` for the reference walk.
+    progress : bool or None
+        Progress bar: None shows one on a terminal for runs over 2 s; False never.
+    overrides : dict, optional
+        Dotted-key overrides, when ``cfg`` is not yet a Config.
+
+    Returns
+    -------
+    xarray.Dataset
+        The variables of interface.md §5; with a sweep, a leading ``scenario`` dimension whose
+        swept values are coordinates.
+    """
+    if not isinstance(cfg, Config):
+        cfg = load_preset(cfg, overrides=overrides)
+    points = cfg.sweep_points()
+    if len(points) == 1 and not points[0][0]:
+        return simulate_point(points[0][1], {}, device, progress)
+    datasets = [simulate_point(point_cfg, point, device, progress) for point, point_cfg in points]
+    return io.combine_scenarios(datasets, [p for p, _ in points])

@@ -1,0 +1,248 @@
+"""The ``warpe-cl`` command line (interface.md §2).
+
+Exit codes: 0 success; 2 bad input (configuration, units, files); 3 no usable OpenCL
+device; 1 anything else. Errors are one readable line on stderr, never a traceback
+(``WARPE_CL_DEBUG=1`` shows it).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+from .errors import ConfigError, DeviceError, WarpeError
+
+EXIT_OK, EXIT_OTHER, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports usage errors as bad input (exit 2) in one line."""
+
+    def error(self, message):
+        raise ConfigError(f"{message} (see `{self.prog} --help`)")
+
+
+def _overrides(args) -> list:
+    sets = list(args.set or [])
+    if getattr(args, "photons", None) is not None:
+        sets.append(f"simulation.photons={args.photons}")
+    if getattr(args, "seed", None) is not None:
+        sets.append(f"simulation.seed={args.seed}")
+    return sets
+
+
+def _load(args):
+    from .config import load_preset
+    from .presets import resolve_preset
+    return load_preset(resolve_preset(args.preset), overrides=_overrides(args))
+
+
+def _check_writable(path: Path, what: str):
+    folder = path.resolve().parent
+    if path.is_dir():
+        raise ConfigError(f"{path} is a folder; give a file name", key=what)
+    if not folder.exists():
+        raise ConfigError(f"folder {folder} does not exist", key=what)
+    if not os.access(folder, os.W_OK):
+        raise ConfigError(f"cannot write in {folder}", key=what)
+
+
+def _fmt_derived(d: dict) -> list:
+    return [
+        f"  tau0              {d['tau0']:.6g}",
+        f"  omega             {d['omega']:.6g}",
+        f"  extinction        {d['extinction_per_m']:.6g} m-1",
+        f"  n_eff, k_eff      {d['n_eff']:.6g}, {d['k_eff']:.4g}",
+        f"  thickness         {d['thickness_m'] * 1e3:.6g} mm",
+        f"  first BF time     {d['first_bf_time_ns']:.6g} ns  (2 h n_eff / c)",
+        f"  specular R0       {d['specular_r0']:.6g}",
+    ]
+
+
+def cmd_run(args) -> int:
+    from . import api, io
+    from .radiative import radiative_parameters
+
+    cfg = _load(args)
+    out = Path(args.out)
+    _check_writable(out, "--out")
+    if args.plot:
+        _check_writable(Path(args.plot), "--plot")
+    points = cfg.sweep_points()
+    say = (lambda *a: None) if args.quiet else print
+    say(f"warpe-cl run: {cfg.get('name')} ({cfg.source}), {len(points)} scenario(s), "
+        f"{int(cfg.get('simulation.photons')):,} rays each, seed {cfg.get('simulation.seed')}")
+    t0 = time.perf_counter()
+    datasets = []
+    for i, (point, pcfg) in enumerate(points):
+        derived = radiative_parameters(pcfg)
+        if point:
+            say(f"scenario {i}: " + ", ".join(f"{k}={v}" for k, v in point.items()))
+        for line in _fmt_derived(derived):
+            say(line)
+        ds = api.simulate_point(pcfg, point, device=args.device,
+                                progress=None if not args.quiet else False)
+        datasets.append(ds)
+        _print_summary(ds, say)
+    ds = datasets[0] if len(points) == 1 and not points[0][0] else \
+        io.combine_scenarios(datasets, [p for p, _ in points])
+    io.write_netcdf(ds, out)
+    say(f"wrote {out} ({time.perf_counter() - t0:.2f} s in all)")
+    if args.plot:
+        from .plot import plot_waveform
+        plot_waveform(ds, args.plot)
+        say(f"wrote {args.plot}")
+    return EXIT_OK
+
+
+def _print_summary(ds, say):
+    photons = int(ds["photons"])
+    wall = float(ds["wall_time"])
+    events = int(ds["scattering_events"])
+    say(f"  device            {ds.attrs.get('opencl_device', '?')} ({ds.attrs.get('engine')}, "
+        f"{ds.attrs.get('precision')} precision)")
+    say("  fates             " + "  ".join(
+        f"{f} {v:.5f}" for f, v in zip(ds["fate"].values, ds["fate_fraction"].values)))
+    say("  components        " + "  ".join(
+        f"{c} {v:.5f}" for c, v in zip(ds["component"].values, ds["fraction"].values)))
+    say(f"  time              {wall:.2f} s   {photons / wall:,.0f} photons/s   "
+        f"{events / wall:,.0f} scattering events/s")
+
+
+def cmd_devices(args) -> int:
+    from .device import INSTALL_HINT, list_devices, probe, resolve_spec, select_device
+    devices = list_devices()
+    if not devices:
+        print(f"no OpenCL platform found; {INSTALL_HINT}")
+        return EXIT_DEVICE
+    for info, dev in devices:
+        reason = probe(dev)
+        print(info.describe())
+        print("      usable" if reason is None else f"      NOT usable: {reason}")
+    spec = resolve_spec(args.device)
+    try:
+        info, _ = select_device(spec)
+        print(f"--device {spec} picks {info.spec} ({info.device})")
+    except DeviceError as err:
+        print(f"--device {spec}: {err}")
+        return EXIT_DEVICE
+    return EXIT_OK
+
+
+def cmd_show_config(args) -> int:
+    from .radiative import radiative_parameters
+    cfg = _load(args)
+    print(cfg.to_yaml().rstrip())
+    for point, pcfg in cfg.sweep_points():
+        print("# derived" + (" for " + ", ".join(f"{k}={v}" for k, v in point.items()) if point else ""))
+        for line in _fmt_derived(radiative_parameters(pcfg)):
+            print("#" + line)
+    return EXIT_OK
+
+
+def cmd_presets(args) -> int:
+    import yaml
+    from .presets import bundled_presets
+    for name, path in bundled_presets().items():
+        try:
+            desc = " ".join(str(yaml.safe_load(path.read_text()).get("description", "")).split())
+        except Exception:  # noqa: BLE001 - a listing must not stop on one bad file
+            desc = "(unreadable)"
+        print(f"{name:34s} {desc[:100]}")
+    return EXIT_OK
+
+
+def cmd_plot(args) -> int:
+    import xarray as xr
+    from .plot import plot_waveform
+    path = Path(args.file)
+    if not path.is_file():
+        raise ConfigError("no such file", key=str(path))
+    try:
+        ds = xr.load_dataset(path, engine="h5netcdf")
+    except Exception as err:  # noqa: BLE001
+        raise ConfigError(f"not a warpe-cl NetCDF file ({type(err).__name__})", key=str(path))
+    if "reflectance" not in ds:
+        raise ConfigError("has no reflectance variable; give a file written by `warpe-cl run`",
+                          key=str(path))
+    _check_writable(Path(args.out), "--out")
+    plot_waveform(ds, args.out)
+    print(f"wrote {args.out}")
+    return EXIT_OK
+
+
+def make_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="warpe-cl", description="Laser travel time in icy and granular surfaces "
+                                             "(Monte Carlo in OpenCL).")
+    from .io import package_version
+    p.add_argument("--version", action="version", version=f"warpe-cl {package_version()}")
+    sub = p.add_subparsers(dest="verb", parser_class=_Parser)
+
+    def common(sp, device=True):
+        sp.add_argument("preset", help="a preset file, or a bundled preset's name (see `presets`)")
+        sp.add_argument("--set", action="append", metavar="KEY=VALUE",
+                        help='override a key, e.g. --set medium.thickness="100 mm" (repeatable)')
+        if device:
+            sp.add_argument("--device", default=None,
+                            help="auto, cpu, gpu, P:D, a name substring, or numpy "
+                                 "(default: $WARPE_CL_DEVICE, $PYOPENCL_CTX, auto)")
+
+    r = sub.add_parser("run", help="simulate a preset and write a NetCDF file")
+    common(r)
+    r.add_argument("--photons", help="rays per scenario (simulation.photons)")
+    r.add_argument("--seed", help="random seed (simulation.seed)")
+    r.add_argument("--out", required=True, help="output NetCDF file")
+    r.add_argument("--plot", help="also draw the waveform to this PNG")
+    r.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    r.set_defaults(func=cmd_run)
+
+    d = sub.add_parser("devices", help="list OpenCL devices and the one `auto` picks")
+    d.add_argument("--device", default=None, help="a device spec to resolve")
+    d.set_defaults(func=cmd_devices)
+
+    s = sub.add_parser("show-config", help="print the resolved configuration and derived parameters")
+    common(s, device=False)
+    s.set_defaults(func=cmd_show_config)
+
+    ps = sub.add_parser("presets", help="list the bundled presets")
+    ps.set_defaults(func=cmd_presets)
+
+    pl = sub.add_parser("plot", help="draw the waveform of a result file")
+    pl.add_argument("file", help="a NetCDF file written by `warpe-cl run`")
+    pl.add_argument("--out", required=True, help="output PNG")
+    pl.set_defaults(func=cmd_plot)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = make_parser()
+    try:
+        args = parser.parse_args(argv)
+        if not getattr(args, "verb", None):
+            parser.print_help()
+            return EXIT_INPUT
+        return args.func(args)
+    except ConfigError as err:
+        print(f"warpe-cl: error: {err}", file=sys.stderr)
+        return EXIT_INPUT
+    except DeviceError as err:
+        print(f"warpe-cl: error: {err}", file=sys.stderr)
+        return EXIT_DEVICE
+    except KeyboardInterrupt:
+        print("warpe-cl: interrupted", file=sys.stderr)
+        return 130
+    except WarpeError as err:
+        print(f"warpe-cl: error: {err}", file=sys.stderr)
+        return EXIT_OTHER
+    except Exception as err:  # noqa: BLE001 - one line, never a traceback
+        if os.environ.get("WARPE_CL_DEBUG"):
+            raise
+        print(f"warpe-cl: error: {type(err).__name__}: {err} (set WARPE_CL_DEBUG=1 for the traceback)",
+              file=sys.stderr)
+        return EXIT_OTHER
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,219 @@
+"""OpenCL platforms and devices: listing, choosing, probing, and building programs.
+
+The kernels live in ``cl/`` (installed as the package data ``warpe_cl.cl``). A program is
+the concatenation of its files in a fixed order, each preceded by a ``#line 1 "file"``
+directive so that compiler messages name the real file and line (the sasmodels way), and
+the hash of that text identifies the kernel in every output file.
+
+A device is *usable* only once it has compiled our self-test program: an OpenCL driver that
+lists a device but cannot build for it (PoCL 3.0 from pip, built on LLVM 14, does not know
+AMD Zen 4/5 CPUs and fails with "unknown target CPU 'generic'") is skipped with its reason.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+from .errors import DeviceError
+
+SELFTEST_FILES = ("real.h", "philox.h", "fresnel.h", "scatter.h", "selftest.cl")
+
+INSTALL_HINT = (
+    "install an OpenCL driver: `pip install pocl-binary-distribution` (PoCL 3.0, CPUs known to "
+    "LLVM 14), or on Debian/Ubuntu `sudo apt-get install pocl-opencl-icd` (PoCL 3.1, any x86-64 "
+    "CPU), or your GPU vendor's driver; `--device numpy` runs the slow reference walk without OpenCL")
+
+
+def kernel_dir() -> Path:
+    """Folder holding the OpenCL sources (installed package data, or ``cl/`` of a checkout)."""
+    try:
+        from importlib.resources import files
+        path = Path(str(files("warpe_cl.cl")))
+        if (path / "walk.cl").is_file():
+            return path
+    except (ImportError, ModuleNotFoundError, TypeError):
+        pass
+    return Path(__file__).resolve().parent.parent / "cl"
+
+
+def assemble_source(names) -> str:
+    """Join the named files of :func:`kernel_dir` with ``#line`` directives."""
+    folder = kernel_dir()
+    parts = []
+    for name in names:
+        path = folder / name
+        parts.append(f'#line 1 "{path}"\n{path.read_text()}\n')
+    return "".join(parts)
+
+
+def source_hash(source: str) -> str:
+    """SHA-256 of a program's text (recorded as provenance)."""
+    return hashlib.sha256(source.encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """What a user needs to know about one OpenCL device."""
+
+    platform_index: int
+    device_index: int
+    platform: str
+    platform_version: str
+    device: str
+    kind: str           # "cpu", "gpu" or "other"
+    driver: str
+    compute_units: int
+    fp64: bool
+
+    @property
+    def spec(self) -> str:
+        """The ``--device`` spelling that picks this device."""
+        return f"{self.platform_index}:{self.device_index}"
+
+    def describe(self) -> str:
+        return (f"{self.spec}  {self.kind}  {self.device} | {self.platform} {self.platform_version} "
+                f"| driver {self.driver} | {self.compute_units} compute units"
+                f"{'' if self.fp64 else ' | no fp64'}")
+
+
+def _cl():
+    import pyopencl as cl
+    return cl
+
+
+def list_devices():
+    """Every OpenCL device as ``(DeviceInfo, pyopencl.Device)``; empty when there is no platform."""
+    cl = _cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:
+        return []
+    out = []
+    for pi, platform in enumerate(platforms):
+        try:
+            devices = platform.get_devices()
+        except cl.Error:
+            continue
+        for di, dev in enumerate(devices):
+            kind = ("gpu" if dev.type & cl.device_type.GPU else
+                    "cpu" if dev.type & cl.device_type.CPU else "other")
+            info = DeviceInfo(pi, di, platform.name.strip(), platform.version.strip(),
+                              dev.name.strip(), kind, dev.driver_version.strip(),
+                              int(dev.max_compute_units), bool(dev.double_fp_config))
+            out.append((info, dev))
+    return out
+
+
+@lru_cache(maxsize=None)
+def context_and_queue(device):
+    """One context and in-order queue per device, kept for the process."""
+    cl = _cl()
+    ctx = cl.Context([device])
+    return ctx, cl.CommandQueue(ctx)
+
+
+@lru_cache(maxsize=None)
+def build_program(device, names: tuple, options: tuple):
+    """Build (and keep) the program made of ``names`` with ``-D`` options for ``device``.
+
+    Returns ``(program, source_hash)``. pyopencl and PoCL also cache binaries on disk, so a
+    second process rebuilds nothing.
+    """
+    cl = _cl()
+    ctx, _ = context_and_queue(device)
+    source = assemble_source(names)
+    program = cl.Program(ctx, source).build(options=list(options))
+    return program, source_hash(source)
+
+
+def _explain_build_failure(err: Exception) -> str:
+    text = str(err)
+    if "unknown target CPU" in text:
+        return ("its compiler does not know this CPU (\"unknown target CPU 'generic'\": PoCL 3.0 "
+                "from pip is built on LLVM 14, older than this processor)")
+    lines = [ln.strip() for ln in text.splitlines() if "error" in ln.lower()]
+    return "it failed to build the self-test kernels: " + (lines[0] if lines else text.splitlines()[0])
+
+
+_probe_cache = {}
+
+
+def probe(device) -> str | None:
+    """Build the self-test program on ``device``; ``None`` if it works, else the reason."""
+    key = device.int_ptr
+    if key not in _probe_cache:
+        cl = _cl()
+        try:
+            options = ("-DWARPE_DOUBLE",) if device.double_fp_config else ()
+            build_program(device, SELFTEST_FILES, options)
+            _probe_cache[key] = None
+        except (cl.Error, RuntimeError) as err:
+            _probe_cache[key] = _explain_build_failure(err)
+    return _probe_cache[key]
+
+
+def _candidates(spec: str, devices):
+    """Devices matching ``spec`` in order of preference."""
+    s = spec.strip()
+    if s == "auto":
+        gpus = [d for d in devices if d[0].kind == "gpu"]
+        cpus = [d for d in devices if d[0].kind == "cpu"]
+        others = [d for d in devices if d[0].kind == "other"]
+        return gpus + cpus + others
+    if s in ("cpu", "gpu"):
+        return [d for d in devices if d[0].kind == s]
+    parts = s.split(":")
+    if all(p.isdigit() for p in parts) and len(parts) in (1, 2):
+        pi = int(parts[0])
+        di = int(parts[1]) if len(parts) == 2 else 0
+        return [d for d in devices if d[0].platform_index == pi and d[0].device_index == di]
+    low = s.lower()
+    return [d for d in devices if low in d[0].device.lower() or low in d[0].platform.lower()]
+
+
+def resolve_spec(spec: str | None = None) -> str:
+    """The device spec in force: the argument, else $WARPE_CL_DEVICE, else $PYOPENCL_CTX, else auto."""
+    for value in (spec, os.environ.get("WARPE_CL_DEVICE"), os.environ.get("PYOPENCL_CTX")):
+        if value is not None and str(value).strip() != "":
+            return str(value).strip()
+    return "auto"
+
+
+def select_device(spec: str | None = None):
+    """Choose a usable OpenCL device.
+
+    Parameters
+    ----------
+    spec : str, optional
+        ``auto``, ``cpu``, ``gpu``, ``P:D`` (platform and device index), or a substring of the
+        device or platform name. ``None`` reads ``$WARPE_CL_DEVICE``, then ``$PYOPENCL_CTX``.
+
+    Returns
+    -------
+    (DeviceInfo, pyopencl.Device)
+
+    Raises
+    ------
+    DeviceError
+        When nothing matches, or nothing that matches can build our kernels; the message says why
+        and what to install.
+    """
+    spec = resolve_spec(spec)
+    devices = list_devices()
+    if not devices:
+        raise DeviceError(f"no OpenCL platform found; {INSTALL_HINT}")
+    matches = _candidates(spec, devices)
+    if not matches:
+        listing = "; ".join(d[0].describe() for d in devices)
+        raise DeviceError(f"--device {spec}: no OpenCL device matches; available: {listing}")
+    reasons = []
+    for info, dev in matches:
+        reason = probe(dev)
+        if reason is None:
+            return info, dev
+        reasons.append(f"{info.spec} {info.device} ({info.platform} {info.platform_version}): {reason}")
+    raise DeviceError(f"--device {spec}: no usable OpenCL device: " + "; ".join(reasons)
+                      + f"; {INSTALL_HINT}")

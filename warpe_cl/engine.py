@@ -1,0 +1,199 @@
+"""The OpenCL engine: launches photon batches of the walk kernel and reduces their tallies.
+
+Each launch walks a contiguous range of photon indices; every ray draws its random numbers
+from Philox keyed by (seed, scenario) with the photon index in the counter, so the counts do
+not depend on the device, the work-group size, the global size or how photons are split into
+launches. Launches are sized to take about ``target_launch_s`` seconds and at most 2^31
+photons (the per-launch uint32 histograms cannot overflow); the host adds each launch's
+histograms into int64 :class:`~warpe_cl.params.Counts`.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import device as devmod
+from .params import Counts, N_EMERGENCE, WalkParams
+
+WALK_FILES = ("real.h", "philox.h", "fresnel.h", "scatter.h", "tally.h", "walk.cl")
+MAX_LAUNCH = 2 ** 31
+
+
+def build_options(texture: str, precision: str, records: bool) -> tuple:
+    """The structural ``-D`` switches of the walk kernel (no physical value is compiled in)."""
+    opts = ["-DWARPE_TEXTURE_SLAB" if texture == "slab" else "-DWARPE_TEXTURE_GRANULAR"]
+    if precision == "double":
+        opts.append("-DWARPE_DOUBLE")
+    if records:
+        opts.append("-DWARPE_RECORD")
+    return tuple(opts)
+
+
+class Engine:
+    """Runs walks on one OpenCL device.
+
+    Parameters
+    ----------
+    device : str or None
+        A device spec for :func:`warpe_cl.device.select_device` (``None``: environment, then auto).
+    target_launch_s : float
+        Wanted duration of one launch, s (0.1-1 s keeps the progress bar and Ctrl-C responsive
+        and stays far below GPU watchdog limits).
+    """
+
+    name = "opencl"
+
+    def __init__(self, device: str | None = None, target_launch_s: float = 0.3):
+        self.info, self.device = devmod.select_device(device)
+        self.context, self.queue = devmod.context_and_queue(self.device)
+        self.target_launch_s = target_launch_s
+        self.kernel_hash = None
+        self._kernels = {}
+
+    @property
+    def provenance(self) -> dict:
+        """Platform, device and driver of this engine, for output attributes."""
+        i = self.info
+        return {"opencl_platform": f"{i.platform} {i.platform_version}", "opencl_device": i.device,
+                "opencl_driver": i.driver, "opencl_device_type": i.kind}
+
+    def default_global_size(self) -> int:
+        """Work-items per launch: one photon each on GPUs; 256 per compute unit on CPUs
+        (fewer leaves cores idle, more only costs per-item bookkeeping)."""
+        if self.info.kind == "gpu":
+            return 1 << 20
+        return 256 * max(1, self.info.compute_units)
+
+    def kernel(self, texture: str, precision: str, records: bool):
+        """The walk kernel for this structure; programs are built once per process."""
+        if precision == "double" and not self.info.fp64:
+            raise devmod.DeviceError(f"{self.info.device} has no double precision; "
+                                     "use simulation.precision: single")
+        program, digest = devmod.build_program(self.device, WALK_FILES,
+                                               build_options(texture, precision, records))
+        self.kernel_hash = digest
+        key = (texture, precision, records)
+        if key not in self._kernels:
+            import pyopencl as cl
+            self._kernels[key] = cl.Kernel(program, "walk")
+        return self._kernels[key]
+
+    def run(self, params: WalkParams, photons: int, precision: str = "single",
+            first_photon: int = 0, records: bool = False, batch: int | None = None,
+            global_size: int | None = None, local_size: int | None = None,
+            progress=None) -> Counts:
+        """Walk ``photons`` rays, numbered from ``first_photon``.
+
+        Parameters
+        ----------
+        params : WalkParams
+        photons : int
+            Number of rays.
+        precision : {"single", "double"}
+        first_photon : int
+            Index of the first ray (the Philox counter): splitting a run into ranges and adding
+            their counts gives exactly the counts of the whole run.
+        records : bool
+            Also return one record per photon (``Counts.records``), for the parity tests.
+        batch : int, optional
+            Photons per launch; by default sized from the measured speed.
+        global_size, local_size : int, optional
+            Work-items per launch and per work-group (results never depend on them).
+        progress : callable, optional
+            Called with the number of photons finished after each launch.
+
+        Returns
+        -------
+        Counts
+        """
+        import pyopencl as cl
+
+        real = np.float64 if precision == "double" else np.float32
+        kern = self.kernel(params.texture, precision, records)
+        edges = np.asarray(params.time_edges, dtype=real)
+        n_time = len(edges) - 1
+        gsize = int(global_size or self.default_global_size())
+        if local_size:
+            gsize = -(-gsize // local_size) * local_size
+
+        mf = cl.mem_flags
+        ctx, queue = self.context, self.queue
+        d_edges = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=edges)
+        hist_shapes = {"time_in_fov": (4, n_time), "time_any": (4, n_time),
+                       "angular": (4, N_EMERGENCE), "total": (4,)}
+        d_hist = {k: cl.Buffer(ctx, mf.READ_WRITE, size=4 * int(np.prod(s)))
+                  for k, s in hist_shapes.items()}
+        d_stats = cl.Buffer(ctx, mf.READ_WRITE, size=8 * 8 * gsize)
+
+        cos_fov = params.cos_fov
+        scalar_args = [
+            real(params.thickness), real(params.extinction), real(params.omega), real(params.g),
+            real(params.n), real(params.k), real(params.albedo), real(params.path_cap),
+            np.uint32(min(params.max_flights, 2 ** 32 - 1)),
+            np.int32(params.bottom_interface == "fresnel"),
+            np.int32(params.rule == "time_window"), real(params.first_bf_time),
+        ]
+        total = Counts(n_time=n_time)
+        rec_chunks = []
+        done = 0
+        size = int(batch) if batch else min(gsize * 8, photons) or 1
+        while done < photons:
+            n = min(size, photons - done, MAX_LAUNCH)
+            for buf in d_hist.values():
+                cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)
+            args = [np.uint32(params.seed), np.uint32(params.scenario),
+                    np.uint64(first_photon + done), np.uint64(n), *scalar_args,
+                    d_edges, np.int32(len(edges)), *(real(c) for c in cos_fov),
+                    d_hist["time_in_fov"], d_hist["time_any"], d_hist["angular"], d_hist["total"],
+                    d_stats]
+            launch_items = min(gsize, n) if not local_size else gsize
+            if records:
+                d_ri = cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * 8 * n)
+                d_rr = cl.Buffer(ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * 2 * n)
+                args += [d_ri, d_rr]
+            t0 = time.perf_counter()
+            kern(queue, (launch_items,), (local_size,) if local_size else None, *args)
+            part = Counts(n_time=n_time, photons=n)
+            for name, shape in hist_shapes.items():
+                host = np.empty(shape, dtype=np.uint32)
+                cl.enqueue_copy(queue, host, d_hist[name])
+                getattr(part, name)[...] = host
+            stats = np.empty((gsize, 8), dtype=np.uint64)
+            cl.enqueue_copy(queue, stats, d_stats)
+            stats = stats[:launch_items].astype(np.int64).sum(axis=0)
+            part.fates[...] = stats[:5]
+            part.scattering_events = int(stats[5])
+            part.mixed_history = int(stats[6])
+            if records:
+                ri = np.empty((n, 8), dtype=np.int32)
+                rr = np.empty((n, 2), dtype=real)
+                cl.enqueue_copy(queue, ri, d_ri)
+                cl.enqueue_copy(queue, rr, d_rr)
+                rec_chunks.append((ri, rr))
+            queue.finish()
+            elapsed = time.perf_counter() - t0
+            total += part
+            done += n
+            if progress is not None:
+                progress(done)
+            if not batch:
+                rate = n / max(elapsed, 1e-6)
+                size = int(min(max(rate * self.target_launch_s, gsize), 4 * n, MAX_LAUNCH))
+        if records:
+            total.records = _records_from_chunks(rec_chunks)
+        return total
+
+
+def _records_from_chunks(chunks) -> dict:
+    ri = np.concatenate([c[0] for c in chunks]) if chunks else np.empty((0, 8), np.int32)
+    rr = np.concatenate([c[1] for c in chunks]).astype(np.float64) if chunks else np.empty((0, 2))
+    exited = ri[:, 1] >= 0
+    return {
+        "fate": ri[:, 0].astype(np.int8), "component": ri[:, 1].astype(np.int8),
+        "n_scat": ri[:, 2].astype(np.int64), "n_lamb": ri[:, 3].astype(np.int64),
+        "n_bspec": ri[:, 4].astype(np.int64), "n_top": ri[:, 5].astype(np.int64),
+        "time_bin": ri[:, 6].astype(np.int64), "emergence_bin": ri[:, 7].astype(np.int64),
+        "time_ns": np.where(exited, rr[:, 0], np.nan),
+        "cos_exit": np.where(exited, rr[:, 1], np.nan),
+    }

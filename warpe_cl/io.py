@@ -1,0 +1,160 @@
+"""Assembling the output Dataset (interface.md §5), provenance, and atomic NetCDF writing."""
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import platform as _platform
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .params import COMPONENTS, FATES, N_EMERGENCE
+
+DERIVED = ("tau0", "omega", "extinction_per_m", "n_eff", "k_eff", "first_bf_time_ns",
+           "specular_r0", "thickness_m")
+
+
+def package_version() -> str:
+    """The installed version of warpe-cl ("unknown" in a bare checkout)."""
+    try:
+        from importlib.metadata import version
+        return version("warpe-cl")
+    except Exception:  # noqa: BLE001 - running from a checkout without metadata
+        return "unknown"
+
+
+def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
+    """One scenario's Dataset.
+
+    Parameters
+    ----------
+    arrays : dict
+        Output of :func:`warpe_cl.tally.reduce_counts`.
+    counts : Counts
+        For ``photons`` and ``scattering_events``.
+    params : WalkParams
+        For the time edges (ns).
+    derived : dict
+        Derived radiative parameters (:func:`warpe_cl.radiative.radiative_parameters`).
+    attrs : dict
+        Provenance and configuration attributes.
+    """
+    import xarray as xr
+
+    edges = np.asarray(params.time_edges, dtype=float)
+    centres = np.sqrt(edges[:-1] * edges[1:]) if edges[0] > 0 else 0.5 * (edges[:-1] + edges[1:])
+    ct = ("component", "time")
+    ds = xr.Dataset(
+        {
+            "time_edges": ("time_edge", edges, {"units": "ns", "long_name": "time bin edges"}),
+            "reflectance": (ct, arrays["reflectance"], {
+                "units": "ns-1 sr-1",
+                "long_name": "rays of the component leaving inside its FOV, per launched ray, "
+                             "per sr, per ns (specular and bf_direct scaled by the roughness lobe)"}),
+            "reflectance_stderr": (ct, arrays["reflectance_stderr"], {
+                "units": "ns-1 sr-1", "long_name": "Poisson standard error of reflectance"}),
+            "ray_count": (ct, arrays["ray_count"], {"units": "1", "long_name": "rays behind reflectance"}),
+            "undersampled": (ct, arrays["undersampled"], {
+                "long_name": "ray_count < min_rays (specular exempt)"}),
+            "hemispherical_reflectance": (ct, arrays["hemispherical_reflectance"], {
+                "units": "ns-1", "long_name": "rays of the component leaving at any angle, per "
+                                              "launched ray, per ns"}),
+            "fraction": ("component", arrays["fraction"], {
+                "units": "1", "long_name": "rays of the component leaving at any angle and time, "
+                                          "per launched ray"}),
+            "solid_angle": ("component", arrays["omega_sr"], {
+                "units": "sr", "long_name": "solid angle that reflectance is divided by"}),
+            "fate_fraction": ("fate", arrays["fate_fraction"], {
+                "units": "1", "long_name": "launched rays by fate (sums to 1)"}),
+            "angular_reflectance": (("component", "emergence"), arrays["angular_reflectance"], {
+                "units": "sr-1", "long_name": "time-integrated azimuth-averaged bidirectional "
+                                              "reflectance, per 1 degree emergence bin"}),
+            "photons": ((), np.int64(counts.photons), {"units": "1", "long_name": "rays launched"}),
+            "scattering_events": ((), np.int64(counts.scattering_events), {
+                "units": "1", "long_name": "volume scattering events over all rays"}),
+            "mixed_history_fraction": ((), counts.mixed_history / counts.photons, {
+                "units": "1", "long_name": "exits with both a volume scattering and a floor "
+                                          "reflection (where the history and time-window rules "
+                                          "can disagree), per launched ray"}),
+        },
+        coords={
+            "time": ("time", centres, {"units": "ns", "long_name": "bin centre (geometric mean "
+                                                                 "of the edges)"}),
+            "component": ("component", list(COMPONENTS)),
+            "fate": ("fate", list(FATES)),
+            "emergence": ("emergence", np.arange(N_EMERGENCE) + 0.5, {
+                "units": "deg", "long_name": "emergence angle in vacuum, bin centre"}),
+        },
+    )
+    ds.attrs.update({k: derived[k] for k in DERIVED if k in derived})
+    ds.attrs.update(attrs)
+    return ds
+
+
+def provenance(extra: dict | None = None) -> dict:
+    """Attributes every output file carries: versions, host, time, command line."""
+    import numpy
+    out = {
+        "warpe_cl_version": package_version(),
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "python_version": sys.version.split()[0],
+        "numpy_version": numpy.__version__,
+        "host": _platform.node(),
+        "command": " ".join(sys.argv),
+        "Conventions": "CF-1.8",
+    }
+    try:
+        import pyopencl
+        out["pyopencl_version"] = pyopencl.VERSION_TEXT
+    except Exception:  # noqa: BLE001 - pyopencl missing: the numpy engine still works
+        pass
+    if extra:
+        out.update(extra)
+    return out
+
+
+def combine_scenarios(datasets: list, points: list):
+    """Stack scenario Datasets along ``scenario``, with the swept values as coordinates and the
+    per-scenario derived parameters (tau0, omega, ...) as variables."""
+    import xarray as xr
+
+    per_scenario = {k: [ds.attrs.get(k) for ds in datasets] for k in DERIVED}
+    varying_attrs = {k for ds in datasets for k in ds.attrs
+                     if any(d.attrs.get(k) != ds.attrs.get(k) for d in datasets)}
+    stripped = [ds.drop_attrs() if hasattr(ds, "drop_attrs") else ds.copy(data=None)
+                for ds in datasets]
+    for ds in stripped:
+        ds.attrs = {}
+    out = xr.concat(stripped, dim="scenario")
+    common = {k: v for k, v in datasets[0].attrs.items()
+              if k not in varying_attrs and k not in DERIVED}
+    out.attrs.update(common)
+    for k, values in per_scenario.items():
+        if all(v is not None for v in values):
+            out[k] = ("scenario", np.asarray(values, dtype=float))
+    out["wall_time"] = ("scenario", np.array([float(d["wall_time"]) for d in datasets]),
+                        {"units": "s"})
+    for key in points[0]:
+        values = [p[key] for p in points]
+        out = out.assign_coords({key: ("scenario", np.asarray([str(v) for v in values]))})
+    out = out.assign_coords(scenario=np.arange(len(datasets)))
+    return out
+
+
+def write_netcdf(ds, path) -> Path:
+    """Write ``ds`` as NetCDF-4 (h5netcdf) atomically: a temporary file in the same folder,
+    renamed over ``path`` only once complete, so a crash never leaves a partial file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        ds.to_netcdf(tmp, engine="h5netcdf", invalid_netcdf=False)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path

@@ -1,0 +1,168 @@
+"""The plain values a walk needs: :class:`WalkParams` (input) and :class:`Counts` (output).
+
+Both the OpenCL engine (:mod:`warpe_cl.engine`) and the NumPy reference
+(:mod:`warpe_cl.reference`) take a :class:`WalkParams` and return a :class:`Counts`; the
+rules that connect the two are written out in ``docs/walk.md``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: speed of light in vacuum, m/ns
+C_M_PER_NS = 0.299792458
+
+COMPONENTS = ("specular", "bf_direct", "bf_diffuse", "scattering")
+FATES = ("specular", "escaped", "absorbed_medium", "absorbed_floor", "terminated")
+N_EMERGENCE = 90  # 1-degree emergence bins, 0..90 deg
+TEXTURES = ("slab", "granular")
+BOTTOM_INTERFACES = ("fresnel", "none")
+RULES = ("history", "time_window")
+
+
+@dataclass(frozen=True)
+class WalkParams:
+    """Everything one scenario's random walk depends on (docs/walk.md §1).
+
+    Parameters
+    ----------
+    texture : {"slab", "granular"}
+    bottom_interface : {"fresnel", "none"}
+        Slab only; granular media always behave as ``"none"``.
+    thickness : float
+        Layer thickness h, m.
+    extinction : float
+        Volume extinction coefficient E = tau0 / h, m^-1 (0: no extinction).
+    omega : float
+        Single-scattering albedo of the medium.
+    g : float
+        Henyey-Greenstein asymmetry parameter.
+    n, k : float
+        Effective refractive index (real, imaginary).
+    albedo : float
+        Lambertian albedo A of the floor.
+    max_time : float
+        Rays still inside after this time are terminated, ns.
+    max_flights : int
+        Safety cap on free flights per ray.
+    time_edges : numpy.ndarray
+        Increasing time-bin edges, ns.
+    fov : tuple of 4 floats
+        Field of view per component (specular, bf_direct, bf_diffuse, scattering), degrees;
+        90 or more means any angle.
+    rule : {"history", "time_window"}
+        How diffuse exits are split between ``bf_diffuse`` and ``scattering``.
+    seed, scenario : int
+        Philox key words (uint32 each).
+    """
+
+    texture: str
+    thickness: float
+    extinction: float
+    omega: float
+    g: float
+    n: float
+    k: float
+    albedo: float
+    time_edges: np.ndarray
+    bottom_interface: str = "fresnel"
+    max_time: float | None = None
+    max_flights: int = 1_000_000
+    fov: tuple = (90.0, 90.0, 3.0, 12.0)
+    rule: str = "history"
+    seed: int = 1
+    scenario: int = 0
+
+    @property
+    def path_cap(self) -> float:
+        """Path-length cap L_max = max_time * c / n, m."""
+        t = self.max_time if self.max_time is not None else float(self.time_edges[-1])
+        return t * C_M_PER_NS / self.n
+
+    @property
+    def first_bf_time(self) -> float:
+        """First back-and-forth time t1 = 2 h n / c, ns (physics.md §5.7)."""
+        return 2.0 * self.thickness * self.n / C_M_PER_NS
+
+    @property
+    def cos_fov(self) -> np.ndarray:
+        """cos of each component's field of view; -1 for 'any angle' (fov >= 90 deg)."""
+        f = np.asarray(self.fov, dtype=float)
+        return np.where(f >= 90.0, -1.0, np.cos(np.radians(f)))
+
+
+def _zeros(*shape):
+    return np.zeros(shape, dtype=np.int64)
+
+
+@dataclass
+class Counts:
+    """Integer tallies of a walk (docs/walk.md §4). All counts are int64.
+
+    Attributes
+    ----------
+    photons : int
+        Rays launched.
+    time_in_fov, time_any : numpy.ndarray, shape (4, n_time)
+        Exits per component and time bin, inside the component's FOV / at any angle.
+    angular : numpy.ndarray, shape (4, 90)
+        Exits per component and 1-degree emergence bin, any time.
+    total : numpy.ndarray, shape (4,)
+        Exits per component, any angle, any time.
+    fates : numpy.ndarray, shape (5,)
+        Rays per fate, in the order of :data:`FATES`; sums to ``photons``.
+    scattering_events : int
+        Volume scatterings over all rays.
+    mixed_history : int
+        Exits with both a volume scattering and a floor reflection in their history.
+    records : dict of numpy.ndarray or None
+        Per-photon records (fate, component, time_ns, cos_exit, n_scat, n_lamb, n_bspec,
+        n_top, time_bin, emergence_bin) when asked for; component is -1 for rays that did not exit.
+    """
+
+    n_time: int
+    photons: int = 0
+    time_in_fov: np.ndarray = None
+    time_any: np.ndarray = None
+    angular: np.ndarray = None
+    total: np.ndarray = None
+    fates: np.ndarray = None
+    scattering_events: int = 0
+    mixed_history: int = 0
+    records: dict | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        if self.time_in_fov is None:
+            self.time_in_fov = _zeros(4, self.n_time)
+        if self.time_any is None:
+            self.time_any = _zeros(4, self.n_time)
+        if self.angular is None:
+            self.angular = _zeros(4, N_EMERGENCE)
+        if self.total is None:
+            self.total = _zeros(4)
+        if self.fates is None:
+            self.fates = _zeros(len(FATES))
+
+    def __iadd__(self, other: "Counts") -> "Counts":
+        """Add another batch's counts (records are concatenated)."""
+        self.photons += other.photons
+        for name in ("time_in_fov", "time_any", "angular", "total", "fates"):
+            getattr(self, name)[...] += getattr(other, name)
+        self.scattering_events += other.scattering_events
+        self.mixed_history += other.mixed_history
+        if other.records is not None:
+            if self.records is None:
+                self.records = {k: v.copy() for k, v in other.records.items()}
+            else:
+                self.records = {k: np.concatenate([self.records[k], other.records[k]])
+                                for k in self.records}
+        return self
+
+    def same_as(self, other: "Counts") -> bool:
+        """True when every tally (not the records) is identical."""
+        return (self.photons == other.photons
+                and all(np.array_equal(getattr(self, n), getattr(other, n))
+                        for n in ("time_in_fov", "time_any", "angular", "total", "fates"))
+                and self.scattering_events == other.scattering_events
+                and self.mixed_history == other.mixed_history)

@@ -1,0 +1,33 @@
+"""The bundled presets (``presets/`` of the repository, installed as ``warpe_cl.presets``)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def presets_dir() -> Path:
+    """Folder of the bundled presets (installed package data, or ``presets/`` of a checkout)."""
+    try:
+        from importlib.resources import files
+        path = Path(str(files("warpe_cl.presets")))
+        if path.is_dir() and any(path.rglob("*.yaml")):
+            return path
+    except (ImportError, ModuleNotFoundError, TypeError):
+        pass
+    return Path(__file__).resolve().parent.parent / "presets"
+
+
+def bundled_presets() -> dict:
+    """``{name: path}`` for every bundled preset, name = path below the folder without ``.yaml``."""
+    root = presets_dir()
+    return {str(p.relative_to(root).with_suffix("")): p for p in sorted(root.rglob("*.yaml"))}
+
+
+def resolve_preset(text: str) -> Path:
+    """A preset argument as a path: an existing file, else a bundled preset's name
+    (``radiative/slab_co2_1m``, with or without ``presets/`` and ``.yaml``). Unknown names are
+    returned unchanged, so that loading reports the missing file."""
+    path = Path(text)
+    if path.is_file():
+        return path
+    name = text.removeprefix("presets/").removesuffix(".yaml")
+    return bundled_presets().get(name, path)

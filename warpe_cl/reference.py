@@ -1,0 +1,557 @@
+"""The NumPy reference walk: docs/walk.md written out literally, one photon at a time.
+
+This module is the second, independent implementation of ``docs/walk.md`` (the first is the
+OpenCL kernel). It shares no code with the kernel or its host driver: only the random streams
+(:mod:`warpe_cl.rng`) and the plain input/output values (:mod:`warpe_cl.params`). Because it
+consumes each photon's draws in exactly the order the contract fixes, a kernel run and a
+reference run with the same seed follow the same rays through the same events, which is what
+the per-photon parity tests compare. It is also the slow fallback engine (``--device numpy``).
+
+Reading guide
+-------------
+* :func:`walk_ray` is the whole random walk of one ray (walk.md §3), in the order of the
+  contract, and returns what happened to it;
+* :func:`simulate_reference` launches the photons, classifies every exit into a component and
+  fills the tallies of walk.md §4;
+* the physics helpers are the Fresnel reflectances (walk.md §3.3; physics.md §3.4, §3.5), the
+  Henyey–Greenstein deflection and the MCML direction update (physics.md §5.4).
+
+Everything inside the per-photon loop is plain Python floats and :mod:`math` / :mod:`cmath`
+calls (no NumPy scalars), for speed. Lengths are in metres, times in nanoseconds.
+
+Two guards against rounding appear below and change nothing in exact arithmetic: sin² terms
+computed as 1 − cos² are clamped at 0 before a square root (a direction cosine can exceed 1 by
+an ulp after many rotations), and the emergence angle takes acos(min(cos θ_e, 1)).
+
+Examples
+--------
+>>> import numpy as np
+>>> from warpe_cl.params import WalkParams
+>>> params = WalkParams(texture="slab", thickness=1.0, extinction=0.01, omega=0.0, g=0.8,
+...                     n=1.4026, k=0.0, albedo=0.15, time_edges=np.linspace(0, 20, 41))
+>>> counts = simulate_reference(params, photons=200)
+>>> int(counts.fates.sum())
+200
+"""
+from __future__ import annotations
+
+import bisect
+import cmath
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, N_EMERGENCE, RULES,
+                     TEXTURES, Counts, WalkParams)
+from .rng import PhotonStream
+
+__all__ = ["simulate_reference", "walk_ray", "RayOutcome", "normal_incidence_reflectance",
+           "external_reflectance", "internal_reflectance", "henyey_greenstein_cosine",
+           "rotate_direction", "RECORD_FIELDS"]
+
+# Component and fate indices (walk.md §4).
+SPECULAR, BF_DIRECT, BF_DIFFUSE, SCATTERING = (COMPONENTS.index(name) for name in (
+    "specular", "bf_direct", "bf_diffuse", "scattering"))
+FATE_SPECULAR, FATE_ESCAPED, FATE_ABSORBED_MEDIUM, FATE_ABSORBED_FLOOR, FATE_TERMINATED = (
+    FATES.index(name) for name in (
+        "specular", "escaped", "absorbed_medium", "absorbed_floor", "terminated"))
+
+#: Per-photon record fields and their dtypes (``Counts.records`` when asked for).
+RECORD_FIELDS = {
+    "fate": np.int8,            # index into FATES
+    "component": np.int8,       # index into COMPONENTS, -1 if the ray did not exit
+    "time_ns": np.float64,      # exit time, ns (0 for specular, NaN if not exited)
+    "cos_exit": np.float64,     # cos of the emergence angle in vacuum (NaN if not exited)
+    "n_scat": np.int64,         # volume scatterings
+    "n_lamb": np.int64,         # floor (Lambertian) reflections
+    "n_bspec": np.int64,        # specular reflections at the bottom interface
+    "n_top": np.int64,          # internal reflections at the top
+    "time_bin": np.int64,       # -1 if no time bin or not exited
+    "emergence_bin": np.int64,  # 1-degree bin, -1 if not exited
+}
+
+TWO_PI = 2.0 * math.pi
+
+
+# --------------------------------------------------------------------------------------------
+# Physics helpers
+# --------------------------------------------------------------------------------------------
+
+def normal_incidence_reflectance(n: float, k: float) -> float:
+    """R0 = ((n − 1)² + k²)/((n + 1)² + k²), vacuum onto (n, k) at normal incidence (walk.md §3.2).
+
+    Parameters
+    ----------
+    n, k : float
+        Real and imaginary parts of the index (dimensionless).
+
+    Returns
+    -------
+    float
+        Reflectance (dimensionless).
+    """
+    return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
+
+
+def external_reflectance(mu: float, n: float, k: float) -> float:
+    """R_ext(μ; n, k): unpolarised Fresnel reflectance from vacuum into the complex index n + ik.
+
+    Deliberately computed by plain complex arithmetic (complex Snell's law and the Fresnel
+    amplitudes), not by Hapke's G1/G2 form of physics.md §3.4 that the kernel uses, so the two
+    implementations cross-check each other.
+
+    Parameters
+    ----------
+    mu : float
+        Cosine of the incidence angle in vacuum, in [0, 1].
+    n, k : float
+        Real and imaginary parts of the index of the medium (k ≥ 0).
+
+    Returns
+    -------
+    float
+        (|r_s|² + |r_p|²)/2 (dimensionless).
+
+    Notes
+    -----
+    With m = n + ik, complex Snell gives cos θ_t = sqrt(1 − sin²θ/m²) (principal root). For
+    k ≥ 0, both m and cos θ_t lie in the first quadrant, so m cos θ_t = sqrt(m² − sin²θ) is the
+    root with non-negative real and imaginary parts: the transmitted wave decays into the medium
+    and no branch choice is needed.
+    """
+    m = complex(n, k)
+    sin_sq = max(0.0, 1.0 - mu * mu)
+    cos_t = cmath.sqrt(1.0 - sin_sq / (m * m))
+    r_s = (mu - m * cos_t) / (mu + m * cos_t)
+    r_p = (m * mu - cos_t) / (m * mu + cos_t)
+    return 0.5 * (abs(r_s) ** 2 + abs(r_p) ** 2)
+
+
+def internal_reflectance(mu: float, n: float) -> float:
+    """R_int(μ): real-index Fresnel reflectance from inside the slab (index n) into vacuum.
+
+    walk.md §3.3, physics.md §3.5 and A12. Only called when there is no total internal
+    reflection, n·sqrt(1 − μ²) < 1.
+
+    Parameters
+    ----------
+    mu : float
+        Cosine of the incidence angle inside the slab, in (0, 1].
+    n : float
+        Real index of the slab.
+
+    Returns
+    -------
+    float
+        (r_s² + r_p²)/2 (dimensionless).
+    """
+    cos_t = math.sqrt(1.0 - n * n * max(0.0, 1.0 - mu * mu))
+    r_s = (n * mu - cos_t) / (n * mu + cos_t)
+    r_p = (mu - n * cos_t) / (mu + n * cos_t)
+    return 0.5 * (r_s * r_s + r_p * r_p)
+
+
+def henyey_greenstein_cosine(g: float, u: float) -> float:
+    """Deflection cosine cos Θ sampled from Henyey–Greenstein with asymmetry g (physics.md §5.4).
+
+    Parameters
+    ----------
+    g : float
+        Asymmetry parameter, in (−1, 1).
+    u : float
+        A uniform draw in (0, 1].
+
+    Returns
+    -------
+    float
+        cos Θ = [1 + g² − ((1 − g²)/(1 − g + 2gu))²]/(2g), or 2u − 1 when g = 0.
+    """
+    if g == 0.0:
+        return 2.0 * u - 1.0
+    ratio = (1.0 - g * g) / (1.0 - g + 2.0 * g * u)
+    return (1.0 + g * g - ratio * ratio) / (2.0 * g)
+
+
+def rotate_direction(ux: float, uy: float, uz: float, cos_theta: float, psi: float):
+    """Turn the direction u by the polar angle Θ and azimuth ψ (MCML; physics.md §5.4).
+
+    Parameters
+    ----------
+    ux, uy, uz : float
+        Current unit direction (uz > 0 is downwards).
+    cos_theta : float
+        Cosine of the deflection angle Θ.
+    psi : float
+        Azimuth of the deflection, rad.
+
+    Returns
+    -------
+    tuple of 3 floats
+        The new direction (ux', uy', uz').
+    """
+    sin_theta = math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta))
+    cos_psi = math.cos(psi)
+    sin_psi = math.sin(psi)
+    if abs(uz) > 0.99999:
+        # Nearly vertical: u' = (sinΘ cosψ, sinΘ sinψ, sign(uz) cosΘ).
+        return (sin_theta * cos_psi, sin_theta * sin_psi, cos_theta if uz > 0.0 else -cos_theta)
+    d = math.sqrt(1.0 - uz * uz)
+    return (sin_theta * (ux * uz * cos_psi - uy * sin_psi) / d + ux * cos_theta,
+            sin_theta * (uy * uz * cos_psi + ux * sin_psi) / d + uy * cos_theta,
+            -sin_theta * cos_psi * d + uz * cos_theta)
+
+
+# --------------------------------------------------------------------------------------------
+# One ray (walk.md §3)
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _WalkConstants:
+    """The numbers one ray's walk needs, as plain Python floats (walk.md §1)."""
+
+    is_slab: bool
+    fresnel_bottom: bool  # slab with a Fresnel interface above the floor (physics.md §5.5)
+    thickness: float      # h, m
+    extinction: float     # E, 1/m (0: infinite free flight)
+    omega: float          # single-scattering albedo
+    g: float              # Henyey–Greenstein asymmetry
+    n: float              # effective index (real part)
+    k: float              # effective index (imaginary part)
+    albedo: float         # Lambertian albedo A of the floor
+    path_cap: float       # L_max, m
+    max_flights: int      # safety cap on free flights
+    entry_reflectance: float  # R0, walk.md §3.2
+
+    @classmethod
+    def from_params(cls, params: WalkParams) -> "_WalkConstants":
+        is_slab = params.texture == "slab"
+        return cls(is_slab=is_slab,
+                   fresnel_bottom=is_slab and params.bottom_interface == "fresnel",
+                   thickness=float(params.thickness), extinction=float(params.extinction),
+                   omega=float(params.omega), g=float(params.g), n=float(params.n),
+                   k=float(params.k), albedo=float(params.albedo),
+                   path_cap=float(params.path_cap), max_flights=int(params.max_flights),
+                   entry_reflectance=normal_incidence_reflectance(float(params.n),
+                                                                  float(params.k)))
+
+
+class RayOutcome(NamedTuple):
+    """What happened to one ray.
+
+    Attributes
+    ----------
+    fate : int
+        Index into :data:`warpe_cl.params.FATES`.
+    cos_exit : float
+        cos θ_e in vacuum (1 for specular; NaN if the ray did not exit).
+    path_length : float
+        Path length L inside the medium, m (0 for specular).
+    n_scat, n_lamb, n_bspec, n_top : int
+        Volume scatterings, floor reflections, bottom specular reflections, top internal
+        reflections.
+    """
+
+    fate: int
+    cos_exit: float
+    path_length: float
+    n_scat: int
+    n_lamb: int
+    n_bspec: int
+    n_top: int
+
+
+def walk_ray(walk: _WalkConstants, uniform) -> RayOutcome:
+    """Walk one ray from launch to its fate, exactly as docs/walk.md §3 says.
+
+    Parameters
+    ----------
+    walk : _WalkConstants
+        The walk's constants (see :func:`simulate_reference`).
+    uniform : callable
+        Returns the ray's next uniform draw in (0, 1] (``PhotonStream.uniform``).
+
+    Returns
+    -------
+    RayOutcome
+    """
+    h = walk.thickness
+    extinction = walk.extinction
+    omega = walk.omega
+    g = walk.g
+    n = walk.n
+    k = walk.k
+    albedo = walk.albedo
+    path_cap = walk.path_cap
+    max_flights = walk.max_flights
+    nan = math.nan
+
+    # 1. Launch (physics.md §5.1): top of the layer, straight down, no path, no events.
+    z = 0.0
+    ux, uy, uz = 0.0, 0.0, 1.0
+    path = 0.0
+    n_scat = n_lamb = n_bspec = n_top = 0
+
+    # 2. Entry (physics.md §5.2). Slab: one draw decides the specular reflection.
+    #    "An event of probability P happens iff U <= P" (walk.md §2).
+    if walk.is_slab:
+        if uniform() <= walk.entry_reflectance:
+            return RayOutcome(FATE_SPECULAR, 1.0, 0.0, 0, 0, 0, 0)
+    # Granular: no interface and no draw; the ray enters.
+
+    # 3. Loop over free flights.
+    flights = 0
+    while True:
+        # 3.1 Safety cap on the number of flights.
+        if flights == max_flights:
+            return RayOutcome(FATE_TERMINATED, nan, path, n_scat, n_lamb, n_bspec, n_top)
+        flights += 1
+
+        # 3.2 Free flight (physics.md §5.3): optical step −ln U, physical step ℓ/E.
+        optical_step = -math.log(uniform())
+        step = optical_step / extinction if extinction > 0.0 else math.inf
+
+        # 3.3 Distance to the boundary the ray is heading for.
+        if uz > 0.0:
+            to_boundary = (h - z) / uz
+        elif uz < 0.0:
+            to_boundary = -z / uz
+        else:
+            to_boundary = math.inf
+
+        if step < to_boundary:
+            # 3.4 Collision: move, check the path cap, then scatter or be absorbed.
+            z += step * uz
+            path += step
+            if path > path_cap:
+                return RayOutcome(FATE_TERMINATED, nan, path, n_scat, n_lamb, n_bspec, n_top)
+            if uniform() <= omega:
+                n_scat += 1
+                cos_theta = henyey_greenstein_cosine(g, uniform())
+                psi = TWO_PI * uniform()
+                ux, uy, uz = rotate_direction(ux, uy, uz, cos_theta, psi)
+                continue
+            return RayOutcome(FATE_ABSORBED_MEDIUM, nan, path, n_scat, n_lamb, n_bspec, n_top)
+
+        # 3.5 Boundary: move onto it, check the path cap, then apply its rule.
+        #     (uz == 0 gives an infinite distance, so the path cap has already stopped it.)
+        z = h if uz > 0.0 else 0.0
+        path += to_boundary
+        if path > path_cap:
+            return RayOutcome(FATE_TERMINATED, nan, path, n_scat, n_lamb, n_bspec, n_top)
+
+        if uz > 0.0:
+            # 3.1 (walk.md) Bottom boundary.
+            if walk.fresnel_bottom:
+                # Slab over a vacuum gap over the floor (physics.md §5.5).
+                mu = uz
+                total_internal = n * math.sqrt(max(0.0, 1.0 - mu * mu)) >= 1.0
+                # TIR is decided before any draw; only a partial reflection draws.
+                if total_internal or uniform() <= internal_reflectance(mu, n):
+                    uz = -uz
+                    n_bspec += 1
+                    continue
+                # The ray crosses into the gap: the floor loop (no path length in the gap).
+                while True:
+                    # (1) the floor absorbs with probability 1 − A
+                    if uniform() > albedo:
+                        return RayOutcome(FATE_ABSORBED_FLOOR, nan, path,
+                                          n_scat, n_lamb, n_bspec, n_top)
+                    # (2) Lambertian reflection into vacuum: μ_v = sqrt(U), ψ = 2πU
+                    n_lamb += 1
+                    mu_vacuum = math.sqrt(uniform())
+                    psi = TWO_PI * uniform()
+                    # (3) the slab's lower face reflects it back to the floor, or it refracts in
+                    if uniform() <= external_reflectance(mu_vacuum, n, k):
+                        continue
+                    sin_slab = math.sqrt(1.0 - mu_vacuum * mu_vacuum) / n
+                    ux = sin_slab * math.cos(psi)
+                    uy = sin_slab * math.sin(psi)
+                    uz = -math.sqrt(1.0 - sin_slab * sin_slab)
+                    break
+            else:
+                # Floor in contact with the medium (slab "none", granular): bare Lambertian.
+                if uniform() > albedo:
+                    return RayOutcome(FATE_ABSORBED_FLOOR, nan, path,
+                                      n_scat, n_lamb, n_bspec, n_top)
+                n_lamb += 1
+                mu = math.sqrt(uniform())
+                psi = TWO_PI * uniform()
+                sin_floor = math.sqrt(1.0 - mu * mu)
+                ux = sin_floor * math.cos(psi)
+                uy = sin_floor * math.sin(psi)
+                uz = -mu
+            continue
+
+        # 3.2 (walk.md) Top boundary, reached from inside.
+        if walk.is_slab:
+            # physics.md §5.6: TIR, else a Fresnel draw; a reflection sends the ray back down.
+            mu = -uz
+            sin_sq = max(0.0, 1.0 - mu * mu)
+            total_internal = n * math.sqrt(sin_sq) >= 1.0
+            if total_internal or uniform() <= internal_reflectance(mu, n):
+                uz = -uz
+                n_top += 1
+                continue
+            cos_exit = math.sqrt(1.0 - n * n * sin_sq)  # Snell: sin θ_e = n sin θ
+        else:
+            cos_exit = -uz  # granular: no interface
+        return RayOutcome(FATE_ESCAPED, cos_exit, path, n_scat, n_lamb, n_bspec, n_top)
+
+
+# --------------------------------------------------------------------------------------------
+# Many rays and the tallies (walk.md §4)
+# --------------------------------------------------------------------------------------------
+
+def _check_params(params: WalkParams) -> np.ndarray:
+    """Validate what the reference relies on; return the time edges as float64."""
+    if params.texture not in TEXTURES:
+        raise ValueError(f"texture must be one of {TEXTURES}, got {params.texture!r}")
+    if params.bottom_interface not in BOTTOM_INTERFACES:
+        raise ValueError(f"bottom_interface must be one of {BOTTOM_INTERFACES}, "
+                         f"got {params.bottom_interface!r}")
+    if params.rule not in RULES:
+        raise ValueError(f"rule must be one of {RULES}, got {params.rule!r}")
+    edges = np.asarray(params.time_edges, dtype=np.float64)
+    if edges.ndim != 1 or len(edges) < 2 or not np.all(np.diff(edges) > 0):
+        raise ValueError("time_edges (ns) must be a 1-D increasing array of at least 2 edges")
+    if not params.thickness > 0:
+        raise ValueError(f"thickness must be > 0 m, got {params.thickness}")
+    if not params.extinction >= 0:
+        raise ValueError(f"extinction must be >= 0 1/m, got {params.extinction}")
+    return edges
+
+
+def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
+                       records: bool = False, progress=None) -> Counts:
+    """Walk photons ``first_photon .. first_photon + photons − 1`` and tally them (walk.md).
+
+    Parameters
+    ----------
+    params : WalkParams
+        The scenario (docs/walk.md §1).
+    photons : int
+        Number of rays.
+    first_photon : int, optional
+        Index of the first ray; photon p always draws from counter (block, p_lo, p_hi, 0), so
+        splitting a run into calls changes nothing.
+    records : bool, optional
+        Also return per-photon records in ``Counts.records`` (see :data:`RECORD_FIELDS`).
+    progress : callable, optional
+        Called as ``progress(n_done)`` every 1000 photons and at the end.
+
+    Returns
+    -------
+    Counts
+        All tallies of walk.md §4; ``n_time = len(time_edges) − 1``.
+    """
+    edges_array = _check_params(params)
+    edges = edges_array.tolist()
+    n_time = len(edges) - 1
+    walk = _WalkConstants.from_params(params)
+    cos_fov = [float(c) for c in params.cos_fov]
+    use_history_rule = params.rule == "history"
+    first_bf_time = float(params.first_bf_time)  # t1 = 2 h n / c, ns
+    ns_per_metre = walk.n / C_M_PER_NS           # t = L n / c
+
+    counts = Counts(n_time=n_time, photons=int(photons))
+    fates = [0] * len(FATES)
+    total = [0] * len(COMPONENTS)
+    angular = [[0] * N_EMERGENCE for _ in COMPONENTS]
+    time_any = [[0] * n_time for _ in COMPONENTS]
+    time_in_fov = [[0] * n_time for _ in COMPONENTS]
+    scattering_events = 0
+    mixed_history = 0
+    rows = {name: [] for name in RECORD_FIELDS} if records else None
+
+    batch = 1000
+    done = 0
+    while done < photons:
+        streams = PhotonStream.many(params.seed, params.scenario, first_photon + done,
+                                    min(batch, photons - done), precision="double")
+        for stream in streams:
+            ray = walk_ray(walk, stream.uniform)
+            fates[ray.fate] += 1
+            scattering_events += ray.n_scat
+            component = -1
+            time_ns = math.nan
+            time_bin = -1
+            emergence_bin = -1
+            if ray.fate == FATE_SPECULAR or ray.fate == FATE_ESCAPED:
+                # Component of the exit (walk.md §4, physics.md §6.1).
+                if ray.fate == FATE_SPECULAR:
+                    component = SPECULAR
+                    time_ns = 0.0
+                else:
+                    time_ns = ray.path_length * ns_per_metre
+                    if ray.n_scat == 0 and ray.n_lamb == 0:
+                        component = BF_DIRECT
+                    elif use_history_rule:
+                        component = BF_DIFFUSE if ray.n_lamb >= 1 else SCATTERING
+                    else:
+                        component = BF_DIFFUSE if time_ns >= first_bf_time else SCATTERING
+                    if ray.n_scat >= 1 and ray.n_lamb >= 1:
+                        mixed_history += 1
+                # Emergence bin: min(floor(θ_e in degrees), 89).
+                theta_degrees = math.degrees(math.acos(min(ray.cos_exit, 1.0)))
+                emergence_bin = min(int(math.floor(theta_degrees)), N_EMERGENCE - 1)
+                # Time bin i with edges[i] <= t < edges[i+1]; before edges[0]: bin 0;
+                # at or after edges[-1]: no bin (same as searchsorted(side="right") - 1).
+                time_bin = bisect.bisect_right(edges, time_ns) - 1
+                if time_bin < 0:
+                    time_bin = 0
+                elif time_bin >= n_time:
+                    time_bin = -1
+                total[component] += 1
+                angular[component][emergence_bin] += 1
+                if time_bin >= 0:
+                    time_any[component][time_bin] += 1
+                    if ray.cos_exit >= cos_fov[component]:
+                        time_in_fov[component][time_bin] += 1
+            if rows is not None:
+                rows["fate"].append(ray.fate)
+                rows["component"].append(component)
+                rows["time_ns"].append(time_ns)
+                rows["cos_exit"].append(ray.cos_exit)
+                rows["n_scat"].append(ray.n_scat)
+                rows["n_lamb"].append(ray.n_lamb)
+                rows["n_bspec"].append(ray.n_bspec)
+                rows["n_top"].append(ray.n_top)
+                rows["time_bin"].append(time_bin)
+                rows["emergence_bin"].append(emergence_bin)
+        done += len(streams)
+        if progress is not None:
+            progress(done)
+
+    counts.fates[:] = fates
+    counts.total[:] = total
+    counts.angular[:] = angular
+    counts.time_any[:] = time_any
+    counts.time_in_fov[:] = time_in_fov
+    counts.scattering_events = int(scattering_events)
+    counts.mixed_history = int(mixed_history)
+    if rows is not None:
+        counts.records = {name: np.asarray(values, dtype=dtype)
+                          for (name, values), dtype in zip(rows.items(),
+                                                           RECORD_FIELDS.values())}
+    return counts
+
+
+class ReferenceEngine:
+    """The reference walk behind the engine interface: ``--device numpy``, no OpenCL needed.
+
+    Always double precision; slow (about 1e5 photons/s for an optically thin layer on one
+    core), meant for checks and for machines without any OpenCL driver.
+    """
+
+    name = "numpy"
+    kernel_hash = ""
+    provenance = {"opencl_platform": "none", "opencl_device": "numpy reference walk",
+                  "opencl_driver": "none", "opencl_device_type": "none"}
+
+    def run(self, params: WalkParams, photons: int, precision: str = "double",
+            first_photon: int = 0, records: bool = False, progress=None, **_launch) -> Counts:
+        """Walk ``photons`` rays from ``first_photon`` (launch options are ignored)."""
+        return simulate_reference(params, photons, first_photon=first_photon, records=records,
+                                  progress=progress)

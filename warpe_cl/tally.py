@@ -1,0 +1,97 @@
+"""From integer counts to physical quantities: the normalisations of physics.md §7.
+
+Nothing here knows how the counts were made (OpenCL engine or NumPy reference).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .params import COMPONENTS, Counts, N_EMERGENCE, WalkParams
+
+SPECULAR_LIKE = (0, 1)   # specular, bf_direct: delta functions in angle, scaled by the lobe
+DIFFUSE = (2, 3)         # bf_diffuse, scattering: counted inside their numerical FOV
+
+
+def fov_solid_angle(fov_deg: float, convention: str = "cone") -> float:
+    """Solid angle of a numerical field of view, sr (physics.md §7.1, A10).
+
+    ``cone``: 2π(1 − cos θ) (0.0086106 sr at 3°, 0.137303 sr at 12°);
+    ``projected``: π sin²θ, with which a Lambertian surface reads exactly A/π.
+    """
+    theta = np.radians(fov_deg)
+    if convention == "projected":
+        return float(np.pi * np.sin(theta) ** 2)
+    return float(2.0 * np.pi * (1.0 - np.cos(theta)))
+
+
+def lobe_solid_angle(lobe_deg: float) -> float:
+    """Ω_lobe = π tan²(θ_L), sr: the specular scaling of physics.md §7.3.
+
+    The seed's peak height R = N_spec·r_ap/(N·Ω·Δt), with r_ap = (A_r/2)²/(H tan θ_L)² and Ω the
+    receiver's solid angle π(A_r/2)²/H² seen from the ground, is F/(Ω_lobe·Δt): the altitude H
+    and the aperture A_r cancel (physics.md A9). 5.98e-5 sr for θ_L = 0.25°.
+    """
+    return float(np.pi * np.tan(np.radians(lobe_deg)) ** 2)
+
+
+def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "cone",
+                  specular_lobe: float = 0.25, min_rays: int = 3) -> dict:
+    """The output variables of interface.md §5 as NumPy arrays.
+
+    Parameters
+    ----------
+    counts : Counts
+    params : WalkParams
+        For the time edges (ns) and the FOV of each component (deg).
+    solid_angle : {"cone", "projected"}
+        FOV normalisation of the diffuse components.
+    specular_lobe : float
+        Half-angle of the roughness lobe that scales specular and BF-direct, deg.
+    min_rays : int
+        Bins with fewer rays are flagged ``undersampled`` (specular exempt).
+
+    Returns
+    -------
+    dict
+        ``reflectance`` and ``reflectance_stderr`` (4, n_time) ns⁻¹ sr⁻¹; ``ray_count`` (4, n_time);
+        ``undersampled`` (4, n_time) bool; ``hemispherical_reflectance`` (4, n_time) ns⁻¹;
+        ``fraction`` (4,); ``fate_fraction`` (5,); ``angular_reflectance`` (4, 90) sr⁻¹;
+        ``omega_sr`` (4,), the solid angle each component is divided by.
+    """
+    n = counts.photons
+    if n <= 0:
+        raise ValueError("no photons were launched")
+    edges = np.asarray(params.time_edges, dtype=float)
+    width = np.diff(edges)
+    omega_sr = np.empty(4)
+    ray_count = np.empty_like(counts.time_any)
+    for c in SPECULAR_LIKE:
+        omega_sr[c] = lobe_solid_angle(specular_lobe)
+        ray_count[c] = counts.time_any[c]
+    for c in DIFFUSE:
+        omega_sr[c] = fov_solid_angle(params.fov[c], solid_angle)
+        ray_count[c] = counts.time_in_fov[c]
+    scale = 1.0 / (n * omega_sr[:, None] * width[None, :])
+    reflectance = ray_count * scale
+    stderr = np.sqrt(ray_count) * scale   # Poisson error of each bin's count
+    undersampled = ray_count < min_rays
+    undersampled[0] = False
+
+    e = np.radians(np.arange(N_EMERGENCE + 1, dtype=float))
+    band = np.pi * np.diff(np.sin(e) ** 2)      # ∫ cos e dΩ over each 1° ring
+    return {
+        "reflectance": reflectance,
+        "reflectance_stderr": stderr,
+        "ray_count": ray_count,
+        "undersampled": undersampled,
+        "hemispherical_reflectance": counts.time_any / (n * width[None, :]),
+        "fraction": counts.total / n,
+        "fate_fraction": counts.fates / n,
+        "angular_reflectance": counts.angular / (n * band[None, :]),
+        "omega_sr": omega_sr,
+    }
+
+
+def summary_fractions(counts: Counts) -> dict:
+    """Component fractions keyed by name, for printing."""
+    return {name: counts.total[i] / counts.photons for i, name in enumerate(COMPONENTS)}

@@ -1,0 +1,224 @@
+"""Quantities with a unit: ``"100 mm"``, ``"12.5 ns"``, ``"0.25 deg"``.
+
+Presets write every dimensioned value as a string with a unit; this module turns such a
+string into a float in the package's canonical unit and back:
+
+============  ==============  ===============================================
+dimension     canonical unit  accepted units
+============  ==============  ===============================================
+``length``    metre           m, cm, mm, um, µm, micron, nm, km
+``time``      nanosecond      s, ms, us, µs, ns, ps
+``angle``     degree          deg, degree, degrees, °, rad, mrad, urad, µrad
+============  ==============  ===============================================
+
+Units are case-sensitive (``Mm`` is not ``mm``). The number and the unit may be separated
+by spaces or not (``"500 km"``, ``"500km"``). A bare number is refused: the unit is what
+makes a preset readable, and guessing it is how a 100 mm layer becomes 100 m.
+
+>>> parse_quantity("200 um", "length")
+0.0002
+>>> parse_quantity("1e-6 ns", "time")
+1e-06
+>>> format_quantity(0.1, "length")
+'100 mm'
+
+This module imports nothing from the package.
+"""
+from __future__ import annotations
+
+import math
+import re
+
+__all__ = ["UnitError", "DIMENSIONS", "UNITS", "parse_quantity", "format_quantity",
+           "unit_list"]
+
+DIMENSIONS = ("length", "time", "angle")
+
+# Each unit is (power of ten, extra factor). Powers of ten are applied by an exact
+# multiplication or division by an integer power of ten, so that "100 um" gives exactly
+# the float 1e-4 and format_quantity round-trips.
+_RAD = 180.0 / math.pi
+UNITS: dict[str, dict[str, tuple[int, float]]] = {
+    "length": {  # -> metres
+        "m": (0, 1.0), "cm": (-2, 1.0), "mm": (-3, 1.0),
+        "um": (-6, 1.0), "µm": (-6, 1.0), "μm": (-6, 1.0),
+        "micron": (-6, 1.0), "microns": (-6, 1.0),
+        "nm": (-9, 1.0), "km": (3, 1.0),
+    },
+    "time": {  # -> nanoseconds
+        "s": (9, 1.0), "ms": (6, 1.0), "us": (3, 1.0), "µs": (3, 1.0), "μs": (3, 1.0),
+        "ns": (0, 1.0), "ps": (-3, 1.0),
+    },
+    "angle": {  # -> degrees
+        "deg": (0, 1.0), "degree": (0, 1.0), "degrees": (0, 1.0), "°": (0, 1.0),
+        "rad": (0, _RAD), "mrad": (-3, _RAD), "urad": (-6, _RAD),
+        "µrad": (-6, _RAD), "μrad": (-6, _RAD),
+    },
+}
+
+# Shown to users in error messages (aliases such as the Greek-letter mu are left out).
+_SHOWN = {
+    "length": ("m", "cm", "mm", "um", "µm", "micron", "nm", "km"),
+    "time": ("s", "ms", "us", "µs", "ns", "ps"),
+    "angle": ("deg", "degree(s)", "°", "rad", "mrad", "urad", "µrad"),
+}
+_ARTICLE = {"length": "a length", "time": "a time", "angle": "an angle"}
+
+_NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?"
+_QUANTITY = re.compile(rf"^\s*({_NUMBER})\s*(.*?)\s*$")
+
+
+class UnitError(ValueError):
+    """A quantity string that cannot be read as the expected dimension.
+
+    ``str(e)`` is a complete one-line sentence naming the value, the expected dimension and
+    the allowed units. The attribute ``problem`` holds only what is wrong (no unit list),
+    for callers that add their own advice.
+    """
+
+    def __init__(self, problem: str, dimension: str):
+        self.problem = problem
+        self.dimension = dimension
+        super().__init__(f"{problem}; give {_ARTICLE[dimension]} with a unit "
+                         f"({unit_list(dimension)})")
+
+
+def unit_list(dimension: str) -> str:
+    """The accepted units of ``dimension`` as a comma-separated string, for messages."""
+    _check_dimension(dimension)
+    return ", ".join(_SHOWN[dimension])
+
+
+def _check_dimension(dimension: str) -> None:
+    if dimension not in UNITS:
+        raise ValueError(f"unknown dimension {dimension!r}; expected one of "
+                         f"{', '.join(DIMENSIONS)}")
+
+
+def _scale(number: float, unit: str, dimension: str) -> float:
+    """``number`` in ``unit`` expressed in the canonical unit of ``dimension``."""
+    power, factor = UNITS[dimension][unit]
+    value = number * 10 ** power if power >= 0 else number / 10 ** -power
+    return value * factor if factor != 1.0 else value
+
+
+def parse_quantity(text, dimension: str) -> float:
+    """Read a string such as ``"100 mm"`` as a float in the canonical unit.
+
+    Parameters
+    ----------
+    text : str
+        A number followed by a unit, e.g. ``"100 mm"``, ``"1e-6 ns"``, ``"0.25°"``.
+    dimension : {"length", "time", "angle"}
+        What the quantity must be.
+
+    Returns
+    -------
+    float
+        The value in metres (length), nanoseconds (time) or degrees (angle). The sign is
+        kept; range checks are the caller's business.
+
+    Raises
+    ------
+    UnitError
+        For a bare number (``100``, ``"100"``), a unit of another dimension (``"12 deg"``
+        for a length), an unknown unit, a non-finite number or anything that is not a string.
+
+    Examples
+    --------
+    >>> parse_quantity("500 km", "length")
+    500000.0
+    >>> parse_quantity("12.5 ns", "time")
+    12.5
+    >>> parse_quantity("5 mrad", "angle")  # doctest: +ELLIPSIS
+    0.28647889756...
+    """
+    _check_dimension(dimension)
+    if isinstance(text, bool) or not isinstance(text, (str, int, float)):
+        shown = str(text).lower() if isinstance(text, bool) else repr(text)
+        raise UnitError(f"{shown} is not a quantity", dimension)
+    if not isinstance(text, str):
+        raise UnitError(f"{text!r} is a bare number with no unit", dimension)
+    match = _QUANTITY.match(text)
+    if match is None:
+        raise UnitError(f'"{text}" is not a number followed by a unit', dimension)
+    number, unit = float(match.group(1)), match.group(2)
+    if not math.isfinite(number):  # e.g. "1e999 m"
+        raise UnitError(f'"{text}" is not a finite number', dimension)
+    if unit == "":
+        raise UnitError(f'"{text}" is a bare number with no unit', dimension)
+    if unit in UNITS[dimension]:
+        return _scale(number, unit, dimension)
+    for other, units in UNITS.items():
+        if unit in units:
+            raise UnitError(f'"{text}" is {_ARTICLE[other]} ({unit}), not {_ARTICLE[dimension]}',
+                            dimension)
+    hint = ""
+    for known in UNITS[dimension]:
+        if known.lower() == unit.lower():
+            hint = f" (did you mean {known}?)"
+            break
+    raise UnitError(f'"{text}" has an unknown unit "{unit}"{hint}', dimension)
+
+
+def _number_text(x: float) -> str:
+    """Shortest text that reads back as exactly ``x``: ``100``, ``12.5``, ``1e+05``."""
+    if x == 0.0:
+        return "0"
+    if 1e-4 <= abs(x) < 1e5:
+        text = repr(float(x))
+        return text[:-2] if text.endswith(".0") else text
+    for digits in range(1, 18):
+        text = f"{x:.{digits}g}"
+        if float(text) == x:
+            return text
+    return repr(float(x))
+
+
+# Units format_quantity may choose from, largest first.
+_DISPLAY = {"length": ("km", "m", "mm", "um", "nm"), "time": ("ns",), "angle": ("deg",)}
+_CANONICAL = {"length": "m", "time": "ns", "angle": "deg"}
+
+
+def format_quantity(value: float, dimension: str) -> str:
+    """Write a canonical value as a readable string that :func:`parse_quantity` reads back.
+
+    Lengths take the unit among km, m, mm, um, nm that gives the shortest text with a
+    number between 1 and 10000 (``0.1`` -> ``"100 mm"``, ``1.064e-6`` -> ``"1064 nm"``);
+    times are always written in ns and angles in deg.
+
+    Parameters
+    ----------
+    value : float
+        Metres (length), nanoseconds (time) or degrees (angle).
+    dimension : {"length", "time", "angle"}
+
+    Returns
+    -------
+    str
+        ``parse_quantity(format_quantity(v, d), d) == v`` exactly for every finite ``v``.
+
+    Examples
+    --------
+    >>> format_quantity(1e-4, "length")
+    '100 um'
+    >>> format_quantity(3.0, "angle")
+    '3 deg'
+    >>> format_quantity(1e5, "time")
+    '1e+05 ns'
+    """
+    _check_dimension(dimension)
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"cannot format the non-finite {dimension} {value!r}")
+    candidates = []
+    for unit in _DISPLAY[dimension]:
+        power, _ = UNITS[dimension][unit]
+        number = value / 10 ** power if power >= 0 else value * 10 ** -power
+        if 1.0 <= abs(number) < 1e4:
+            candidates.append(f"{_number_text(number)} {unit}")
+    # Shortest first (a stable sort keeps the larger unit on ties); exact round trips only.
+    for text in sorted(candidates, key=len):
+        if parse_quantity(text, dimension) == value:
+            return text
+    return f"{_number_text(value)} {_CANONICAL[dimension]}"
