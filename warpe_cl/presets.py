@@ -24,10 +24,15 @@ def bundled_presets() -> dict:
 
 def resolve_preset(text: str) -> Path:
     """A preset argument as a path: an existing file, else a bundled preset's name
-    (``radiative/slab_co2_1m``, with or without ``presets/`` and ``.yaml``). Unknown names are
+    (``radiative/slab_co2_1m``, with or without ``presets/`` and ``.yaml``, or ``slab_co2_1m`` when
+    that stem is unique). Unknown names are
     returned unchanged, so that loading reports the missing file."""
     path = Path(text)
     if path.is_file():
         return path
     name = text.removeprefix("presets/").removesuffix(".yaml")
-    return bundled_presets().get(name, path)
+    presets = bundled_presets()
+    if name in presets:
+        return presets[name]
+    by_stem = [p for key, p in presets.items() if key.rsplit("/", 1)[-1] == name]
+    return by_stem[0] if len(by_stem) == 1 else path

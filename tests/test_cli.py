@@ -1,0 +1,157 @@
+"""The command line: exit codes, one-line errors, the output file of interface.md §5."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from warpe_cl.cli import main
+
+REPO = Path(__file__).resolve().parent.parent
+PRESET = REPO / "presets" / "radiative" / "slab_co2_1m.yaml"
+
+GOOD = """\
+medium:
+  texture: slab
+  thickness: "10 mm"
+  radiative: {tau0: 1.0, omega: 0.9, n: 1.3, k: 0.0}
+simulation:
+  photons: 2000
+"""
+
+BAD = {
+    "missing_unit": GOOD.replace('"10 mm"', "10"),
+    "negative_thickness": GOOD.replace('"10 mm"', '"-10 mm"'),
+    "omega_above_one": GOOD.replace("omega: 0.9", "omega: 1.2"),
+    "unknown_key": GOOD.replace("texture: slab", "texture: slab\n  thikness: 3"),
+    "unknown_texture": GOOD.replace("texture: slab", "texture: slabb"),
+    "empty_file": "",
+    "not_yaml": "medium: [unclosed\n  texture: : :",
+    "top_level_list": "- 1\n- 2\n",
+    "wrong_unit_dimension": GOOD.replace('"10 mm"', '"10 deg"'),
+    "negative_tau": GOOD.replace("tau0: 1.0", "tau0: -1.0"),
+    "n_below_one": GOOD.replace("n: 1.3", "n: 0.5"),
+    "photons_zero": GOOD.replace("photons: 2000", "photons: 0"),
+    "fov_too_wide": GOOD + "  fov: {scattering: \"95 deg\"}\n",
+    "bad_time_bins": GOOD + "  time_bins: {start: \"1 ns\", stop: \"0.1 ns\", per_decade: 10}\n",
+    "missing_medium": "simulation:\n  photons: 10\n",
+    "unknown_sweep_key": GOOD + "sweep:\n  medium.thicknes: [\"1 mm\"]\n",
+    "albedo_text": GOOD.replace("texture: slab", "texture: slab\n  bottom_albedo: high"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_preset_exits_2_with_one_line(tmp_path, capsys, case):
+    path = tmp_path / f"{case}.yaml"
+    path.write_text(BAD[case])
+    rc = main(["run", str(path), "--out", str(tmp_path / "x.nc"), "--device", "numpy"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert "Traceback" not in err and str(path) in err
+    assert not (tmp_path / "x.nc").exists()
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "no_such_preset.yaml", "--out", "x.nc"],
+    ["run", str(PRESET), "--out", "/no/such/folder/x.nc"],
+    ["run", str(PRESET), "--out", "x.nc", "--set", "medium.thickness=12"],
+    ["run", str(PRESET), "--out", "x.nc", "--set", "nonsense"],
+    ["run", str(PRESET), "--out", "x.nc", "--photons", "many"],
+    ["run", str(PRESET)],
+    ["frobnicate"],
+])
+def test_bad_command_lines_exit_2(tmp_path, capsys, monkeypatch, argv):
+    monkeypatch.chdir(tmp_path)
+    rc = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+
+
+def test_unknown_device_exits_3(tmp_path, capsys):
+    rc = main(["run", str(PRESET), "--out", str(tmp_path / "x.nc"), "--photons", "100",
+               "--device", "no-such-device-anywhere"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 3 and len(err.splitlines()) == 1 and "no OpenCL device matches" in err
+
+
+def test_run_writes_the_dataset_of_the_interface(tmp_path, capsys):
+    out, png = tmp_path / "demo.nc", tmp_path / "demo.png"
+    rc = main(["run", str(PRESET), "--out", str(out), "--plot", str(png), "--photons", "20000",
+               "--seed", "3"])
+    text = capsys.readouterr().out
+    assert rc == 0
+    for word in ("tau0", "first BF time", "fates", "components", "photons/s"):
+        assert word in text
+    assert png.stat().st_size > 10_000
+    ds = xr.load_dataset(out)
+    for name in ("time", "time_edges", "component", "reflectance", "ray_count", "undersampled",
+                 "hemispherical_reflectance", "fraction", "fate_fraction", "emergence",
+                 "angular_reflectance", "photons", "scattering_events", "wall_time"):
+        assert name in ds.variables, name
+    assert list(ds.component.values) == ["specular", "bf_direct", "bf_diffuse", "scattering"]
+    assert list(ds.fate.values) == ["specular", "escaped", "absorbed_medium", "absorbed_floor",
+                                    "terminated"]
+    assert ds.fate_fraction.sum() == pytest.approx(1.0)
+    assert int(ds.photons) == 20000 and ds.attrs["seed"] == 3
+    for attr in ("tau0", "omega", "n_eff", "k_eff", "extinction_per_m", "first_bf_time_ns",
+                 "config", "warpe_cl_version", "opencl_platform", "opencl_device",
+                 "opencl_driver", "kernel_sha256"):
+        assert attr in ds.attrs, attr
+    assert ds.attrs["first_bf_time_ns"] == pytest.approx(9.35714, rel=1e-5)
+    assert ds.undersampled.dtype == bool
+    # the specular count sits in the first bin, at t = 0
+    assert int(ds.ray_count.sel(component="specular")[0]) == int(
+        round(float(ds.fraction.sel(component="specular")) * 20000))
+    assert not list(tmp_path.glob(".*.tmp"))   # atomic write left nothing behind
+
+
+def test_numpy_device_runs_without_opencl(tmp_path, capsys):
+    out = tmp_path / "ref.nc"
+    rc = main(["run", str(PRESET), "--out", str(out), "--photons", "3000", "--device", "numpy",
+               "--quiet"])
+    assert rc == 0 and capsys.readouterr().out == ""
+    ds = xr.load_dataset(out)
+    assert ds.attrs["engine"] == "numpy" and int(ds.photons) == 3000
+
+
+def test_sweep_preset_gives_a_scenario_dimension(tmp_path, capsys):
+    out = tmp_path / "sweep.nc"
+    rc = main(["run", "radiative/slab_tau_sweep", "--out", str(out), "--photons", "3000"])
+    assert rc == 0
+    ds = xr.load_dataset(out)
+    assert ds.sizes["scenario"] == 3
+    np.testing.assert_allclose(ds["tau0"].values, [0.2, 2.0, 20.0])
+    assert "medium.radiative.tau0" in ds.coords
+    assert ds.reflectance.dims == ("scenario", "component", "time")
+
+
+def test_plot_verb(tmp_path, capsys):
+    out = tmp_path / "a.nc"
+    assert main(["run", str(PRESET), "--out", str(out), "--photons", "5000", "--quiet"]) == 0
+    assert main(["plot", str(out), "--out", str(tmp_path / "a.png")]) == 0
+    assert (tmp_path / "a.png").stat().st_size > 10_000
+    assert main(["plot", str(tmp_path / "missing.nc"), "--out", str(tmp_path / "b.png")]) == 2
+
+
+def test_show_config_presets_devices(capsys):
+    assert main(["show-config", str(PRESET), "--set", "medium.thickness=500 mm"]) == 0
+    text = capsys.readouterr().out
+    assert "500 mm" in text and "first BF time" in text and "4.67857" in text
+    assert main(["presets"]) == 0
+    assert "radiative/slab_co2_1m" in capsys.readouterr().out
+    assert main(["devices"]) == 0
+    assert "picks" in capsys.readouterr().out
+
+
+def test_python_dash_m_entry_point():
+    res = subprocess.run([sys.executable, "-m", "warpe_cl", "show-config", str(PRESET)],
+                         capture_output=True, text=True, cwd=REPO)
+    assert res.returncode == 0 and "slab_co2_1m" in res.stdout
+    res = subprocess.run([sys.executable, "-m", "warpe_cl", "run", "missing.yaml", "--out", "x.nc"],
+                         capture_output=True, text=True, cwd=REPO)
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
