@@ -35,7 +35,7 @@ def _overrides(args) -> list:
 
 def _load(args):
     from .config import load_preset
-    from .presets import resolve_preset
+    from .catalog import resolve_preset
     return load_preset(resolve_preset(args.preset), overrides=_overrides(args))
 
 
@@ -144,7 +144,7 @@ def cmd_show_config(args) -> int:
 
 def cmd_presets(args) -> int:
     import yaml
-    from .presets import bundled_presets
+    from .catalog import bundled_presets
     for name, path in bundled_presets().items():
         try:
             desc = " ".join(str(yaml.safe_load(path.read_text()).get("description", "")).split())

@@ -1,4 +1,5 @@
-"""The bundled presets (``presets/`` of the repository, installed as ``warpe_cl.presets``)."""
+"""The catalogue of bundled presets (``presets/`` of the repository, installed as the package
+data ``warpe_cl.presets``)."""
 from __future__ import annotations
 
 from pathlib import Path
