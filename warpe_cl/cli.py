@@ -71,6 +71,9 @@ def cmd_run(args) -> int:
     if args.plot:
         _check_writable(Path(args.plot), "--plot")
     points = cfg.sweep_points()
+    for _, pcfg in points:
+        radiative_parameters(pcfg)    # bad input fails (exit 2) before a device is sought
+    api.get_engine(args.device)       # no usable device fails (exit 3) before any output
     say = (lambda *a: None) if args.quiet else print
     say(f"warpe-cl run: {cfg.get('name')} ({cfg.source}), {len(points)} scenario(s), "
         f"{int(cfg.get('simulation.photons')):,} rays each, seed {cfg.get('simulation.seed')}")
@@ -126,7 +129,7 @@ def cmd_devices(args) -> int:
         info, _ = select_device(spec)
         print(f"--device {spec} picks {info.spec} ({info.device})")
     except DeviceError as err:
-        print(f"--device {spec}: {err}")
+        print(err)
         return EXIT_DEVICE
     return EXIT_OK
 
