@@ -300,6 +300,8 @@ def test_defaults_radiative():
     assert d["medium"] == {
         "texture": "slab", "thickness": 0.1, "bottom_albedo": 0.15,
         "bottom_interface": "fresnel", "phase_g": 0.8,
+        "extinction_efficiency": 1.0, "matrix_absorption": "seed",
+        "inclusion_absorption": "absolute", "fresnel_integrals": "exact",
         "radiative": {"tau0": 1.0, "omega": 0.9, "n": 1.3, "k": 0.0},
         "compacity": None, "matrix": None, "inclusions": None}
     assert d["wavelength"] == 1.064e-6

@@ -58,7 +58,11 @@ def _fmt_derived(d: dict) -> list:
         f"  thickness         {d['thickness_m'] * 1e3:.6g} mm",
         f"  first BF time     {d['first_bf_time_ns']:.6g} ns  (2 h n_eff / c)",
         f"  specular R0       {d['specular_r0']:.6g}",
-    ]
+    ] + ([f"  porosity factor   {d['porosity_factor']:.6g}   matrix absorption "
+          f"{d['matrix_absorption_per_m']:.6g} m-1"] if "porosity_factor" in d else []) + [
+        f"  {sp['material']:<8s}          rho_v {sp['proportion']:.4g}  d {sp['grain_size_m'] * 1e6:.4g} um"
+        f"  N {sp['number_density_per_m3']:.4g} m-3  n_rel {sp['n_rel']:.5g}  w {sp['w']:.6g}"
+        for sp in d.get("species", [])]
 
 
 def cmd_run(args) -> int:
@@ -219,7 +223,13 @@ def make_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"warpe-cl: warning: {message}", file=sys.stderr)
+
+
 def main(argv=None) -> int:
+    import warnings
+    warnings.showwarning = _one_line_warning
     parser = make_parser()
     try:
         args = parser.parse_args(argv)

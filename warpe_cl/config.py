@@ -113,6 +113,21 @@ SCHEMA: list[Field] = [
     _F("medium.phase_g", "float", 0.8, low=-1.0, high=1.0, low_open=True, high_open=True,
        help="Henyey-Greenstein asymmetry parameter g of volume scattering (0: isotropic, "
             "close to 1: forward)."),
+    _F("medium.extinction_efficiency", "float", 1.0, low=0.0, low_open=True,
+       help="Physical form: extinction efficiency Q_e of the inclusions or grains "
+            "(physics.md A4: 1 in geometric optics, where Hapke's w is defined and the "
+            "diffraction peak of packed or embedded particles is dropped; 2 counts it)."),
+    _F("medium.matrix_absorption", "choice", "seed", choices=("seed", "volume_weighted"),
+       help="Slab, physical form: the matrix absorption a_m = 4 pi k / lambda enters the "
+            "extinction as in the seed (seed), or weighted by the matrix volume fraction "
+            "gamma_c (volume_weighted; physics.md A5)."),
+    _F("medium.inclusion_absorption", "choice", "absolute", choices=("absolute", "relative"),
+       help="Physical form: the absorption inside an inclusion uses its own k (absolute, "
+            "physics.md A6) or its k relative to the matrix (relative)."),
+    _F("medium.fresnel_integrals", "choice", "exact", choices=("exact", "hapke"),
+       help="Physical form: S_e and S_i by quadrature of the exact Fresnel law (exact, "
+            "physics.md §3.6) or Hapke's approximations (hapke; invalid for n_rel < 1, "
+            "refused there)."),
     _F("medium.radiative", "section",
        help="The medium in radiative terms, instead of compacity/matrix/inclusions: the "
             "same kernels run with these values."),

@@ -6,7 +6,7 @@ so the command line can turn it into one readable line and an exit code
 """
 from __future__ import annotations
 
-__all__ = ["WarpeError", "ConfigError", "DeviceError"]
+__all__ = ["WarpeError", "ConfigError", "DeviceError", "WarpeWarning"]
 
 
 class WarpeError(Exception):
@@ -50,3 +50,7 @@ class ConfigError(WarpeError):
 
 class DeviceError(WarpeError):
     """No usable OpenCL device (or the requested one does not exist); exit code 3."""
+
+
+class WarpeWarning(UserWarning):
+    """A physically doubtful input: the run goes on, and the command line prints one line."""

@@ -13,7 +13,7 @@ import numpy as np
 from .params import COMPONENTS, FATES, N_EMERGENCE
 
 DERIVED = ("tau0", "omega", "extinction_per_m", "n_eff", "k_eff", "first_bf_time_ns",
-           "specular_r0", "thickness_m")
+           "specular_r0", "thickness_m", "porosity_factor", "matrix_absorption_per_m")
 
 
 def package_version() -> str:
@@ -89,6 +89,10 @@ def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
         },
     )
     ds.attrs.update({k: derived[k] for k in DERIVED if k in derived})
+    for key in ("material", "w", "number_density_per_m3", "n_rel"):
+        values = [sp[key] for sp in derived.get("species", [])]
+        if values:
+            ds.attrs[f"species_{key}"] = values if key == "material" else np.asarray(values)
     ds.attrs.update(attrs)
     return ds
 

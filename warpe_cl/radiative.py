@@ -93,8 +93,177 @@ def first_bf_time(thickness_m: float, n: float) -> float:
     return 2.0 * thickness_m * n / C_M_PER_NS
 
 
+def relative_index(n_i: float, k_i: float, n_m: float, k_m: float) -> tuple:
+    """Complex relative index m_i / m_m of an inclusion in a matrix (physics.md §3.3,
+    Andrieu's ``fresnel_coef.pro``): returns ``(n_rel, k_rel)``."""
+    m = complex(n_i, k_i) / complex(n_m, k_m)
+    return m.real, m.imag
+
+
+def hapke_internal_path(n_rel: float, diameter: float) -> float:
+    """Mean internal path ⟨D⟩ of a sphere, m (Hapke 1993 ch. 11; physics.md §4.4):
+    (2/3)[n² − (1/n)(n² − 1)^{3/2}] d for n > 1, and the n → 1 limit (2/3) d otherwise."""
+    if n_rel <= 1.0:
+        return 2.0 / 3.0 * diameter
+    return 2.0 / 3.0 * (n_rel ** 2 - (n_rel ** 2 - 1.0) ** 1.5 / n_rel) * diameter
+
+
+def particle_albedo(n_rel: float, k_rel: float, absorption: float, diameter: float,
+                    integrals: str = "exact") -> dict:
+    """Single-scattering albedo of one particle by Hapke's equivalent slab (Hapke 1993 eqs.
+    11.14, 11.15a; physics.md §4.4), without internal scatterers (s = 0).
+
+    Parameters
+    ----------
+    n_rel, k_rel : float
+        Relative index of the particle in its surroundings (k_rel < 0, a particle less absorbing
+        than its matrix, is taken as 0 in the Fresnel terms: a 1e-6 effect for ices).
+    absorption : float
+        Internal absorption coefficient α = 4π k / λ, m⁻¹.
+    diameter : float
+        Particle diameter d, m.
+    integrals : {"exact", "hapke"}
+        S_e, S_i by quadrature of the Fresnel law, or Hapke's approximations (n_rel > 1 only).
+
+    Returns
+    -------
+    dict
+        ``w``, ``s_e``, ``s_i``, ``theta`` (internal transmission Θ = exp(−α⟨D⟩)),
+        ``mean_path_m`` (⟨D⟩).
+    """
+    k_f = max(k_rel, 0.0)
+    if integrals == "hapke":
+        s_e = normal_reflectance(n_rel, k_f) + 0.05
+        s_i = 1.014 - 4.0 / (n_rel * (n_rel + 1.0) ** 2)
+    else:
+        s_e = hemispherical_external(n_rel, k_f)
+        s_i = hemispherical_internal(n_rel)
+    path = hapke_internal_path(n_rel, diameter)
+    theta = float(np.exp(-absorption * path))
+    w = s_e + (1.0 - s_e) * (1.0 - s_i) * theta / (1.0 - s_i * theta)
+    return {"w": float(w), "s_e": s_e, "s_i": s_i, "theta": theta, "mean_path_m": path}
+
+
+def porosity_factor(compacity: float, texture: str) -> float:
+    """Close-packing factor C_γ (seed eqs. 1–2; physics.md §4.2): −ln(1 − γ)/γ for a granular
+    medium, ln(γ)/(γ − 1) for a slab (the granular form with the particle fraction 1 − γ).
+    Its limit at a vanishing particle fraction is 1."""
+    phi = compacity if texture == "granular" else 1.0 - compacity
+    if phi <= 0.0:
+        return 1.0
+    return float(-np.log1p(-phi) / phi)
+
+
+def _warn(message: str):
+    import warnings
+    from .errors import WarpeWarning
+    warnings.warn(message, WarpeWarning, stacklevel=3)
+
+
+def physical_parameters(cfg) -> dict:
+    """Radiative parameters of a medium given physically (physics.md §3–§4).
+
+    Slab: a matrix (volume fraction γ_c) holding inclusions; granular: grains (volume fraction
+    γ_c) and void pores. For each species i (relative proportion ρ_i, diameter d_i):
+    N_i = φ ρ_i/(π d_i³/6) with φ the particle fraction, σ_i = Q_e π d_i²/4, w_i by Hapke's
+    equivalent slab; E = C_γ Σ N_i σ_i + a_m, S = C_γ Σ N_i σ_i w_i, ω = S/E, τ0 = E h;
+    n_eff, k_eff by volume mixing (seed eqs. 5–6).
+
+    Returns
+    -------
+    dict
+        The keys of :func:`radiative_parameters`, plus ``porosity_factor``,
+        ``matrix_absorption_per_m`` and ``species`` (one dict per inclusion: material,
+        n_rel, k_rel, number_density_per_m3, cross_section_m2, w, s_e, s_i).
+    """
+    from .materials import lookup, optical_constants
+
+    source = cfg.source
+    texture = cfg.get("medium.texture")
+    h = cfg.get("medium.thickness")
+    gamma = cfg.get("medium.compacity")
+    lam = cfg.get("wavelength")
+    q_e = cfg.get("medium.extinction_efficiency")
+    integrals = cfg.get("medium.fresnel_integrals")
+    constants = optical_constants(cfg)
+    inclusions = cfg.get("medium.inclusions")
+    total_rho = sum(inc["proportion"] for inc in inclusions)
+
+    if texture == "granular" and gamma >= 1.0:
+        raise ConfigError(f"{gamma:g} is not allowed for a granular medium; give a compacity in "
+                          "(0, 1) (at 1 the pores vanish: describe a compact layer as a slab)",
+                          key="medium.compacity", source=source)
+    if texture == "slab":
+        n_m, k_m = lookup(constants, cfg.get("medium.matrix"), "medium.matrix", source)
+        phi = 1.0 - gamma
+        a_m = 4.0 * np.pi * k_m / lam
+        if cfg.get("medium.matrix_absorption") == "volume_weighted":
+            a_m *= gamma
+    else:
+        n_m, k_m = 1.0, 0.0
+        phi = gamma
+        a_m = 0.0
+
+    species, n_mix, k_mix = [], 0.0, 0.0
+    extinction_particles = scattering = 0.0
+    for i, inc in enumerate(inclusions):
+        key = f"medium.inclusions[{i}]"
+        n_i, k_i = lookup(constants, inc["material"], key + ".material", source)
+        if n_i <= 0.0:
+            raise ConfigError(f"n = {n_i:g} is not allowed; give n > 0", key=key, source=source)
+        rho = inc["proportion"] / total_rho
+        d = inc["grain_size"]
+        n_mix += n_i * rho
+        k_mix += k_i * rho
+        n_rel, k_rel = relative_index(n_i, k_i, n_m, k_m)
+        if integrals == "hapke" and n_rel <= 1.0:
+            raise ConfigError(f"Hapke's S_e/S_i approximations are invalid for {inc['material']} "
+                              f"in its surroundings (n_rel = {n_rel:.4g} <= 1); use "
+                              "fresnel_integrals: exact", key="medium.fresnel_integrals",
+                              source=source)
+        k_abs = k_i if cfg.get("medium.inclusion_absorption") == "absolute" else max(k_rel, 0.0)
+        particle = particle_albedo(n_rel, k_rel, 4.0 * np.pi * k_abs / lam, d, integrals)
+        number = phi * rho / (np.pi * d ** 3 / 6.0)
+        sigma = q_e * np.pi * d ** 2 / 4.0
+        extinction_particles += number * sigma
+        scattering += number * sigma * particle["w"]
+        species.append({"material": inc["material"], "proportion": rho, "grain_size_m": d,
+                        "n_rel": n_rel, "k_rel": k_rel, "number_density_per_m3": number,
+                        "cross_section_m2": sigma, **particle})
+        if d > 0.1 * h:
+            _warn(f"{key}.grain_size: {d * 1e3:g} mm is more than a tenth of the thickness "
+                  f"({h * 1e3:g} mm): a continuous medium of grains is doubtful")
+        if np.pi * d / lam < 30.0:
+            _warn(f"{key}.grain_size: {d * 1e6:g} um is close to the wavelength "
+                  f"({lam * 1e9:g} nm; size parameter pi d / lambda = {np.pi * d / lam:.3g} < 30): "
+                  "geometric optics and Hapke's equivalent slab are doubtful")
+
+    c_gamma = porosity_factor(gamma, texture)
+    if texture == "slab":
+        n_eff = n_m * gamma + n_mix * (1.0 - gamma)
+        k_eff = k_m * gamma + k_mix * (1.0 - gamma)
+    else:
+        n_eff = n_mix * gamma + 1.0 * (1.0 - gamma)
+        k_eff = k_mix * gamma
+    extinction = c_gamma * extinction_particles + a_m
+    omega = c_gamma * scattering / extinction if extinction > 0 else 0.0
+    return {
+        "tau0": float(extinction * h),
+        "omega": float(omega),
+        "extinction_per_m": float(extinction),
+        "n_eff": float(n_eff),
+        "k_eff": float(k_eff),
+        "first_bf_time_ns": first_bf_time(h, n_eff),
+        "specular_r0": normal_reflectance(n_eff, k_eff) if texture == "slab" else 0.0,
+        "thickness_m": float(h),
+        "porosity_factor": c_gamma,
+        "matrix_absorption_per_m": float(a_m),
+        "species": species,
+    }
+
+
 def radiative_parameters(cfg) -> dict:
-    """Derived radiative parameters of a configuration's medium.
+    """Derived radiative parameters of a configuration's medium, from either form.
 
     Parameters
     ----------
@@ -105,25 +274,22 @@ def radiative_parameters(cfg) -> dict:
     dict
         ``tau0`` (1), ``omega`` (1), ``extinction_per_m`` (m⁻¹), ``n_eff``, ``k_eff`` (1),
         ``first_bf_time_ns`` (ns), ``specular_r0`` (1; the slab's normal-incidence Fresnel
-        reflectance, 0 for granular media, which have no interface), ``thickness_m`` (m).
+        reflectance, 0 for granular media, which have no interface), ``thickness_m`` (m); the
+        physical form adds ``porosity_factor``, ``matrix_absorption_per_m`` and ``species``.
     """
-    h = cfg.get("medium.thickness")
-    texture = cfg.get("medium.texture")
     if not cfg.is_radiative:
-        raise ConfigError("the physical form (matrix, inclusions, compacity) is not supported "
-                          "by this version; give medium.radiative: {tau0, omega, n, k}",
-                          key="medium", source=cfg.source)
+        return physical_parameters(cfg)
+    h = cfg.get("medium.thickness")
     tau0 = cfg.get("medium.radiative.tau0")
-    omega = cfg.get("medium.radiative.omega")
     n = cfg.get("medium.radiative.n")
     k = cfg.get("medium.radiative.k")
     return {
         "tau0": float(tau0),
-        "omega": float(omega),
+        "omega": float(cfg.get("medium.radiative.omega")),
         "extinction_per_m": float(tau0 / h),
         "n_eff": float(n),
         "k_eff": float(k),
         "first_bf_time_ns": first_bf_time(h, n),
-        "specular_r0": normal_reflectance(n, k) if texture == "slab" else 0.0,
+        "specular_r0": normal_reflectance(n, k) if cfg.get("medium.texture") == "slab" else 0.0,
         "thickness_m": float(h),
     }
