@@ -163,7 +163,7 @@ def cmd_presets(args) -> int:
 
 def cmd_plot(args) -> int:
     import xarray as xr
-    from .plot import plot_waveform
+    from .plot import plot_angular, plot_waveform
     path = Path(args.file)
     if not path.is_file():
         raise ConfigError("no such file", key=str(path))
@@ -175,7 +175,7 @@ def cmd_plot(args) -> int:
         raise ConfigError("has no reflectance variable; give a file written by `warpe-cl run`",
                           key=str(path))
     _check_writable(Path(args.out), "--out")
-    plot_waveform(ds, args.out)
+    (plot_angular if args.kind == "angular" else plot_waveform)(ds, args.out)
     print(f"wrote {args.out}")
     return EXIT_OK
 
@@ -219,6 +219,8 @@ def make_parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("plot", help="draw the waveform of a result file")
     pl.add_argument("file", help="a NetCDF file written by `warpe-cl run`")
     pl.add_argument("--out", required=True, help="output PNG")
+    pl.add_argument("--kind", choices=("waveform", "angular"), default="waveform",
+                    help="waveform: reflectance against time; angular: the FOV figure")
     pl.set_defaults(func=cmd_plot)
     return p
 

@@ -268,10 +268,11 @@ def _canonical(field: Field, value):
 
 DEFAULTS = {f.key: _canonical(f, f.default) for f in SCHEMA if f.kind in SCALAR_KINDS}
 
-# Keys a sweep may name: every scalar, and whole inclusion lists.
+# Keys a sweep may name: every scalar, whole inclusion lists, and whole media (a list of
+# medium blocks: cases that differ in more than one key, such as the seed's BELA figure).
 _SWEEPABLE = tuple(f.key for f in SCHEMA
                    if (f.kind in SCALAR_KINDS or f.kind == "list")
-                   and not f.key.startswith(("materials", "sweep")))
+                   and not f.key.startswith(("materials", "sweep"))) + ("medium",)
 
 
 # --------------------------------------------------------------------------- messages
@@ -754,6 +755,9 @@ class _Validator:
             if not isinstance(values, list) or not values:
                 raise ConfigError(f"{_show(values)} is not allowed; give a non-empty list of "
                                   f"values, each {_allowed(target)}", sub)
+            if target.key == "medium":
+                out[key] = [self.kind_medium(v, sub) for v in values]
+                continue
             out[key] = [self.value(target, {"v": v}, "v", sub) if v is not None else
                         _raise_empty(target, sub) for v in values]
         return out

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 import platform as _platform
 import sys
@@ -132,6 +133,7 @@ def combine_scenarios(datasets: list, points: list):
     for ds in stripped:
         ds.attrs = {}
     out = xr.concat(stripped, dim="scenario")
+    out["time_edges"] = datasets[0]["time_edges"]   # shared by every scenario of a sweep
     common = {k: v for k, v in datasets[0].attrs.items()
               if k not in varying_attrs and k not in DERIVED}
     out.attrs.update(common)
@@ -142,7 +144,9 @@ def combine_scenarios(datasets: list, points: list):
                         {"units": "s"})
     for key in points[0]:
         values = [p[key] for p in points]
-        out = out.assign_coords({key: ("scenario", np.asarray([str(v) for v in values]))})
+        labels = [json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else str(v)
+                  for v in values]
+        out = out.assign_coords({key: ("scenario", np.asarray(labels))})
     out = out.assign_coords(scenario=np.arange(len(datasets)))
     return out
 

@@ -230,6 +230,8 @@ def physical_parameters(cfg) -> dict:
         species.append({"material": inc["material"], "proportion": rho, "grain_size_m": d,
                         "n_rel": n_rel, "k_rel": k_rel, "number_density_per_m3": number,
                         "cross_section_m2": sigma, **particle})
+        if phi <= 0.0:
+            continue   # compacity 1: a pure slab, the inclusion is a placeholder
         if d > 0.1 * h:
             _warn(f"{key}.grain_size: {d * 1e3:g} mm is more than a tenth of the thickness "
                   f"({h * 1e3:g} mm): a continuous medium of grains is doubtful")
