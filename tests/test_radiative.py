@@ -195,3 +195,29 @@ def test_doubtful_input_warns(tmp_path, capsys, grain, thickness, words):
         radiative.radiative_parameters(load_preset(path))
     assert main(["show-config", str(path)]) == 0
     assert words in capsys.readouterr().err
+
+
+def test_several_species_with_their_own_grain_sizes():
+    """physics.md A14: per-species N_i and w_i, rho_v-weighted indices, one C_gamma from the
+    total inclusion fraction; checked against the formulas written out here."""
+    cfg = load_preset({"medium": {
+        "texture": "slab", "thickness": "0.5 m", "compacity": 0.8, "matrix": "H2O",
+        "inclusions": [{"material": "CO2", "proportion": 3.0, "grain_size": "50 um"},
+                       {"material": "S", "proportion": 1.0, "grain_size": "200 um"}]}})
+    r = radiative.radiative_parameters(cfg)
+    lam, phi = 1.064e-6, 0.2
+    c_gamma = np.log(0.8) / (0.8 - 1)
+    ext = sca = 0.0
+    for (n_i, k_i), rho, d, sp in zip(((1.4026, 8.47e-10), (1.92, 9.5e-6)), (0.75, 0.25),
+                                      (50e-6, 200e-6), r["species"]):
+        n_rel, k_rel = radiative.relative_index(n_i, k_i, 1.30042, 1.272e-6)
+        w = radiative.particle_albedo(n_rel, k_rel, 4 * np.pi * k_i / lam, d)["w"]
+        number = phi * rho / (np.pi * d ** 3 / 6)
+        assert sp["number_density_per_m3"] == pytest.approx(number, rel=1e-12)
+        ext += number * np.pi * d ** 2 / 4
+        sca += number * np.pi * d ** 2 / 4 * w
+    a_m = 4 * np.pi * 1.272e-6 / lam
+    assert r["extinction_per_m"] == pytest.approx(c_gamma * ext + a_m, rel=1e-12)
+    assert r["omega"] == pytest.approx(c_gamma * sca / (c_gamma * ext + a_m), rel=1e-12)
+    assert r["n_eff"] == pytest.approx(1.30042 * 0.8 + (0.75 * 1.4026 + 0.25 * 1.92) * 0.2)
+    assert r["tau0"] == pytest.approx(0.5 * r["extinction_per_m"])

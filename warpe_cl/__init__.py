@@ -10,8 +10,8 @@ diffuse, and multiple scattering.
 Quick start::
 
     import warpe_cl
-    cfg = warpe_cl.load_preset("presets/radiative/slab_co2_1m.yaml",
-                               overrides={"simulation.photons": 1e5})
+    cfg = warpe_cl.load_preset("presets/paper/gran_co2_thickness.yaml",
+                               overrides={"simulation.photons": 1e4})
     warpe_cl.radiative_parameters(cfg)   # tau0, omega, extinction_per_m, n_eff, k_eff, ...
     ds = warpe_cl.simulate(cfg)          # xarray.Dataset: reflectance in ns-1 sr-1, fractions, ...
 
