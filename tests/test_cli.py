@@ -155,3 +155,14 @@ def test_python_dash_m_entry_point():
     res = subprocess.run([sys.executable, "-m", "warpe_cl", "run", "missing.yaml", "--out", "x.nc"],
                          capture_output=True, text=True, cwd=REPO)
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
+
+
+def test_sweep_file_keeps_units_and_the_whole_preset(tmp_path, capsys):
+    out = tmp_path / "sweep.nc"
+    assert main(["run", "radiative/slab_tau_sweep", "--out", str(out), "--photons", "2000",
+                 "--quiet"]) == 0
+    ds = xr.load_dataset(out)
+    assert ds["reflectance"].attrs["units"] == "ns-1 sr-1"
+    assert ds["time_edges"].dims == ("time_edge",)
+    assert "sweep:" in ds.attrs["config"] and ds["scenario_key"].sizes["scenario"] == 3
+    assert ds["wall_time"].dims == ("scenario",)

@@ -152,4 +152,4 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None):
     if len(points) == 1 and not points[0][0]:
         return simulate_point(points[0][1], {}, device, progress)
     datasets = [simulate_point(point_cfg, point, device, progress) for point, point_cfg in points]
-    return io.combine_scenarios(datasets, [p for p, _ in points])
+    return io.combine_scenarios(datasets, [p for p, _ in points], {"config": cfg.to_yaml()})

@@ -94,7 +94,7 @@ def cmd_run(args) -> int:
         datasets.append(ds)
         _print_summary(ds, say)
     ds = datasets[0] if len(points) == 1 and not points[0][0] else \
-        io.combine_scenarios(datasets, [p for p, _ in points])
+        io.combine_scenarios(datasets, [p for p, _ in points], {"config": cfg.to_yaml()})
     io.write_netcdf(ds, out)
     say(f"wrote {out} ({time.perf_counter() - t0:.2f} s in all)")
     if args.plot:

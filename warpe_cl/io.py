@@ -120,34 +120,36 @@ def provenance(extra: dict | None = None) -> dict:
     return out
 
 
-def combine_scenarios(datasets: list, points: list):
-    """Stack scenario Datasets along ``scenario``, with the swept values as coordinates and the
-    per-scenario derived parameters (tau0, omega, ...) as variables."""
+def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
+    """Stack scenario Datasets along ``scenario``.
+
+    The swept values become coordinates, the per-scenario derived parameters (tau0, omega, ...)
+    and Philox scenario keys become variables, attributes shared by every scenario stay
+    attributes, and ``attrs`` (e.g. the whole preset with its sweep block) is added last.
+    """
     import xarray as xr
 
-    per_scenario = {k: [ds.attrs.get(k) for ds in datasets] for k in DERIVED}
-    varying_attrs = {k for ds in datasets for k in ds.attrs
-                     if any(d.attrs.get(k) != ds.attrs.get(k) for d in datasets)}
-    stripped = [ds.drop_attrs() if hasattr(ds, "drop_attrs") else ds.copy(data=None)
-                for ds in datasets]
-    for ds in stripped:
-        ds.attrs = {}
+    varying = {k for ds in datasets for k in ds.attrs
+               if any(d.attrs.get(k) != ds.attrs.get(k) for d in datasets)}
+    stripped = []
+    for ds in datasets:
+        ds = ds.copy()
+        ds.attrs = {}               # dataset attributes only: variables keep their units
+        stripped.append(ds)
     out = xr.concat(stripped, dim="scenario")
     out["time_edges"] = datasets[0]["time_edges"]   # shared by every scenario of a sweep
-    common = {k: v for k, v in datasets[0].attrs.items()
-              if k not in varying_attrs and k not in DERIVED}
-    out.attrs.update(common)
-    for k, values in per_scenario.items():
+    out.attrs.update({k: v for k, v in datasets[0].attrs.items()
+                      if k not in varying and k not in DERIVED})
+    for k in DERIVED + ("scenario_key",):
+        values = [ds.attrs.get(k) for ds in datasets]
         if all(v is not None for v in values):
-            out[k] = ("scenario", np.asarray(values, dtype=float))
-    out["wall_time"] = ("scenario", np.array([float(d["wall_time"]) for d in datasets]),
-                        {"units": "s"})
+            out[k] = ("scenario", np.asarray(values))
     for key in points[0]:
-        values = [p[key] for p in points]
-        labels = [json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else str(v)
-                  for v in values]
+        labels = [json.dumps(p[key], sort_keys=True) if isinstance(p[key], (dict, list))
+                  else str(p[key]) for p in points]
         out = out.assign_coords({key: ("scenario", np.asarray(labels))})
     out = out.assign_coords(scenario=np.arange(len(datasets)))
+    out.attrs.update(attrs or {})
     return out
 
 
