@@ -93,6 +93,21 @@ def first_bf_time(thickness_m: float, n: float) -> float:
     return 2.0 * thickness_m * n / C_M_PER_NS
 
 
+def _derived(texture: str, thickness: float, tau0: float, extinction: float, omega: float,
+             n: float, k: float) -> dict:
+    """The derived parameters every medium reports, from its radiative values (SI)."""
+    return {
+        "tau0": float(tau0),
+        "omega": float(omega),
+        "extinction_per_m": float(extinction),
+        "n_eff": float(n),
+        "k_eff": float(k),
+        "first_bf_time_ns": first_bf_time(thickness, n),
+        "specular_r0": normal_reflectance(n, k) if texture == "slab" else 0.0,
+        "thickness_m": float(thickness),
+    }
+
+
 def relative_index(n_i: float, k_i: float, n_m: float, k_m: float) -> tuple:
     """Complex relative index m_i / m_m of an inclusion in a matrix (physics.md §3.3,
     Andrieu's ``fresnel_coef.pro``): returns ``(n_rel, k_rel)``."""
@@ -209,8 +224,6 @@ def physical_parameters(cfg) -> dict:
     for i, inc in enumerate(inclusions):
         key = f"medium.inclusions[{i}]"
         n_i, k_i = lookup(constants, inc["material"], key + ".material", source)
-        if n_i <= 0.0:
-            raise ConfigError(f"n = {n_i:g} is not allowed; give n > 0", key=key, source=source)
         rho = inc["proportion"] / total_rho
         d = inc["grain_size"]
         n_mix += n_i * rho
@@ -250,14 +263,7 @@ def physical_parameters(cfg) -> dict:
     extinction = c_gamma * extinction_particles + a_m
     omega = c_gamma * scattering / extinction if extinction > 0 else 0.0
     return {
-        "tau0": float(extinction * h),
-        "omega": float(omega),
-        "extinction_per_m": float(extinction),
-        "n_eff": float(n_eff),
-        "k_eff": float(k_eff),
-        "first_bf_time_ns": first_bf_time(h, n_eff),
-        "specular_r0": normal_reflectance(n_eff, k_eff) if texture == "slab" else 0.0,
-        "thickness_m": float(h),
+        **_derived(texture, h, extinction * h, extinction, omega, n_eff, k_eff),
         "porosity_factor": c_gamma,
         "matrix_absorption_per_m": float(a_m),
         "species": species,
@@ -283,15 +289,6 @@ def radiative_parameters(cfg) -> dict:
         return physical_parameters(cfg)
     h = cfg.get("medium.thickness")
     tau0 = cfg.get("medium.radiative.tau0")
-    n = cfg.get("medium.radiative.n")
-    k = cfg.get("medium.radiative.k")
-    return {
-        "tau0": float(tau0),
-        "omega": float(cfg.get("medium.radiative.omega")),
-        "extinction_per_m": float(tau0 / h),
-        "n_eff": float(n),
-        "k_eff": float(k),
-        "first_bf_time_ns": first_bf_time(h, n),
-        "specular_r0": normal_reflectance(n, k) if cfg.get("medium.texture") == "slab" else 0.0,
-        "thickness_m": float(h),
-    }
+    return _derived(cfg.get("medium.texture"), h, tau0, tau0 / h,
+                    cfg.get("medium.radiative.omega"), cfg.get("medium.radiative.n"),
+                    cfg.get("medium.radiative.k"))
