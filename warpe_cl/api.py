@@ -126,7 +126,8 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
     return ds
 
 
-def simulate(cfg, *, device: str | None = None, progress=None, overrides=None):
+def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
+             before_point=None, after_point=None):
     """Simulate a preset: one scenario, or every point of its ``sweep:`` block.
 
     Parameters
@@ -139,6 +140,9 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None):
         Progress bar: None shows one on a terminal for runs over 2 s; False never.
     overrides : dict, optional
         Dotted-key overrides, when ``cfg`` is not yet a Config.
+    before_point, after_point : callable, optional
+        Called as ``before_point(index, point, point_cfg)`` before each scenario and
+        ``after_point(dataset)`` after it (the command line prints its summary with them).
 
     Returns
     -------
@@ -149,7 +153,13 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None):
     if not isinstance(cfg, Config):
         cfg = load_preset(cfg, overrides=overrides)
     points = cfg.sweep_points()
+    datasets = []
+    for i, (point, point_cfg) in enumerate(points):
+        if before_point:
+            before_point(i, point, point_cfg)
+        datasets.append(simulate_point(point_cfg, point, device, progress))
+        if after_point:
+            after_point(datasets[-1])
     if len(points) == 1 and not points[0][0]:
-        return simulate_point(points[0][1], {}, device, progress)
-    datasets = [simulate_point(point_cfg, point, device, progress) for point, point_cfg in points]
+        return datasets[0]
     return io.combine_scenarios(datasets, [p for p, _ in points], {"config": cfg.to_yaml()})

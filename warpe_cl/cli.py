@@ -82,19 +82,15 @@ def cmd_run(args) -> int:
     say(f"warpe-cl run: {cfg.get('name')} ({cfg.source}), {len(points)} scenario(s), "
         f"{int(cfg.get('simulation.photons')):,} rays each, seed {cfg.get('simulation.seed')}")
     t0 = time.perf_counter()
-    datasets = []
-    for i, (point, pcfg) in enumerate(points):
-        derived = radiative_parameters(pcfg)
+
+    def before(i, point, pcfg):
         if point:
             say(f"scenario {i}: " + ", ".join(f"{k}={v}" for k, v in point.items()))
-        for line in _fmt_derived(derived):
+        for line in _fmt_derived(radiative_parameters(pcfg)):
             say(line)
-        ds = api.simulate_point(pcfg, point, device=args.device,
-                                progress=None if not args.quiet else False)
-        datasets.append(ds)
-        _print_summary(ds, say)
-    ds = datasets[0] if len(points) == 1 and not points[0][0] else \
-        io.combine_scenarios(datasets, [p for p, _ in points], {"config": cfg.to_yaml()})
+
+    ds = api.simulate(cfg, device=args.device, progress=None if not args.quiet else False,
+                      before_point=before, after_point=lambda d: _print_summary(d, say))
     io.write_netcdf(ds, out)
     say(f"wrote {out} ({time.perf_counter() - t0:.2f} s in all)")
     if args.plot:
