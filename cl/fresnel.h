@@ -1,4 +1,5 @@
-/* fresnel.h: Fresnel reflectances of the slab's interfaces (docs/walk.md §3.3). */
+/* fresnel.h: Fresnel reflectances of the slab's interfaces (docs/walk.md §3.3), lane by lane
+ * (lanes.h): the incidence cosine varies per lane, the indices are the scenario's. */
 #ifndef WARPE_FRESNEL_H
 #define WARPE_FRESNEL_H
 
@@ -9,17 +10,17 @@
  *   R_perp = [(mu - G1)^2 + G2^2] / [(mu + G1)^2 + G2^2],
  *   R_par  = [((n^2-k^2) mu - G1)^2 + (2nk mu - G2)^2] / [((n^2-k^2) mu + G1)^2 + (2nk mu + G2)^2],
  *   R = (R_perp + R_par)/2. */
-inline REAL fresnel_external(REAL mu, REAL n, REAL k)
+inline VREAL fresnel_external(VREAL mu, REAL n, REAL k)
 {
     /* a = n^2 - k^2 - sin^2 = (n^2 - k^2 - 1) + mu^2: no cancellation at grazing incidence */
     REAL nk2 = n * n - k * k;
-    REAL a = (nk2 - (REAL)1) + mu * mu;
-    REAL b = sqrt(a * a + (REAL)4 * n * n * k * k);
-    REAL G1 = sqrt((REAL)0.5 * (a + b));
-    REAL G2 = sqrt(fmax((REAL)0.5 * (b - a), (REAL)0));
-    REAL r_perp = ((mu - G1) * (mu - G1) + G2 * G2) / ((mu + G1) * (mu + G1) + G2 * G2);
-    REAL tnk = (REAL)2 * n * k * mu;
-    REAL r_par = ((nk2 * mu - G1) * (nk2 * mu - G1) + (tnk - G2) * (tnk - G2))
+    VREAL a = (nk2 - (REAL)1) + mu * mu;
+    VREAL b = sqrt(a * a + (REAL)4 * n * n * k * k);
+    VREAL G1 = sqrt((REAL)0.5 * (a + b));
+    VREAL G2 = sqrt(fmax((REAL)0.5 * (b - a), (REAL)0));
+    VREAL r_perp = ((mu - G1) * (mu - G1) + G2 * G2) / ((mu + G1) * (mu + G1) + G2 * G2);
+    VREAL tnk = (REAL)2 * n * k * mu;
+    VREAL r_par = ((nk2 * mu - G1) * (nk2 * mu - G1) + (tnk - G2) * (tnk - G2))
                / ((nk2 * mu + G1) * (nk2 * mu + G1) + (tnk + G2) * (tnk + G2));
     return (REAL)0.5 * (r_perp + r_par);
 }
@@ -28,12 +29,12 @@ inline REAL fresnel_external(REAL mu, REAL n, REAL k)
  * critical angle (the caller handles total internal reflection). Real n inside (physics.md
  * §3.5, A12): cos(theta_t) = sqrt(1 - n^2 (1 - mu^2)),
  *   r_s = (n mu - cos_t)/(n mu + cos_t), r_p = (mu - n cos_t)/(mu + n cos_t), R = (r_s^2 + r_p^2)/2. */
-inline REAL fresnel_internal(REAL mu, REAL n)
+inline VREAL fresnel_internal(VREAL mu, REAL n)
 {
     /* 1 - n^2 (1 - mu^2) written as (1 - n^2) + n^2 mu^2: well conditioned near grazing */
-    REAL cos_t = sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0));
-    REAL rs = (n * mu - cos_t) / (n * mu + cos_t);
-    REAL rp = (mu - n * cos_t) / (mu + n * cos_t);
+    VREAL cos_t = sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0));
+    VREAL rs = (n * mu - cos_t) / (n * mu + cos_t);
+    VREAL rp = (mu - n * cos_t) / (mu + n * cos_t);
     return (REAL)0.5 * (rs * rs + rp * rp);
 }
 

@@ -3,9 +3,10 @@
  * Philox4x32-10 (Salmon, Moraes, Dror & Shaw 2011, "Parallel random numbers: as easy as
  * 1, 2, 3", the Random123 library), pinned by Random123's known-answer vectors in
  * tests/test_rng.py.
- * Key = (seed, scenario); counter = (block, photon_lo, photon_hi, 0). The j-th draw of a
- * photon is word j mod 4 of block j div 4, so a ray's numbers depend only on (seed, scenario,
- * photon index, draw index): never on the device, the work-group size or the batch.
+ * Key = (seed, scenario); counter = (block, photon_lo, photon_hi, 0). The walk uses block k of
+ * a photon for its k-th event (one block per event, at most four draws), so a ray's numbers
+ * depend only on (seed, scenario, photon index, event index): never on the device, the lane
+ * width, the work-group size or the batch.
  */
 #ifndef WARPE_PHILOX_H
 #define WARPE_PHILOX_H
@@ -29,7 +30,36 @@ inline uint4 philox4x32_10(uint4 ctr, uint2 key)
     return ctr;
 }
 
-/* One photon's stream of draws. */
+/* The same rounds on every lane at once (lanes.h): counter (c0, c1, c2, 0), key (k0, k1);
+ * returns the four output words in x0..x3. */
+inline void philox_lanes(VUINT c0, VUINT c1, VUINT c2, uint k0, uint k1,
+                         VUINT *x0, VUINT *x1, VUINT *x2, VUINT *x3)
+{
+    VUINT c3 = (VUINT)0u;
+    for (int round = 0; round < 10; ++round) {
+        if (round > 0) {
+            k0 += PHILOX_W0;
+            k1 += PHILOX_W1;
+        }
+        VUINT hi0 = mul_hi((VUINT)PHILOX_M0, c0), lo0 = (VUINT)PHILOX_M0 * c0;
+        VUINT hi1 = mul_hi((VUINT)PHILOX_M1, c2), lo1 = (VUINT)PHILOX_M1 * c2;
+        VUINT n0 = hi1 ^ c1 ^ k0, n2 = hi0 ^ c3 ^ k1;
+        c0 = n0; c1 = lo1; c2 = n2; c3 = lo0;
+    }
+    *x0 = c0; *x1 = c1; *x2 = c2; *x3 = c3;
+}
+
+/* Philox words to uniforms U = (x + 1/2) 2^-32 in (0, 1], lane by lane (see uniform below). */
+inline VREAL uniform_lanes(VUINT x)
+{
+#ifdef WARPE_DOUBLE
+    return CONVERT_VREAL(x) * 0x1p-32 + 0x1p-33;
+#else
+    return CONVERT_VREAL(x) * 0x1p-32f + 0x1p-33f;
+#endif
+}
+
+/* One photon's stream of draws, in order (the self-test kernels). */
 typedef struct {
     uint2 key;
     uint photon_lo, photon_hi;

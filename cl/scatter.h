@@ -1,53 +1,54 @@
-/* scatter.h: sampling of directions (physics.md §5.4, §5.5). */
+/* scatter.h: sampling of directions (physics.md §5.4, §5.5), lane by lane (lanes.h). */
 #ifndef WARPE_SCATTER_H
 #define WARPE_SCATTER_H
 
 /* Henyey-Greenstein deflection cosine from one uniform U (physics.md §5.4):
  *   cos(Theta) = [1 + g^2 - ((1 - g^2)/(1 - g + 2gU))^2] / (2g),  g != 0;  2U - 1 for g = 0. */
-inline REAL hg_cos_theta(REAL g, REAL U)
+inline VREAL hg_cos_theta(REAL g, VREAL U)
 {
     if (g == (REAL)0)
         return (REAL)2 * U - (REAL)1;
-    REAL f = ((REAL)1 - g * g) / ((REAL)1 - g + (REAL)2 * g * U);
-    REAL c = ((REAL)1 + g * g - f * f) / ((REAL)2 * g);
+    VREAL f = ((REAL)1 - g * g) / (((REAL)1 - g) + (REAL)2 * g * U);
+    VREAL c = ((REAL)1 + g * g - f * f) / ((REAL)2 * g);
     return clamp(c, (REAL)-1, (REAL)1);
 }
 
-/* Turn the unit direction u by the polar angle acos(cos_theta) and azimuth psi (MCML,
- * Wang, Jacques & Zheng 1995; physics.md §5.4). */
-inline void rotate_direction(REAL *ux, REAL *uy, REAL *uz, REAL cos_theta, REAL psi)
+/* Turn the unit direction u by the polar angle acos(cos_theta) and azimuth psi, given as
+ * (cos psi, sin psi) (MCML, Wang, Jacques & Zheng 1995; physics.md §5.4). Both branches are
+ * evaluated and each lane keeps its own (|uz| > 0.99999: the vertical formula). */
+inline void rotate_direction(VREAL *ux, VREAL *uy, VREAL *uz, VREAL cos_theta,
+                             VREAL cos_psi, VREAL sin_psi)
 {
-    REAL sin_theta = sqrt(fmax((REAL)1 - cos_theta * cos_theta, (REAL)0));
-    REAL cos_psi, sin_psi;
-    sin_psi = sincos(psi, &cos_psi);
-    if (fabs(*uz) > (REAL)0.99999) {
-        *ux = sin_theta * cos_psi;
-        *uy = sin_theta * sin_psi;
-        *uz = (*uz >= (REAL)0 ? cos_theta : -cos_theta);
-    } else {
-        REAL d = sqrt((REAL)1 - *uz * *uz);
-        REAL x = *ux, y = *uy, z = *uz;
-        *ux = sin_theta * (x * z * cos_psi - y * sin_psi) / d + x * cos_theta;
-        *uy = sin_theta * (y * z * cos_psi + x * sin_psi) / d + y * cos_theta;
-        *uz = -sin_theta * cos_psi * d + z * cos_theta;
-    }
+    VREAL sin_theta = sqrt(fmax((REAL)1 - cos_theta * cos_theta, (REAL)0));
+    VREAL x = *ux, y = *uy, z = *uz;
+    VMASK vertical = fabs(z) > (REAL)0.99999;
+    /* general case; d is replaced by 1 on vertical lanes so that no lane divides by 0 */
+    VREAL d = SEL(sqrt(fmax((REAL)1 - z * z, (REAL)0)), (VREAL)1, vertical);
+    VREAL gx = sin_theta * (x * z * cos_psi - y * sin_psi) / d + x * cos_theta;
+    VREAL gy = sin_theta * (y * z * cos_psi + x * sin_psi) / d + y * cos_theta;
+    VREAL gz = -sin_theta * cos_psi * d + z * cos_theta;
+    /* vertical: u' = (sin cos psi, sin sin psi, sign(uz) cos Theta) */
+    VREAL vx = sin_theta * cos_psi, vy = sin_theta * sin_psi;
+    VREAL vz = SEL(-cos_theta, cos_theta, z >= (REAL)0);
+    x = SEL(gx, vx, vertical);
+    y = SEL(gy, vy, vertical);
+    z = SEL(gz, vz, vertical);
 #ifndef WARPE_DOUBLE
     /* float32 drifts off the unit sphere over long walks: renormalise (physics.md §5.4) */
-    REAL inv = rsqrt(*ux * *ux + *uy * *uy + *uz * *uz);
-    *ux *= inv; *uy *= inv; *uz *= inv;
+    VREAL inv = rsqrt(x * x + y * y + z * z);
+    x *= inv; y *= inv; z *= inv;
 #endif
+    *ux = x; *uy = y; *uz = z;
 }
 
-/* Lambertian reflection by the floor, inside the medium (docs/walk.md §3.1):
- * mu = sqrt(U), psi = 2 pi U', direction upwards. */
-inline void lambert_up(rng_t *r, REAL *ux, REAL *uy, REAL *uz)
+/* A Lambertian direction from (mu, cos psi, sin psi): mu = sqrt(U) is the cosine to the
+ * normal (docs/walk.md §3.1); sign -1 points it upwards (into the medium from the floor). */
+inline void lambert_direction(VREAL mu, VREAL cos_psi, VREAL sin_psi,
+                              VREAL *ux, VREAL *uy, VREAL *uz)
 {
-    REAL mu = sqrt(uniform(r));
-    REAL psi = (REAL)(2.0 * WARPE_PI) * uniform(r);
-    REAL s = sqrt(fmax((REAL)1 - mu * mu, (REAL)0));
-    REAL c, sn = sincos(psi, &c);
-    *ux = s * c;
-    *uy = s * sn;
+    VREAL s = sqrt(fmax((REAL)1 - mu * mu, (REAL)0));
+    *ux = s * cos_psi;
+    *uy = s * sin_psi;
     *uz = -mu;
 }
 

@@ -1,4 +1,4 @@
-/* selftest.cl: small kernels that expose the walk's building blocks to the test suite
+/* selftest.cl (built with WARPE_LANES = 1): small kernels that expose the walk's building blocks to the test suite
  * (Philox known answers, uniforms, the HG and Lambert samplers, the Fresnel laws) and to
  * `warpe-cl devices`, which builds them to check that a device can compile our code. */
 
@@ -27,8 +27,10 @@ __kernel void sample_directions(const uint seed, const REAL g, __global REAL *hg
     rng_t r;
     rng_init(&r, seed, 0u, (ulong)i);
     hg_cos[i] = hg_cos_theta(g, uniform(&r));
+    REAL mu = sqrt(uniform(&r));
+    REAL c, s = sincos((REAL)(2.0 * WARPE_PI) * uniform(&r), &c);
     REAL ux, uy, uz;
-    lambert_up(&r, &ux, &uy, &uz);
+    lambert_direction(mu, c, s, &ux, &uy, &uz);
     lambert_mu[i] = -uz;
 }
 

@@ -45,4 +45,52 @@ inline int emergence_bin(REAL cos_exit)
     return min((int)floor(deg), N_EMERGENCE - 1);
 }
 
+#ifdef WARPE_WEIGHTED
+#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
+/* Weighted tallies (docs/walk.md §6) are sums of weights in 192-bit fixed point, in units of
+ * 2^-150: acc[0], acc[1], acc[2] are the low, middle and high 64-bit words. Integer addition is
+ * exact and commutative, so the sums are the same bits whatever the order in which lanes,
+ * work-items and launches add them (no float atomics); a weight of 1e-20 keeps 83 bits.
+ * fixed_add adds floor(w 2^150) for 0 <= w < 2^42; a carry out of a word is seen by the one
+ * atomic add that made it wrap, which passes it on to the next word. */
+inline void fixed_add(__global ulong *acc, REAL w)
+{
+    if (!(w > (REAL)0))
+        return;
+    int e;
+    REAL f = frexp(w, &e);                 /* w = f 2^e, f in [1/2, 1) */
+#ifdef WARPE_DOUBLE
+    ulong m = (ulong)(f * 0x1p53);         /* exact: 53-bit integer, w 2^150 = m 2^s */
+    int s = e - 53 + 150;
+#else
+    ulong m = (ulong)(f * 0x1p24f);
+    int s = e - 24 + 150;
+#endif
+    ulong lo = 0, mid = 0, hi = 0;
+    if (s < 0) {
+        if (s > -64)
+            lo = m >> (-s);
+    } else if (s < 64) {
+        lo = m << s;
+        mid = s ? m >> (64 - s) : 0;
+    } else if (s < 128) {
+        mid = m << (s - 64);
+        hi = s > 64 ? m >> (128 - s) : 0;
+    } else if (s < 192) {
+        hi = m << (s - 128);
+    }
+    ulong old = atom_add(acc, lo);
+    ulong carry = (old + lo < old) ? 1ul : 0ul;
+    if (mid | carry) {
+        ulong add = mid + carry;            /* mid < 2^64 - 1 whenever carry = 1 (m < 2^53) */
+        old = atom_add(acc + 1, add);
+        carry = (old + add < old) ? 1ul : 0ul;
+    } else {
+        carry = 0;
+    }
+    if (hi | carry)
+        atom_add(acc + 2, hi + carry);
+}
+#endif
+
 #endif /* WARPE_TALLY_H */

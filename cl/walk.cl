@@ -1,212 +1,389 @@
-/* walk.cl: the analog random walk of one ray through a slab or a granular layer, and the
- * kernel that walks a range of photons and tallies their exits.
+/* walk.cl: the random walk of rays through a slab or a granular layer, several rays at a
+ * time (lanes.h), and the kernel that tallies their exits.
  *
- * The rules, step by step, are docs/walk.md; the physics is shared/docs/physics.md §5-§6.
+ * The rules, event by event, are docs/walk.md; the physics is shared/docs/physics.md §5-§6.
  * Structure switches (-D): WARPE_TEXTURE_SLAB or WARPE_TEXTURE_GRANULAR (exactly one),
- * WARPE_DOUBLE (precision), WARPE_RECORD (write one record per photon, for the parity tests).
+ * WARPE_DOUBLE (precision), WARPE_LANES (photons per work-item), WARPE_WEIGHTED (survival
+ * weighting, docs/walk.md §6), WARPE_RECORD (one record per photon, for the parity tests).
  * Every physical value is a kernel argument, so a new scenario never recompiles.
+ *
+ * A ray is a small state machine: in each event it takes the next Philox block of its own
+ * stream (four uniforms u0..u3, walk.md §2) and does one of
+ *   ENTRY   (slab) u0: specular reflection at the top, or entry                 (walk.md §3.2)
+ *   FLIGHT  u0: free flight; then a collision (u1 absorption, u2 HG, u3 azimuth), or a boundary
+ *           (u1 Fresnel, or at a contact floor u1 absorption, u2 mu, u3 azimuth) (walk.md §3.3)
+ *   GAP     (slab over a vacuum gap) one floor reflection: u0 absorption, u1 mu, u2 azimuth,
+ *           u3 Fresnel of the slab's lower face                                  (walk.md §3.4)
+ * All lanes do their event at once; a lane whose ray ends is tallied and takes a new photon.
  */
 #if defined(WARPE_TEXTURE_SLAB) == defined(WARPE_TEXTURE_GRANULAR)
 #error "define exactly one of WARPE_TEXTURE_SLAB and WARPE_TEXTURE_GRANULAR"
 #endif
 
-typedef struct {
-    REAL h;          /* thickness, m */
-    REAL E;          /* extinction coefficient tau0/h, 1/m (0: none) */
-    REAL omega;      /* single-scattering albedo */
-    REAL g;          /* Henyey-Greenstein asymmetry */
-    REAL n, k;       /* effective index */
-    REAL A;          /* Lambertian floor albedo */
-    REAL L_max;      /* path cap max_time * c / n, m */
-    uint max_flights;
-    int bottom_fresnel; /* slab: 1 = Fresnel interface above the floor, 0 = optical contact */
-} medium_t;
+#define PHASE_ENTRY 0
+#define PHASE_FLIGHT 1
+#define PHASE_GAP 2
 
-typedef struct {
-    REAL t;          /* exit time, ns */
-    REAL cos_exit;   /* cos of the emergence angle in vacuum */
-    uint n_scat, n_lamb, n_bspec, n_top;
-} ray_t;
+/* Lanes in `m` end with fate f (tally.h): they are tallied after this event. */
+#define FINISH(m, f) do { VMASK m_ = (m); done |= m_; fate = SEL(fate, (VMASK)(f), m_); } while (0)
 
-/* Walk one ray; returns its fate and fills `ray` (docs/walk.md §3). */
-inline int walk_ray(const medium_t *m, rng_t *r, ray_t *ray)
-{
-    ray->n_scat = ray->n_lamb = ray->n_bspec = ray->n_top = 0;
-    ray->t = (REAL)0;
-    ray->cos_exit = (REAL)1;
-
-#ifdef WARPE_TEXTURE_SLAB
-    /* §5.2: specular reflection at the top with R0(n_eff, k_eff), recorded at t = 0, theta_e = 0 */
-    if (uniform(r) <= fresnel_external((REAL)1, m->n, m->k))
-        return FATE_SPECULAR;
-#endif
-
-    REAL z = (REAL)0, ux = (REAL)0, uy = (REAL)0, uz = (REAL)1;  /* §5.1: normal incidence */
-    path_t L = {0, 0};
-    uint flights = 0;
-
-    for (;;) {
-        if (flights == m->max_flights)
-            return FATE_TERMINATED;   /* §5.8 safety cap */
-        flights += 1;
-
-        /* §5.3 free flight: optical step -ln U, physical step s = l/E (seed eq. 3) */
-        REAL ell = -log(uniform(r));
-        REAL s = m->E > (REAL)0 ? ell / m->E : (REAL)INFINITY;
-        REAL s_b = uz > (REAL)0 ? (m->h - z) / uz : (uz < (REAL)0 ? -z / uz : (REAL)INFINITY);
-
-        if (s < s_b) {
-            /* §5.4 collision */
-            z += s * uz;
-            path_add(&L, s);
-            if (L.sum > (PATH)m->L_max)
-                return FATE_TERMINATED;
-            if (uniform(r) > m->omega)
-                return FATE_ABSORBED_MEDIUM;
-            ray->n_scat += 1;
-            REAL cos_theta = hg_cos_theta(m->g, uniform(r));
-            REAL psi = (REAL)(2.0 * WARPE_PI) * uniform(r);
-            rotate_direction(&ux, &uy, &uz, cos_theta, psi);
-            continue;
-        }
-
-        path_add(&L, s_b);
-        if (L.sum > (PATH)m->L_max)
-            return FATE_TERMINATED;
-
-        if (uz > (REAL)0) {
-            /* §5.5 bottom */
-            z = m->h;
-#ifdef WARPE_TEXTURE_SLAB
-            if (m->bottom_fresnel) {
-                REAL mu = uz;
-                if (m->n * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= (REAL)1
-                    || uniform(r) <= fresnel_internal(mu, m->n)) {
-                    uz = -uz;              /* specular at the bottom interface */
-                    ray->n_bspec += 1;
-                    continue;
-                }
-                /* through the zero-thickness gap to the floor, and back (no time added) */
-                for (;;) {
-                    if (uniform(r) > m->A)
-                        return FATE_ABSORBED_FLOOR;
-                    ray->n_lamb += 1;
-                    REAL mu_v = sqrt(uniform(r));
-                    REAL psi = (REAL)(2.0 * WARPE_PI) * uniform(r);
-                    if (uniform(r) <= fresnel_external(mu_v, m->n, m->k))
-                        continue;          /* reflected by the slab's lower face: floor again */
-                    /* refraction in (Snell, real part): sin(theta_s) = sin(theta_v)/n */
-                    REAL sin_s = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0)) / m->n;
-                    REAL c, sn = sincos(psi, &c);
-                    ux = sin_s * c;
-                    uy = sin_s * sn;
-                    uz = -sqrt((REAL)1 - sin_s * sin_s);
-                    break;
-                }
-                continue;
-            }
-#endif
-            /* Lambertian floor in optical contact (granular, or slab with bottom_interface none) */
-            if (uniform(r) > m->A)
-                return FATE_ABSORBED_FLOOR;
-            ray->n_lamb += 1;
-            lambert_up(r, &ux, &uy, &uz);
-            continue;
-        }
-
-        /* §5.6 top, from inside */
-        z = (REAL)0;
-        REAL mu = -uz;
-#ifdef WARPE_TEXTURE_SLAB
-        if (m->n * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= (REAL)1
-            || uniform(r) <= fresnel_internal(mu, m->n)) {
-            uz = -uz;
-            ray->n_top += 1;
-            continue;
-        }
-        ray->cos_exit = sqrt(fmax(((REAL)1 - m->n * m->n) + m->n * m->n * mu * mu, (REAL)0));
-#else
-        ray->cos_exit = mu;
-#endif
-        /* §5.7 seed eq. 4: t = L n_eff / c */
-        ray->t = (REAL)(L.sum * (PATH)m->n / (PATH)WARPE_C_M_PER_NS);
-        return FATE_ESCAPED;
-    }
-}
-
-/* Walk photons first_photon .. first_photon + n_photons - 1, each work-item taking every
- * get_global_size(0)-th photon. Histograms are accumulated with integer atomics; per work-item
- * totals (fates, scattering events, mixed histories) go to item_stats[gid * 8 + i]. */
 __kernel void walk(const uint seed, const uint scenario,
-                   const ulong first_photon, const ulong n_photons,
+                   const ulong first_photon, const uint n_photons,
                    const REAL h, const REAL E, const REAL omega, const REAL g,
                    const REAL n, const REAL k, const REAL A,
                    const REAL L_max, const uint max_flights, const int bottom_fresnel,
+                   const REAL mu_a, const REAL roulette_weight, const REAL roulette_survival,
                    const int rule_time_window, const REAL t1,
                    __global const REAL *time_edges, const int n_edges,
                    const REAL cos_fov_specular, const REAL cos_fov_bf_direct,
                    const REAL cos_fov_bf_diffuse, const REAL cos_fov_scattering,
+                   __global uint *next_photon,   /* [1] photons handed out so far (starts at 0) */
                    __global uint *time_in_fov,   /* [4][n_edges - 1] */
                    __global uint *time_any,      /* [4][n_edges - 1] */
                    __global uint *angular,       /* [4][90] */
                    __global uint *total,         /* [4] */
                    __global ulong *item_stats    /* [global size][8] */
+#ifdef WARPE_WEIGHTED
+                   , __global ulong *w_time_in_fov  /* [4][n_edges - 1][3] sums of weights */
+                   , __global ulong *w_time_any     /* [4][n_edges - 1][3] */
+                   , __global ulong *w_angular      /* [4][90][3] */
+                   , __global ulong *w_total        /* [4][3] */
+                   , __global ulong *w2_time_in_fov /* [4][n_edges - 1][3] sums of squares */
+                   , __global ulong *w2_total       /* [4][3] */
+#endif
 #ifdef WARPE_RECORD
                    , __global int *rec_int       /* [n_photons][8] */
-                   , __global REAL *rec_real     /* [n_photons][2] */
+                   , __global REAL *rec_real     /* [n_photons][3] */
 #endif
                    )
 {
-    const medium_t m = {h, E, omega, g, n, k, A, L_max, max_flights, bottom_fresnel};
     const REAL cos_fov[4] = {cos_fov_specular, cos_fov_bf_direct, cos_fov_bf_diffuse,
                              cos_fov_scattering};
     const int n_time = n_edges - 1;
-    const size_t gid = get_global_id(0), stride = get_global_size(0);
+    const uint base_lo = (uint)first_photon, base_hi = (uint)(first_photon >> 32);
+    const REAL ns_per_m = n / (REAL)WARPE_C_M_PER_NS;   /* seed eq. 4: t = L n_eff / c */
+    const REAL two_pi = (REAL)(2.0 * WARPE_PI);
+#ifdef WARPE_TEXTURE_SLAB
+    const VREAL R0 = fresnel_external((VREAL)1, n, k);  /* §5.2, normal incidence */
+    const IREAL phase_start = PHASE_ENTRY;
+#else
+    const IREAL phase_start = PHASE_FLIGHT;
+#endif
     ulong fates[N_FATES] = {0, 0, 0, 0, 0};
     ulong scattering_events = 0, mixed = 0;
 
-    for (ulong i = gid; i < n_photons; i += stride) {
-        rng_t r;
-        ray_t ray;
-        rng_init(&r, seed, scenario, first_photon + i);
-        int fate = walk_ray(&m, &r, &ray);
-        fates[fate] += 1;
-        scattering_events += ray.n_scat;
-        int component = -1, tb = -1, eb = -1;
-        if (fate == FATE_SPECULAR || fate == FATE_ESCAPED) {
-            /* §6.1 components */
-            if (fate == FATE_SPECULAR)
-                component = COMPONENT_SPECULAR;
-            else if (ray.n_scat == 0 && ray.n_lamb == 0)
-                component = COMPONENT_BF_DIRECT;
-            else if (rule_time_window)
-                component = ray.t >= t1 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
-            else
-                component = ray.n_lamb > 0 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
-            if (ray.n_scat > 0 && ray.n_lamb > 0)
-                mixed += 1;
-            eb = emergence_bin(ray.cos_exit);
-            tb = time_bin(ray.t, time_edges, n_edges);
-            atomic_inc(&total[component]);
-            atomic_inc(&angular[component * N_EMERGENCE + eb]);
-            if (tb >= 0) {
-                atomic_inc(&time_any[component * n_time + tb]);
-                if (ray.cos_exit >= cos_fov[component])
-                    atomic_inc(&time_in_fov[component * n_time + tb]);
+    /* the lanes' rays (walk.md §3): position, direction, path, counters, stream */
+    VREAL z = 0, ux = 0, uy = 0, uz = 1, Ls = 0, Lc = 0, cos_exit = 1;
+    VMASK flights = 0, n_scat = 0, n_lamb = 0, n_bspec = 0, n_top = 0;
+    VMASK phase = phase_start, event = 0, photon = 0, alive = 0;
+    VUINT p_lo = 0, p_hi = 0;
+#ifdef WARPE_WEIGHTED
+    VREAL w = 1;
+#endif
+    int exhausted = 0;
+
+    for (;;) {
+        /* ---- refill: every lane without a ray takes the next photon ---- */
+        if (!exhausted && !ALL(alive)) {
+            IREAL a[WARPE_LANES], p[WARPE_LANES];
+            VSTORE(alive, a);
+            VSTORE(photon, p);
+            uint wanted = 0;
+            for (int j = 0; j < WARPE_LANES; ++j)
+                wanted += a[j] ? 0u : 1u;
+            uint next = atomic_add(next_photon, wanted);
+            for (int j = 0; j < WARPE_LANES; ++j) {
+                if (a[j])
+                    continue;
+                if (next < n_photons) {
+                    p[j] = (IREAL)next;
+                    a[j] = (IREAL)-1;    /* "true" in both mask conventions (lanes.h) */
+                    next += 1;
+                } else {
+                    exhausted = 1;
+                }
+            }
+            VMASK fresh = VLOAD(a) & !alive;
+            photon = VLOAD(p);
+            alive |= fresh;
+            VUINT lo = (VUINT)base_lo + CONVERT_VUINT(photon);
+            p_lo = SEL(p_lo, lo, MASK32(fresh));
+            p_hi = SEL(p_hi, SEL((VUINT)base_hi, (VUINT)(base_hi + 1u), lo < base_lo),
+                       MASK32(fresh));
+            /* §5.1 launch: top of the layer, straight down, nothing done yet */
+            z = SEL(z, (VREAL)0, fresh);
+            ux = SEL(ux, (VREAL)0, fresh);
+            uy = SEL(uy, (VREAL)0, fresh);
+            uz = SEL(uz, (VREAL)1, fresh);
+            Ls = SEL(Ls, (VREAL)0, fresh);
+            Lc = SEL(Lc, (VREAL)0, fresh);
+            cos_exit = SEL(cos_exit, (VREAL)1, fresh);
+            flights = SEL(flights, (VMASK)0, fresh);
+            n_scat = SEL(n_scat, (VMASK)0, fresh);
+            n_lamb = SEL(n_lamb, (VMASK)0, fresh);
+            n_bspec = SEL(n_bspec, (VMASK)0, fresh);
+            n_top = SEL(n_top, (VMASK)0, fresh);
+            phase = SEL(phase, (VMASK)phase_start, fresh);
+            event = SEL(event, (VMASK)0, fresh);
+#ifdef WARPE_WEIGHTED
+            w = SEL(w, (VREAL)1, fresh);
+#endif
+        }
+        if (!ANY(alive))
+            break;
+
+        /* ---- one event of every live lane, from block `event` of its stream (walk.md §2) ---- */
+        VUINT x0, x1, x2, x3;
+        philox_lanes(CONVERT_VUINT(event), p_lo, p_hi, seed, scenario, &x0, &x1, &x2, &x3);
+        const VREAL u0 = uniform_lanes(x0), u1 = uniform_lanes(x1);
+        const VREAL u2 = uniform_lanes(x2), u3 = uniform_lanes(x3);
+        event += (VMASK)1;
+        VMASK done = 0, fate = 0;
+        const VMASK in_flight = alive & (phase == (VMASK)PHASE_FLIGHT);
+
+#ifdef WARPE_TEXTURE_SLAB
+        /* ENTRY, §5.2: specular iff u0 <= R0, recorded at t = 0, theta_e = 0; else enter */
+        {
+            VMASK entry = alive & (phase == (VMASK)PHASE_ENTRY);
+            FINISH(entry & (u0 <= R0), FATE_SPECULAR);
+            phase = SEL(phase, (VMASK)PHASE_FLIGHT, entry);
+        }
+        const VMASK in_gap = alive & (phase == (VMASK)PHASE_GAP);
+#endif
+
+        /* FLIGHT, §5.3-§5.8 */
+        VMASK fl = in_flight;
+        FINISH(fl & (flights == (VMASK)max_flights), FATE_TERMINATED);   /* §5.8 flight cap */
+        fl &= !done;
+        flights += ONE(fl);
+        /* free flight: optical step -ln u0, physical step s = l/E (seed eq. 3) */
+        VREAL s = E > (REAL)0 ? -log(u0) / E : (VREAL)INFINITY;
+        VREAL s_b = SEL(SEL((VREAL)INFINITY, -z / uz, uz < (REAL)0), (h - z) / uz, uz > (REAL)0);
+        VMASK coll = fl & (s < s_b);
+        VMASK bnd = fl & !(s < s_b);
+        VREAL len = SEL(s_b, s, coll);
+        z = SEL(z, SEL(SEL((VREAL)0, (VREAL)h, uz > (REAL)0), z + s * uz, coll), fl);
+#ifdef WARPE_DOUBLE
+        Ls = SEL(Ls, Ls + len, fl);
+#else
+        {   /* compensated (Kahan) sum of the path: physics.md A15 */
+            VREAL y = len - Lc, sum = Ls + y;
+            Lc = SEL(Lc, (sum - Ls) - y, fl);
+            Ls = SEL(Ls, sum, fl);
+        }
+#endif
+        VMASK over = fl & (Ls > L_max);                                   /* §5.8 time cap */
+        FINISH(over, FATE_TERMINATED);
+        coll &= !over;
+        bnd &= !over;
+#ifdef WARPE_WEIGHTED
+        /* walk.md §6: absorption as exp(-mu_a s) along every flight */
+        w = SEL(w, w * exp(-mu_a * len), coll | bnd);
+#endif
+        /* the azimuth of a scattering or of a floor reflection: psi = 2 pi u3 */
+        VREAL cos_psi, sin_psi = sincos(two_pi * u3, &cos_psi);
+
+        /* collision, §5.4: absorbed iff u1 > omega, else HG deflection (u2) and azimuth (u3) */
+#ifndef WARPE_WEIGHTED
+        FINISH(coll & (u1 > omega), FATE_ABSORBED_MEDIUM);
+        coll &= !done;
+#else
+        {   /* Russian roulette below roulette_weight (walk.md §6), on u1 */
+            VMASK low = coll & (w < roulette_weight);
+            VMASK dies = low & (u1 > roulette_survival);
+            FINISH(dies, FATE_ABSORBED_MEDIUM);
+            w = SEL(w, w / roulette_survival, low & !dies);
+            coll &= !dies;
+        }
+#endif
+        n_scat += ONE(coll);
+        if (ANY(coll)) {
+            VREAL vx = ux, vy = uy, vz = uz;
+            rotate_direction(&vx, &vy, &vz, hg_cos_theta(g, u2), cos_psi, sin_psi);
+            ux = SEL(ux, vx, coll);
+            uy = SEL(uy, vy, coll);
+            uz = SEL(uz, vz, coll);
+        }
+
+        if (ANY(bnd)) {
+            const VMASK down = uz > (REAL)0;
+            VMASK bottom = bnd & down;
+            const VMASK top = bnd & !down;
+#ifdef WARPE_TEXTURE_SLAB
+            /* §5.5/§5.6 interfaces of the slab: total internal reflection, else reflect iff
+             * u1 <= R_int(mu) (walk.md §3.3) */
+            const VREAL mu = fabs(uz);
+            const VMASK reflect = (n * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= (REAL)1)
+                                | (u1 <= fresnel_internal(mu, n));
+            if (bottom_fresnel) {
+                VMASK back = bottom & reflect;
+                uz = SEL(uz, -uz, back);
+                n_bspec += ONE(back);
+                phase = SEL(phase, (VMASK)PHASE_GAP, bottom & !reflect);   /* into the gap */
+                bottom = 0;
+            }
+            VMASK up = top & reflect;
+            uz = SEL(uz, -uz, up);
+            n_top += ONE(up);
+            VMASK out = top & !reflect;
+            /* Snell: cos theta_e = sqrt(1 - n^2 (1 - mu^2)) */
+            cos_exit = SEL(cos_exit, sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0)), out);
+            FINISH(out, FATE_ESCAPED);
+#else
+            /* granular: no interface, the ray leaves at cos theta_e = -uz */
+            cos_exit = SEL(cos_exit, -uz, top);
+            FINISH(top, FATE_ESCAPED);
+#endif
+            if (ANY(bottom)) {
+                /* §5.5 Lambertian floor in optical contact: absorbed iff u1 > A, else
+                 * mu = sqrt(u2) and the azimuth u3 */
+#ifndef WARPE_WEIGHTED
+                FINISH(bottom & (u1 > A), FATE_ABSORBED_FLOOR);
+                bottom &= !done;
+#else
+                if (A == (REAL)0) {
+                    FINISH(bottom, FATE_ABSORBED_FLOOR);
+                    bottom = 0;
+                }
+                w = SEL(w, w * A, bottom);
+                VMASK low = bottom & (w < roulette_weight);
+                VMASK dies = low & (u1 > roulette_survival);
+                FINISH(dies, FATE_ABSORBED_FLOOR);
+                w = SEL(w, w / roulette_survival, low & !dies);
+                bottom &= !dies;
+#endif
+                n_lamb += ONE(bottom);
+                VREAL vx, vy, vz;
+                lambert_direction(sqrt(u2), cos_psi, sin_psi, &vx, &vy, &vz);
+                ux = SEL(ux, vx, bottom);
+                uy = SEL(uy, vy, bottom);
+                uz = SEL(uz, vz, bottom);
             }
         }
-#ifdef WARPE_RECORD
-        __global int *ri = rec_int + 8 * i;
-        ri[0] = fate; ri[1] = component;
-        ri[2] = (int)ray.n_scat; ri[3] = (int)ray.n_lamb;
-        ri[4] = (int)ray.n_bspec; ri[5] = (int)ray.n_top;
-        ri[6] = tb; ri[7] = eb;
-        rec_real[2 * i] = ray.t;
-        rec_real[2 * i + 1] = ray.cos_exit;
+
+#ifdef WARPE_TEXTURE_SLAB
+        /* GAP, §5.5: one reflection by the floor below the slab's lower face */
+        if (ANY(in_gap)) {
+            VMASK gap = in_gap;
+#ifndef WARPE_WEIGHTED
+            FINISH(gap & (u0 > A), FATE_ABSORBED_FLOOR);                   /* absorbed iff u0 > A */
+            gap &= !done;
+#else
+            if (A == (REAL)0) {
+                FINISH(gap, FATE_ABSORBED_FLOOR);
+                gap = 0;
+            }
+            w = SEL(w, w * A, gap);
+            VMASK low = gap & (w < roulette_weight);
+            VMASK dies = low & (u0 > roulette_survival);
+            FINISH(dies, FATE_ABSORBED_FLOOR);
+            w = SEL(w, w / roulette_survival, low & !dies);
+            gap &= !dies;
 #endif
+            n_lamb += ONE(gap);
+            VREAL mu_v = sqrt(u1);                                  /* Lambertian, in vacuum */
+            VREAL c2, s2 = sincos(two_pi * u2, &c2);
+            /* u3 <= R_ext(mu_v; n, k): the slab's lower face sends it back to the floor */
+            VMASK enter = gap & (u3 > fresnel_external(mu_v, n, k));
+            /* refraction in (Snell, real part): sin theta_s = sin theta_v / n */
+            VREAL sin_s = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0)) / n;
+            ux = SEL(ux, sin_s * c2, enter);
+            uy = SEL(uy, sin_s * s2, enter);
+            uz = SEL(uz, -sqrt((REAL)1 - sin_s * sin_s), enter);
+            phase = SEL(phase, (VMASK)PHASE_FLIGHT, enter);
+        }
+#endif
+
+        /* ---- tally the lanes whose ray ended (walk.md §4) ---- */
+        if (ANY(done)) {
+            IREAL d[WARPE_LANES], f[WARPE_LANES], ns[WARPE_LANES], nl[WARPE_LANES];
+            IREAL p[WARPE_LANES];
+            REAL t[WARPE_LANES], ce[WARPE_LANES];
+            VSTORE(done, d);
+            VSTORE(fate, f);
+            VSTORE(n_scat, ns);
+            VSTORE(n_lamb, nl);
+            VSTORE(photon, p);
+            VSTORE(Ls * ns_per_m, t);
+            VSTORE(cos_exit, ce);
+#ifdef WARPE_WEIGHTED
+            REAL wt[WARPE_LANES];
+            VSTORE(w, wt);
+#endif
+#ifdef WARPE_RECORD
+            IREAL nb[WARPE_LANES], nt[WARPE_LANES];
+            VSTORE(n_bspec, nb);
+            VSTORE(n_top, nt);
+#endif
+            for (int j = 0; j < WARPE_LANES; ++j) {
+                if (!d[j])
+                    continue;
+                const int fj = (int)f[j];
+                const uint n_s = (uint)ns[j], n_l = (uint)nl[j];
+                REAL tj = t[j];
+                fates[fj] += 1;
+                scattering_events += n_s;
+                int component = -1, tb = -1, eb = -1;
+                if (fj == FATE_SPECULAR || fj == FATE_ESCAPED) {
+                    /* §6.1 components */
+                    if (fj == FATE_SPECULAR) {
+                        component = COMPONENT_SPECULAR;
+                        tj = (REAL)0;
+                        ce[j] = (REAL)1;
+                    } else if (n_s == 0 && n_l == 0) {
+                        component = COMPONENT_BF_DIRECT;
+                    } else if (rule_time_window) {
+                        component = tj >= t1 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
+                    } else {
+                        component = n_l > 0 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
+                    }
+                    if (n_s > 0 && n_l > 0)
+                        mixed += 1;
+                    eb = emergence_bin(ce[j]);
+                    tb = time_bin(tj, time_edges, n_edges);
+                    const int in_fov = ce[j] >= cos_fov[component];
+                    atomic_inc(&total[component]);
+                    atomic_inc(&angular[component * N_EMERGENCE + eb]);
+                    if (tb >= 0) {
+                        atomic_inc(&time_any[component * n_time + tb]);
+                        if (in_fov)
+                            atomic_inc(&time_in_fov[component * n_time + tb]);
+                    }
+#ifdef WARPE_WEIGHTED
+                    const REAL wj = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
+                    fixed_add(w_total + 3 * component, wj);
+                    fixed_add(w2_total + 3 * component, wj * wj);
+                    fixed_add(w_angular + 3 * (component * N_EMERGENCE + eb), wj);
+                    if (tb >= 0) {
+                        fixed_add(w_time_any + 3 * (component * n_time + tb), wj);
+                        if (in_fov) {
+                            fixed_add(w_time_in_fov + 3 * (component * n_time + tb), wj);
+                            fixed_add(w2_time_in_fov + 3 * (component * n_time + tb), wj * wj);
+                        }
+                    }
+#endif
+                }
+#ifdef WARPE_RECORD
+                const size_t i = (size_t)p[j];
+                __global int *ri = rec_int + 8 * i;
+                ri[0] = fj; ri[1] = component;
+                ri[2] = (int)n_s; ri[3] = (int)n_l;
+                ri[4] = (int)nb[j]; ri[5] = (int)nt[j];
+                ri[6] = tb; ri[7] = eb;
+                rec_real[3 * i] = tj;
+                rec_real[3 * i + 1] = ce[j];
+#ifdef WARPE_WEIGHTED
+                rec_real[3 * i + 2] = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
+#else
+                rec_real[3 * i + 2] = (REAL)1;
+#endif
+#endif
+            }
+            alive &= !done;
+        }
     }
 
-    __global ulong *st = item_stats + 8 * gid;
+    __global ulong *st = item_stats + 8 * get_global_id(0);
     for (int f = 0; f < N_FATES; ++f)
         st[f] = fates[f];
     st[5] = scattering_events;

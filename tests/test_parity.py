@@ -33,12 +33,14 @@ EXACT_FIELDS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "ti
                 "emergence_bin")
 
 
+@pytest.mark.parametrize("lanes", [1, 8])
 @pytest.mark.parametrize("name", sorted(MEDIA))
-def test_double_kernel_follows_reference_per_photon(engine, name):
+def test_double_kernel_follows_reference_per_photon(engine, name, lanes):
+    """Both forms of the kernel: one photon per work-item (GPUs) and vector lanes (CPUs)."""
     params = medium(**MEDIA[name])
     n = 3000
     ref = simulate_reference(params, n, first_photon=10, records=True)
-    ker = engine.run(params, n, precision="double", first_photon=10, records=True)
+    ker = engine.run(params, n, precision="double", first_photon=10, records=True, lanes=lanes)
     for field in EXACT_FIELDS:
         np.testing.assert_array_equal(ker.records[field], ref.records[field], err_msg=field)
     for field in ("time_ns", "cos_exit"):
@@ -47,7 +49,8 @@ def test_double_kernel_follows_reference_per_photon(engine, name):
     assert ker.same_as(ref)
 
 
-def test_single_precision_per_photon_agreement(engine):
+@pytest.mark.parametrize("lanes", [1, 16])
+def test_single_precision_per_photon_agreement(engine, lanes):
     """float32 walks drift from the float64 reference by rounding, and a drifted ray could take
     another branch. Measured on these media (PoCL 3.1, 2026-11, 20 000 photons each): 100 % of
     photons keep the same fate, component, counters, time and emergence bins; times agree to
@@ -59,7 +62,7 @@ def test_single_precision_per_photon_agreement(engine):
         params = medium(**MEDIA[name])
         n = 3000
         ref = simulate_reference(params, n, records=True)
-        ker = engine.run(params, n, precision="single", records=True)
+        ker = engine.run(params, n, precision="single", records=True, lanes=lanes)
         same = np.ones(n, dtype=bool)
         for field in EXACT_FIELDS:
             same &= ker.records[field] == ref.records[field]

@@ -247,8 +247,9 @@ def test_pure_absorbing_slab_bf_direct_series_and_times():
 
 
 def test_draw_order_of_the_first_events():
-    # walk.md §2-§3 for the pure absorbing slab: draw 0 decides the entry, draw 1 the first
-    # flight, draw 2 the bottom Fresnel reflection, draw 3 the floor (A = 0: always absorbed).
+    # walk.md §2-§3 for the pure absorbing slab, one Philox block per event: block 0 word 0
+    # decides the entry; block 1 is the first flight (word 0 the step, word 1 the bottom
+    # Fresnel reflection); the floor (A = 0) always absorbs. Draw j is word j % 4 of block j // 4.
     tau0 = 0.5
     params = slab(extinction=tau0, omega=0.0, albedo=0.0, seed=99, scenario=1)
     photons = 400
@@ -256,12 +257,12 @@ def test_draw_order_of_the_first_events():
     r0 = normal_incidence_reflectance(N_CO2, 0.0)
     fate_index = {name: i for i, name in enumerate(FATES)}
     for p in range(photons):
-        u = photon_draws(params.seed, params.scenario, p, 3)
+        u = photon_draws(params.seed, params.scenario, p, 8)
         if u[0] <= r0:
             expected = "specular"
-        elif -math.log(u[1]) / tau0 < 1.0:  # step s < s_b = h = 1 m
+        elif -math.log(u[4]) / tau0 < 1.0:  # step s < s_b = h = 1 m
             expected = "absorbed_medium"
-        elif u[2] <= r0:  # reflected at the bottom: the ray lives on
+        elif u[5] <= r0:  # reflected at the bottom: the ray lives on
             assert records["n_bspec"][p] >= 1
             continue
         else:

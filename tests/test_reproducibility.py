@@ -23,6 +23,18 @@ def test_counts_do_not_depend_on_launch_geometry(engine, precision):
         assert other.same_as(reference), kw
 
 
+@pytest.mark.parametrize("precision", ["single", "double"])
+@pytest.mark.parametrize("texture", ["slab", "granular"])
+def test_counts_do_not_depend_on_lane_width(engine, precision, texture):
+    """The vector form (several photons per work-item) and the one-photon-per-work-item form
+    (what GPUs run) are one kernel source: every lane width gives the same bits."""
+    p = medium(**{**SCATTERING, "texture": texture})
+    n = 20_000
+    reference = engine.run(p, n, precision=precision, lanes=1)
+    for lanes in (2, 4, 8, 16):
+        assert engine.run(p, n, precision=precision, lanes=lanes).same_as(reference), lanes
+
+
 def test_split_runs_add_up_to_the_whole(engine):
     p = medium(**SCATTERING)
     whole = engine.run(p, 50_000)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .errors import DeviceError
 
-SELFTEST_FILES = ("real.h", "philox.h", "fresnel.h", "scatter.h", "selftest.cl")
+SELFTEST_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "selftest.cl")
 
 INSTALL_HINT = (
     "install an OpenCL driver: `pip install pocl-binary-distribution` (PoCL 3.0, CPUs known to "

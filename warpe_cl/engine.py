@@ -16,18 +16,30 @@ import numpy as np
 from . import device as devmod
 from .params import Counts, N_EMERGENCE, WalkParams
 
-WALK_FILES = ("real.h", "philox.h", "fresnel.h", "scatter.h", "tally.h", "walk.cl")
-MAX_LAUNCH = 2 ** 31
+WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "tally.h", "walk.cl")
+MAX_LAUNCH = 2 ** 31 - 1
+LANE_WIDTHS = (1, 2, 4, 8, 16)
 
 
-def build_options(texture: str, precision: str, records: bool) -> tuple:
+def build_options(texture: str, precision: str, records: bool, lanes: int = 1) -> tuple:
     """The structural ``-D`` switches of the walk kernel (no physical value is compiled in)."""
-    opts = ["-DWARPE_TEXTURE_SLAB" if texture == "slab" else "-DWARPE_TEXTURE_GRANULAR"]
+    if lanes not in LANE_WIDTHS:
+        raise ValueError(f"lanes must be one of {LANE_WIDTHS}, got {lanes}")
+    opts = ["-DWARPE_TEXTURE_SLAB" if texture == "slab" else "-DWARPE_TEXTURE_GRANULAR",
+            f"-DWARPE_LANES={lanes}"]
     if precision == "double":
         opts.append("-DWARPE_DOUBLE")
     if records:
         opts.append("-DWARPE_RECORD")
     return tuple(opts)
+
+
+def default_lanes(kind: str, precision: str) -> int:
+    """Photons per work-item: one on GPUs (their work-items are the lanes); on CPUs a vector
+    of 512 bits (16 floats or 8 doubles), which AVX-512 holds in one register and AVX2 in two."""
+    if kind == "gpu":
+        return 1
+    return 8 if precision == "double" else 16
 
 
 class Engine:
@@ -59,21 +71,22 @@ class Engine:
                 "opencl_driver": i.driver, "opencl_device_type": i.kind}
 
     def default_global_size(self) -> int:
-        """Work-items per launch: one photon each on GPUs; 256 per compute unit on CPUs
-        (fewer leaves cores idle, more only costs per-item bookkeeping)."""
+        """Work-items per launch: 2^20 on GPUs; 16 per compute unit on CPUs (each walks a
+        vector of photons and takes new ones as its rays end, so a few per core keep every
+        core busy to the end of a launch)."""
         if self.info.kind == "gpu":
             return 1 << 20
-        return 256 * max(1, self.info.compute_units)
+        return 16 * max(1, self.info.compute_units)
 
-    def kernel(self, texture: str, precision: str, records: bool):
+    def kernel(self, texture: str, precision: str, records: bool, lanes: int):
         """The walk kernel for this structure; programs are built once per process."""
         if precision == "double" and not self.info.fp64:
             raise devmod.DeviceError(f"{self.info.device} has no double precision; "
                                      "use simulation.precision: single")
         program, digest = devmod.build_program(self.device, WALK_FILES,
-                                               build_options(texture, precision, records))
+                                               build_options(texture, precision, records, lanes))
         self.kernel_hash = digest
-        key = (texture, precision, records)
+        key = (texture, precision, records, lanes)
         if key not in self._kernels:
             import pyopencl as cl
             self._kernels[key] = cl.Kernel(program, "walk")
@@ -82,7 +95,7 @@ class Engine:
     def run(self, params: WalkParams, photons: int, precision: str = "single",
             first_photon: int = 0, records: bool = False, batch: int | None = None,
             global_size: int | None = None, local_size: int | None = None,
-            progress=None) -> Counts:
+            lanes: int | None = None, progress=None) -> Counts:
         """Walk ``photons`` rays, numbered from ``first_photon``.
 
         Parameters
@@ -100,6 +113,9 @@ class Engine:
             Photons per launch; by default sized from the measured speed.
         global_size, local_size : int, optional
             Work-items per launch and per work-group (results never depend on them).
+        lanes : int, optional
+            Photons walked at once by one work-item (1, 2, 4, 8, 16; results never depend on
+            it); by default :func:`default_lanes` for the device.
         progress : callable, optional
             Called with the number of photons finished after each launch.
 
@@ -110,7 +126,8 @@ class Engine:
         import pyopencl as cl
 
         real = np.float64 if precision == "double" else np.float32
-        kern = self.kernel(params.texture, precision, records)
+        lanes = int(lanes or default_lanes(self.info.kind, precision))
+        kern = self.kernel(params.texture, precision, records, lanes)
         edges = np.asarray(params.time_edges, dtype=real)
         n_time = len(edges) - 1
         gsize = int(global_size or self.default_global_size())
@@ -125,32 +142,34 @@ class Engine:
         d_hist = {k: cl.Buffer(ctx, mf.READ_WRITE, size=4 * int(np.prod(s)))
                   for k, s in hist_shapes.items()}
         d_stats = cl.Buffer(ctx, mf.READ_WRITE, size=8 * 8 * gsize)
+        d_next = cl.Buffer(ctx, mf.READ_WRITE, size=4)
 
         cos_fov = params.cos_fov
         scalar_args = [
             real(params.thickness), real(params.extinction), real(params.omega), real(params.g),
             real(params.n), real(params.k), real(params.albedo), real(params.path_cap),
-            np.uint32(min(params.max_flights, 2 ** 32 - 1)),
+            np.uint32(min(params.max_flights, 2 ** 31 - 1)),
             np.int32(params.bottom_interface == "fresnel"),
+            real(0.0), real(0.0), real(1.0),
             np.int32(params.rule == "time_window"), real(params.first_bf_time),
         ]
         total = Counts(n_time=n_time)
         rec_chunks = []
         done = 0
-        size = int(batch) if batch else min(gsize * 8, photons) or 1
+        size = int(batch) if batch else min(gsize * lanes * 4, photons) or 1
         while done < photons:
             n = min(size, photons - done, MAX_LAUNCH)
-            for buf in d_hist.values():
+            for buf in (*d_hist.values(), d_next):
                 cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)
             args = [np.uint32(params.seed), np.uint32(params.scenario),
-                    np.uint64(first_photon + done), np.uint64(n), *scalar_args,
+                    np.uint64(first_photon + done), np.uint32(n), *scalar_args,
                     d_edges, np.int32(len(edges)), *(real(c) for c in cos_fov),
-                    d_hist["time_in_fov"], d_hist["time_any"], d_hist["angular"], d_hist["total"],
+                    d_next, d_hist["time_in_fov"], d_hist["time_any"], d_hist["angular"], d_hist["total"],
                     d_stats]
-            launch_items = min(gsize, n) if not local_size else gsize
+            launch_items = min(gsize, -(-n // lanes)) if not local_size else gsize
             if records:
                 d_ri = cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * 8 * n)
-                d_rr = cl.Buffer(ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * 2 * n)
+                d_rr = cl.Buffer(ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * 3 * n)
                 args += [d_ri, d_rr]
             t0 = time.perf_counter()
             kern(queue, (launch_items,), (local_size,) if local_size else None, *args)
@@ -167,7 +186,7 @@ class Engine:
             part.mixed_history = int(stats[6])
             if records:
                 ri = np.empty((n, 8), dtype=np.int32)
-                rr = np.empty((n, 2), dtype=real)
+                rr = np.empty((n, 3), dtype=real)
                 cl.enqueue_copy(queue, ri, d_ri)
                 cl.enqueue_copy(queue, rr, d_rr)
                 rec_chunks.append((ri, rr))
@@ -179,7 +198,7 @@ class Engine:
                 progress(done)
             if not batch:
                 rate = n / max(elapsed, 1e-6)
-                size = int(min(max(rate * self.target_launch_s, gsize), 4 * n, MAX_LAUNCH))
+                size = int(min(max(rate * self.target_launch_s, gsize * lanes), 4 * n, MAX_LAUNCH))
         if records:
             total.records = _records_from_chunks(rec_chunks)
         return total
@@ -187,7 +206,7 @@ class Engine:
 
 def _records_from_chunks(chunks) -> dict:
     ri = np.concatenate([c[0] for c in chunks]) if chunks else np.empty((0, 8), np.int32)
-    rr = np.concatenate([c[1] for c in chunks]).astype(np.float64) if chunks else np.empty((0, 2))
+    rr = np.concatenate([c[1] for c in chunks]).astype(np.float64) if chunks else np.empty((0, 3))
     exited = ri[:, 1] >= 0
     return {
         "fate": ri[:, 0].astype(np.int8), "component": ri[:, 1].astype(np.int8),

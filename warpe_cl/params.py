@@ -19,6 +19,12 @@ N_EMERGENCE = 90  # 1-degree emergence bins, 0..90 deg
 TEXTURES = ("slab", "granular")
 BOTTOM_INTERFACES = ("fresnel", "none")
 RULES = ("history", "time_window")
+MODES = ("analog", "weighted")
+
+#: Weighted tallies are exact sums of floor(w * 2**FIXED_SHIFT) (docs/walk.md §6).
+FIXED_SHIFT = 150
+WEIGHT_TALLIES = ("w_time_in_fov", "w_time_any", "w_angular", "w_total", "w2_time_in_fov",
+                  "w2_total")
 
 
 @dataclass(frozen=True)
@@ -55,6 +61,11 @@ class WalkParams:
         How diffuse exits are split between ``bf_diffuse`` and ``scattering``.
     seed, scenario : int
         Philox key words (uint32 each).
+    mode : {"analog", "weighted"}
+        Analog walk, or survival weighting with Russian roulette (docs/walk.md §6).
+    roulette_weight, roulette_survival : float
+        Weighted mode: below ``roulette_weight`` a ray survives a scattering or a floor
+        reflection with probability ``roulette_survival`` (its weight divided by it).
     """
 
     texture: str
@@ -73,6 +84,24 @@ class WalkParams:
     rule: str = "history"
     seed: int = 1
     scenario: int = 0
+    mode: str = "analog"
+    roulette_weight: float = 1e-4
+    roulette_survival: float = 0.1
+
+    @property
+    def weighted(self) -> bool:
+        return self.mode == "weighted"
+
+    @property
+    def flight_extinction(self) -> float:
+        """Coefficient that draws the free flights, 1/m: E (analog) or omega E (weighted,
+        where absorption (1 - omega) E is applied as a weight along the path, walk.md §6)."""
+        return self.omega * self.extinction if self.weighted else self.extinction
+
+    @property
+    def absorption(self) -> float:
+        """Absorption coefficient applied as exp(-a L) in the weighted mode, 1/m (0 in analog)."""
+        return (1.0 - self.omega) * self.extinction if self.weighted else 0.0
 
     @property
     def path_cap(self) -> float:
@@ -96,6 +125,27 @@ def _zeros(*shape):
     return np.zeros(shape, dtype=np.int64)
 
 
+def _exact_zeros(*shape):
+    """Python-int zeros: exact, unbounded sums of fixed-point weights."""
+    out = np.empty(shape, dtype=object)
+    out.fill(0)
+    return out
+
+
+def fixed_point(weight: float) -> int:
+    """floor(weight * 2**FIXED_SHIFT), the integer a weighted tally adds (weight >= 0)."""
+    import math
+    return int(math.ldexp(weight, FIXED_SHIFT)) if weight > 0 else 0
+
+
+def fixed_to_float(values) -> np.ndarray:
+    """Weighted tallies (Python ints, units of 2**-FIXED_SHIFT) as float64 (correctly rounded)."""
+    arr = np.asarray(values, dtype=object)
+    flat = [float(v) * 2.0 ** -FIXED_SHIFT if v < 2 ** 1000 else
+            float(v >> FIXED_SHIFT) for v in arr.ravel()]
+    return np.asarray(flat, dtype=np.float64).reshape(arr.shape)
+
+
 @dataclass
 class Counts:
     """Integer tallies of a walk (docs/walk.md §4). All counts are int64.
@@ -117,8 +167,13 @@ class Counts:
     mixed_history : int
         Exits with both a volume scattering and a floor reflection in their history.
     records : dict of numpy.ndarray or None
-        Per-photon records (fate, component, time_ns, cos_exit, n_scat, n_lamb, n_bspec,
-        n_top, time_bin, emergence_bin) when asked for; component is -1 for rays that did not exit.
+        Per-photon records (fate, component, time_ns, cos_exit, weight, n_scat, n_lamb,
+        n_bspec, n_top, time_bin, emergence_bin) when asked for; component is -1 for rays that
+        did not exit.
+    weighted : bool
+        Weighted walk (docs/walk.md §6): the ``w_*`` and ``w2_*`` tallies hold exact sums of
+        floor(w 2^150) and floor(w^2 2^150) (Python ints, object arrays) over the same cells as
+        ``time_in_fov``, ``time_any``, ``angular`` and ``total``; use :func:`fixed_to_float`.
     """
 
     n_time: int
@@ -131,8 +186,22 @@ class Counts:
     scattering_events: int = 0
     mixed_history: int = 0
     records: dict | None = field(default=None, repr=False)
+    weighted: bool = False
+    w_time_in_fov: np.ndarray = field(default=None, repr=False)
+    w_time_any: np.ndarray = field(default=None, repr=False)
+    w_angular: np.ndarray = field(default=None, repr=False)
+    w_total: np.ndarray = field(default=None, repr=False)
+    w2_time_in_fov: np.ndarray = field(default=None, repr=False)
+    w2_total: np.ndarray = field(default=None, repr=False)
 
     def __post_init__(self):
+        if self.weighted:
+            shapes = {"w_time_in_fov": (4, self.n_time), "w_time_any": (4, self.n_time),
+                      "w_angular": (4, N_EMERGENCE), "w_total": (4,),
+                      "w2_time_in_fov": (4, self.n_time), "w2_total": (4,)}
+            for name, shape in shapes.items():
+                if getattr(self, name) is None:
+                    setattr(self, name, _exact_zeros(*shape))
         if self.time_in_fov is None:
             self.time_in_fov = _zeros(4, self.n_time)
         if self.time_any is None:
@@ -151,6 +220,11 @@ class Counts:
             getattr(self, name)[...] += getattr(other, name)
         self.scattering_events += other.scattering_events
         self.mixed_history += other.mixed_history
+        if self.weighted != other.weighted:
+            raise ValueError("cannot add weighted and analog counts")
+        if self.weighted:
+            for name in WEIGHT_TALLIES:
+                setattr(self, name, getattr(self, name) + getattr(other, name))
         if other.records is not None:
             if self.records is None:
                 self.records = {k: v.copy() for k, v in other.records.items()}
@@ -165,4 +239,8 @@ class Counts:
                 and all(np.array_equal(getattr(self, n), getattr(other, n))
                         for n in ("time_in_fov", "time_any", "angular", "total", "fates"))
                 and self.scattering_events == other.scattering_events
-                and self.mixed_history == other.mixed_history)
+                and self.mixed_history == other.mixed_history
+                and self.weighted == other.weighted
+                and (not self.weighted
+                     or all(np.array_equal(getattr(self, n), getattr(other, n))
+                            for n in WEIGHT_TALLIES)))

@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, N_EMERGENCE, RULES,
-                     TEXTURES, Counts, WalkParams)
+                     TEXTURES, Counts, WalkParams, fixed_point)
 from .rng import PhotonStream
 
 __all__ = ["simulate_reference", "walk_ray", "RayOutcome", "normal_incidence_reflectance",
@@ -64,6 +64,7 @@ RECORD_FIELDS = {
     "component": np.int8,       # index into COMPONENTS, -1 if the ray did not exit
     "time_ns": np.float64,      # exit time, ns (0 for specular, NaN if not exited)
     "cos_exit": np.float64,     # cos of the emergence angle in vacuum (NaN if not exited)
+    "weight": np.float64,       # the ray's weight at its end (1 in the analog walk)
     "n_scat": np.int64,         # volume scatterings
     "n_lamb": np.int64,         # floor (Lambertian) reflections
     "n_bspec": np.int64,        # specular reflections at the bottom interface
@@ -223,18 +224,26 @@ class _WalkConstants:
     path_cap: float       # L_max, m
     max_flights: int      # safety cap on free flights
     entry_reflectance: float  # R0, walk.md §3.2
+    weighted: bool = False    # survival weighting (walk.md §6)
+    absorption: float = 0.0   # a = (1 − ω) E, 1/m, applied as exp(−a s) when weighted
+    roulette_weight: float = 0.0
+    roulette_survival: float = 1.0
 
     @classmethod
     def from_params(cls, params: WalkParams) -> "_WalkConstants":
         is_slab = params.texture == "slab"
         return cls(is_slab=is_slab,
                    fresnel_bottom=is_slab and params.bottom_interface == "fresnel",
-                   thickness=float(params.thickness), extinction=float(params.extinction),
+                   thickness=float(params.thickness),
+                   extinction=float(params.flight_extinction),
                    omega=float(params.omega), g=float(params.g), n=float(params.n),
                    k=float(params.k), albedo=float(params.albedo),
                    path_cap=float(params.path_cap), max_flights=int(params.max_flights),
                    entry_reflectance=normal_incidence_reflectance(float(params.n),
-                                                                  float(params.k)))
+                                                                  float(params.k)),
+                   weighted=params.weighted, absorption=float(params.absorption),
+                   roulette_weight=float(params.roulette_weight),
+                   roulette_survival=float(params.roulette_survival))
 
 
 class RayOutcome(NamedTuple):
@@ -251,6 +260,8 @@ class RayOutcome(NamedTuple):
     n_scat, n_lamb, n_bspec, n_top : int
         Volume scatterings, floor reflections, bottom specular reflections, top internal
         reflections.
+    weight : float
+        The ray's weight (walk.md §6); always 1 in the analog walk.
     """
 
     fate: int
@@ -260,17 +271,19 @@ class RayOutcome(NamedTuple):
     n_lamb: int
     n_bspec: int
     n_top: int
+    weight: float = 1.0
 
 
-def walk_ray(walk: _WalkConstants, uniform) -> RayOutcome:
+def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
     """Walk one ray from launch to its fate, exactly as docs/walk.md §3 says.
 
     Parameters
     ----------
     walk : _WalkConstants
         The walk's constants (see :func:`simulate_reference`).
-    uniform : callable
-        Returns the ray's next uniform draw in (0, 1] (``PhotonStream.uniform``).
+    next_block : callable
+        Returns the four uniforms (u0, u1, u2, u3) in (0, 1] of the ray's next event
+        (``PhotonStream.block``): event k of a ray uses Philox block k (walk.md §2).
 
     Returns
     -------
@@ -285,31 +298,41 @@ def walk_ray(walk: _WalkConstants, uniform) -> RayOutcome:
     albedo = walk.albedo
     path_cap = walk.path_cap
     max_flights = walk.max_flights
+    weighted = walk.weighted
+    mu_a = walk.absorption
+    roulette_weight = walk.roulette_weight
+    roulette_survival = walk.roulette_survival
     nan = math.nan
 
     # 1. Launch (physics.md §5.1): top of the layer, straight down, no path, no events.
     z = 0.0
     ux, uy, uz = 0.0, 0.0, 1.0
     path = 0.0
+    weight = 1.0
     n_scat = n_lamb = n_bspec = n_top = 0
 
-    # 2. Entry (physics.md §5.2). Slab: one draw decides the specular reflection.
+    def ended(fate, cos_exit=nan):
+        return RayOutcome(fate, cos_exit, path, n_scat, n_lamb, n_bspec, n_top, weight)
+
+    # 2. Entry (physics.md §5.2), event 0 of a slab: u0 decides the specular reflection.
     #    "An event of probability P happens iff U <= P" (walk.md §2).
     if walk.is_slab:
-        if uniform() <= walk.entry_reflectance:
-            return RayOutcome(FATE_SPECULAR, 1.0, 0.0, 0, 0, 0, 0)
-    # Granular: no interface and no draw; the ray enters.
+        u0, _, _, _ = next_block()
+        if u0 <= walk.entry_reflectance:
+            return RayOutcome(FATE_SPECULAR, 1.0, 0.0, 0, 0, 0, 0, 1.0)
+    # Granular: no interface; the first event is already a flight.
 
-    # 3. Loop over free flights.
+    # 3. One flight per event (walk.md §3.3), and one event per floor reflection in the gap.
     flights = 0
     while True:
         # 3.1 Safety cap on the number of flights.
         if flights == max_flights:
-            return RayOutcome(FATE_TERMINATED, nan, path, n_scat, n_lamb, n_bspec, n_top)
+            return ended(FATE_TERMINATED)
         flights += 1
+        u0, u1, u2, u3 = next_block()
 
-        # 3.2 Free flight (physics.md §5.3): optical step −ln U, physical step ℓ/E.
-        optical_step = -math.log(uniform())
+        # 3.2 Free flight (physics.md §5.3): optical step −ln u0, physical step ℓ/E.
+        optical_step = -math.log(u0)
         step = optical_step / extinction if extinction > 0.0 else math.inf
 
         # 3.3 Distance to the boundary the ray is heading for.
@@ -325,21 +348,30 @@ def walk_ray(walk: _WalkConstants, uniform) -> RayOutcome:
             z += step * uz
             path += step
             if path > path_cap:
-                return RayOutcome(FATE_TERMINATED, nan, path, n_scat, n_lamb, n_bspec, n_top)
-            if uniform() <= omega:
-                n_scat += 1
-                cos_theta = henyey_greenstein_cosine(g, uniform())
-                psi = TWO_PI * uniform()
-                ux, uy, uz = rotate_direction(ux, uy, uz, cos_theta, psi)
-                continue
-            return RayOutcome(FATE_ABSORBED_MEDIUM, nan, path, n_scat, n_lamb, n_bspec, n_top)
+                return ended(FATE_TERMINATED)
+            if weighted:
+                # walk.md §6: absorption along the flight; roulette on u1 below the threshold.
+                weight *= math.exp(-mu_a * step)
+                if weight < roulette_weight:
+                    if u1 > roulette_survival:
+                        return ended(FATE_ABSORBED_MEDIUM)
+                    weight /= roulette_survival
+            elif u1 > omega:
+                return ended(FATE_ABSORBED_MEDIUM)
+            n_scat += 1
+            cos_theta = henyey_greenstein_cosine(g, u2)
+            psi = TWO_PI * u3
+            ux, uy, uz = rotate_direction(ux, uy, uz, cos_theta, psi)
+            continue
 
         # 3.5 Boundary: move onto it, check the path cap, then apply its rule.
         #     (uz == 0 gives an infinite distance, so the path cap has already stopped it.)
         z = h if uz > 0.0 else 0.0
         path += to_boundary
         if path > path_cap:
-            return RayOutcome(FATE_TERMINATED, nan, path, n_scat, n_lamb, n_bspec, n_top)
+            return ended(FATE_TERMINATED)
+        if weighted:
+            weight *= math.exp(-mu_a * to_boundary)
 
         if uz > 0.0:
             # 3.1 (walk.md) Bottom boundary.
@@ -347,23 +379,31 @@ def walk_ray(walk: _WalkConstants, uniform) -> RayOutcome:
                 # Slab over a vacuum gap over the floor (physics.md §5.5).
                 mu = uz
                 total_internal = n * math.sqrt(max(0.0, 1.0 - mu * mu)) >= 1.0
-                # TIR is decided before any draw; only a partial reflection draws.
-                if total_internal or uniform() <= internal_reflectance(mu, n):
+                # TIR is decided without looking at u1; a partial reflection iff u1 <= R.
+                if total_internal or u1 <= internal_reflectance(mu, n):
                     uz = -uz
                     n_bspec += 1
                     continue
-                # The ray crosses into the gap: the floor loop (no path length in the gap).
+                # The ray crosses into the gap: one event per floor reflection, no path length.
                 while True:
-                    # (1) the floor absorbs with probability 1 − A
-                    if uniform() > albedo:
-                        return RayOutcome(FATE_ABSORBED_FLOOR, nan, path,
-                                          n_scat, n_lamb, n_bspec, n_top)
-                    # (2) Lambertian reflection into vacuum: μ_v = sqrt(U), ψ = 2πU
+                    g0, g1, g2, g3 = next_block()
+                    # (1) the floor absorbs with probability 1 − A (weighted: weight × A)
+                    if weighted:
+                        if albedo == 0.0:
+                            return ended(FATE_ABSORBED_FLOOR)
+                        weight *= albedo
+                        if weight < roulette_weight:
+                            if g0 > roulette_survival:
+                                return ended(FATE_ABSORBED_FLOOR)
+                            weight /= roulette_survival
+                    elif g0 > albedo:
+                        return ended(FATE_ABSORBED_FLOOR)
+                    # (2) Lambertian reflection into vacuum: μ_v = sqrt(g1), ψ = 2π g2
                     n_lamb += 1
-                    mu_vacuum = math.sqrt(uniform())
-                    psi = TWO_PI * uniform()
+                    mu_vacuum = math.sqrt(g1)
+                    psi = TWO_PI * g2
                     # (3) the slab's lower face reflects it back to the floor, or it refracts in
-                    if uniform() <= external_reflectance(mu_vacuum, n, k):
+                    if g3 <= external_reflectance(mu_vacuum, n, k):
                         continue
                     sin_slab = math.sqrt(1.0 - mu_vacuum * mu_vacuum) / n
                     ux = sin_slab * math.cos(psi)
@@ -371,13 +411,21 @@ def walk_ray(walk: _WalkConstants, uniform) -> RayOutcome:
                     uz = -math.sqrt(1.0 - sin_slab * sin_slab)
                     break
             else:
-                # Floor in contact with the medium (slab "none", granular): bare Lambertian.
-                if uniform() > albedo:
-                    return RayOutcome(FATE_ABSORBED_FLOOR, nan, path,
-                                      n_scat, n_lamb, n_bspec, n_top)
+                # Floor in contact with the medium (slab "none", granular): bare Lambertian,
+                # absorbed iff u1 > A (weighted: weight × A), μ = sqrt(u2), ψ = 2π u3.
+                if weighted:
+                    if albedo == 0.0:
+                        return ended(FATE_ABSORBED_FLOOR)
+                    weight *= albedo
+                    if weight < roulette_weight:
+                        if u1 > roulette_survival:
+                            return ended(FATE_ABSORBED_FLOOR)
+                        weight /= roulette_survival
+                elif u1 > albedo:
+                    return ended(FATE_ABSORBED_FLOOR)
                 n_lamb += 1
-                mu = math.sqrt(uniform())
-                psi = TWO_PI * uniform()
+                mu = math.sqrt(u2)
+                psi = TWO_PI * u3
                 sin_floor = math.sqrt(1.0 - mu * mu)
                 ux = sin_floor * math.cos(psi)
                 uy = sin_floor * math.sin(psi)
@@ -386,18 +434,18 @@ def walk_ray(walk: _WalkConstants, uniform) -> RayOutcome:
 
         # 3.2 (walk.md) Top boundary, reached from inside.
         if walk.is_slab:
-            # physics.md §5.6: TIR, else a Fresnel draw; a reflection sends the ray back down.
+            # physics.md §5.6: TIR, else reflect iff u1 <= R_int; a reflection sends it back down.
             mu = -uz
             sin_sq = max(0.0, 1.0 - mu * mu)
             total_internal = n * math.sqrt(sin_sq) >= 1.0
-            if total_internal or uniform() <= internal_reflectance(mu, n):
+            if total_internal or u1 <= internal_reflectance(mu, n):
                 uz = -uz
                 n_top += 1
                 continue
             cos_exit = math.sqrt(1.0 - n * n * sin_sq)  # Snell: sin θ_e = n sin θ
         else:
             cos_exit = -uz  # granular: no interface
-        return RayOutcome(FATE_ESCAPED, cos_exit, path, n_scat, n_lamb, n_bspec, n_top)
+        return ended(FATE_ESCAPED, cos_exit)
 
 
 # --------------------------------------------------------------------------------------------
@@ -455,7 +503,8 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     first_bf_time = float(params.first_bf_time)  # t1 = 2 h n / c, ns
     ns_per_metre = walk.n / C_M_PER_NS           # t = L n / c
 
-    counts = Counts(n_time=n_time, photons=int(photons))
+    counts = Counts(n_time=n_time, photons=int(photons), weighted=params.weighted)
+    weighted = params.weighted
     fates = [0] * len(FATES)
     total = [0] * len(COMPONENTS)
     angular = [[0] * N_EMERGENCE for _ in COMPONENTS]
@@ -471,7 +520,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
         streams = PhotonStream.many(params.seed, params.scenario, first_photon + done,
                                     min(batch, photons - done), precision="double")
         for stream in streams:
-            ray = walk_ray(walk, stream.uniform)
+            ray = walk_ray(walk, stream.block)
             fates[ray.fate] += 1
             scattering_events += ray.n_scat
             component = -1
@@ -503,17 +552,30 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                     time_bin = 0
                 elif time_bin >= n_time:
                     time_bin = -1
+                in_fov = ray.cos_exit >= cos_fov[component]
                 total[component] += 1
                 angular[component][emergence_bin] += 1
                 if time_bin >= 0:
                     time_any[component][time_bin] += 1
-                    if ray.cos_exit >= cos_fov[component]:
+                    if in_fov:
                         time_in_fov[component][time_bin] += 1
+                if weighted:
+                    # walk.md §6: exact fixed-point sums of w and w^2
+                    w1, w2 = fixed_point(ray.weight), fixed_point(ray.weight * ray.weight)
+                    counts.w_total[component] += w1
+                    counts.w2_total[component] += w2
+                    counts.w_angular[component, emergence_bin] += w1
+                    if time_bin >= 0:
+                        counts.w_time_any[component, time_bin] += w1
+                        if in_fov:
+                            counts.w_time_in_fov[component, time_bin] += w1
+                            counts.w2_time_in_fov[component, time_bin] += w2
             if rows is not None:
                 rows["fate"].append(ray.fate)
                 rows["component"].append(component)
                 rows["time_ns"].append(time_ns)
                 rows["cos_exit"].append(ray.cos_exit)
+                rows["weight"].append(ray.weight)
                 rows["n_scat"].append(ray.n_scat)
                 rows["n_lamb"].append(ray.n_lamb)
                 rows["n_bspec"].append(ray.n_bspec)

@@ -9,7 +9,8 @@ How the walk uses it (docs/walk.md §2):
 
 * key = (seed, scenario), two uint32 words;
 * counter = (block, photon_lo, photon_hi, 0) for photon p = photon_hi * 2**32 + photon_lo;
-* draw j of photon p is word ``j % 4`` of block ``j // 4``;
+* draw j of photon p is word ``j % 4`` of block ``j // 4``; the walk takes one block per
+  event (:meth:`PhotonStream.block`), so its k-th event uses block k;
 * a word x becomes the uniform U = (x + 0.5) * 2**-32, in (0, 1) in double precision; the
   single-precision kernels evaluate ``(float)x * 0x1p-32f + 0x1p-33f`` instead, which can
   round to exactly 1.0f.
@@ -261,3 +262,19 @@ class PhotonStream:
             self._extend()
         self.count = index + 1
         return self._draws[index]
+
+    def block(self) -> tuple[float, float, float, float]:
+        """The four uniforms of the next block (the walk's next event, docs/walk.md §2).
+
+        Draws of the current block not yet taken by :meth:`uniform` are skipped: the walk uses
+        block k for its k-th event, whatever number of its four words that event needs.
+
+        Returns
+        -------
+        tuple of 4 floats in (0, 1]
+        """
+        start = -(-self.count // 4) * 4
+        if start + 4 > len(self._draws):
+            self._extend()
+        self.count = start + 4
+        return tuple(self._draws[start:start + 4])

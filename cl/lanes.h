@@ -1,0 +1,80 @@
+/* lanes.h: the lane width of the walk (docs/walk.md §5).
+ *
+ * One kernel source, two shapes. WARPE_LANES = 1 walks one photon per work-item (GPUs, where
+ * work-items are the lanes); WARPE_LANES = 2, 4, 8 or 16 walks that many photons at once in
+ * the OpenCL vector types of one work-item (CPUs: PoCL does not vectorise a per-photon loop
+ * across work-items, but it maps float16 onto AVX-512 / AVX2 registers). Every lane follows its
+ * own photon; a lane whose photon ends takes the next photon, so all lanes stay busy and the
+ * control flow of the vector never diverges: branches become selects, and a costly branch is
+ * entered when any lane needs it.
+ *
+ * Types (REAL is float or double, real.h):
+ *   VREAL  the lanes' real values            (float16, double8, ... or REAL when WARPE_LANES = 1)
+ *   VMASK  the lanes' integers and masks     (int16 for float lanes, long8 for double lanes):
+ *          a comparison of VREAL or VMASK values gives a VMASK; a lane is "true" when its
+ *          value is non-zero (scalar: 1) or all ones (vectors: -1); only ANY / ALL / SEL / ONE
+ *          below look at masks, so the two conventions never meet.
+ *   VUINT  the lanes' 32-bit Philox words.
+ */
+#ifndef WARPE_LANES_H
+#define WARPE_LANES_H
+
+#ifndef WARPE_LANES
+#define WARPE_LANES 1
+#endif
+#if WARPE_LANES != 1 && WARPE_LANES != 2 && WARPE_LANES != 4 && WARPE_LANES != 8 \
+    && WARPE_LANES != 16
+#error "WARPE_LANES must be 1, 2, 4, 8 or 16"
+#endif
+
+#ifdef WARPE_DOUBLE
+typedef long IREAL;      /* integer of REAL's width: masks of double vectors are long */
+#else
+typedef int IREAL;
+#endif
+
+#define WARPE_CAT_(a, b) a##b
+#define WARPE_CAT(a, b) WARPE_CAT_(a, b)
+
+#if WARPE_LANES == 1
+typedef REAL VREAL;
+typedef IREAL VMASK;
+typedef uint VUINT;
+#define CONVERT_VREAL(x) ((REAL)(x))
+#define CONVERT_VMASK(x) ((IREAL)(x))
+#define CONVERT_VUINT(x) ((uint)(x))
+#define ANY(m) ((m) != 0)
+#define ALL(m) ((m) != 0)
+#define SEL(a, b, m) ((m) ? (b) : (a))     /* b where m, else a */
+#define ONE(m) ((m) ? (IREAL)1 : (IREAL)0) /* 1 where m, else 0 */
+#define VSTORE(v, p) (*(p) = (v))
+#define VLOAD(p) (*(p))
+#define MASK32(m) (m)
+#else
+#ifdef WARPE_DOUBLE
+typedef WARPE_CAT(double, WARPE_LANES) VREAL;
+typedef WARPE_CAT(long, WARPE_LANES) VMASK;
+#else
+typedef WARPE_CAT(float, WARPE_LANES) VREAL;
+typedef WARPE_CAT(int, WARPE_LANES) VMASK;
+#endif
+typedef WARPE_CAT(uint, WARPE_LANES) VUINT;
+#ifdef WARPE_DOUBLE
+#define CONVERT_VREAL(x) WARPE_CAT(convert_double, WARPE_LANES)(x)
+#define CONVERT_VMASK(x) WARPE_CAT(convert_long, WARPE_LANES)(x)
+#define MASK32(m) WARPE_CAT(convert_int, WARPE_LANES)(m)   /* a mask for 32-bit values */
+#else
+#define CONVERT_VREAL(x) WARPE_CAT(convert_float, WARPE_LANES)(x)
+#define CONVERT_VMASK(x) WARPE_CAT(convert_int, WARPE_LANES)(x)
+#define MASK32(m) (m)
+#endif
+#define CONVERT_VUINT(x) WARPE_CAT(convert_uint, WARPE_LANES)(x)
+#define ANY(m) any(m)
+#define ALL(m) all(m)
+#define SEL(a, b, m) select((a), (b), (m))
+#define ONE(m) (-(m))                      /* vector comparisons give -1 for true */
+#define VSTORE(v, p) WARPE_CAT(vstore, WARPE_LANES)((v), 0, (p))
+#define VLOAD(p) WARPE_CAT(vload, WARPE_LANES)(0, (p))
+#endif
+
+#endif /* WARPE_LANES_H */
