@@ -45,6 +45,9 @@ def walk_params(cfg: Config, scenario: int = 0) -> tuple:
         rule=cfg.get("simulation.component_rule"),
         seed=int(cfg.get("simulation.seed")),
         scenario=scenario,
+        mode=cfg.get("simulation.mode"),
+        roulette_weight=float(cfg.get("simulation.roulette_weight")),
+        roulette_survival=float(cfg.get("simulation.roulette_survival")),
     )
     return params, derived
 

@@ -220,9 +220,18 @@ SCHEMA: list[Field] = [
        low_open=True, high_open=True,
        help="Half-angle of the roughness lobe that scales the specular and BF-direct "
             "reflectances (physics.md §7.3)."),
-    _F("simulation.mode", "choice", "analog", choices=("analog",),
-       help="Monte Carlo scheme; analog (every ray followed with unit weight) is the only "
-            "one."),
+    _F("simulation.mode", "choice", "analog", choices=("analog", "weighted"),
+       help="Monte Carlo scheme: analog (every ray carries weight 1 and is absorbed or not; "
+            "the seed's scheme, with its 3-ray threshold) or weighted (survival weighting: "
+            "absorption applied as exp(-(1 - omega) E L) along the path and A at the floor, "
+            "Russian roulette below simulation.roulette_weight; reaches deep tails, "
+            "docs/walk.md §6)."),
+    _F("simulation.roulette_weight", "float", 1e-4, low=0.0, high=1.0, high_open=True,
+       help="Weighted mode: a ray whose weight falls below this at a scattering or a floor "
+            "reflection plays Russian roulette (0: never)."),
+    _F("simulation.roulette_survival", "float", 0.1, low=0.0, high=1.0, low_open=True,
+       help="Weighted mode: probability that a ray survives the roulette (its weight is then "
+            "divided by it)."),
 
     _F("sweep", "sweep", {},
        help="Optional grid: dotted keys mapped to lists of values, e.g. medium.thickness: "

@@ -21,7 +21,8 @@ MAX_LAUNCH = 2 ** 31 - 1
 LANE_WIDTHS = (1, 2, 4, 8, 16)
 
 
-def build_options(texture: str, precision: str, records: bool, lanes: int = 1) -> tuple:
+def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
+                  weighted: bool = False) -> tuple:
     """The structural ``-D`` switches of the walk kernel (no physical value is compiled in)."""
     if lanes not in LANE_WIDTHS:
         raise ValueError(f"lanes must be one of {LANE_WIDTHS}, got {lanes}")
@@ -31,6 +32,8 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1) -
         opts.append("-DWARPE_DOUBLE")
     if records:
         opts.append("-DWARPE_RECORD")
+    if weighted:
+        opts.append("-DWARPE_WEIGHTED")
     return tuple(opts)
 
 
@@ -61,6 +64,7 @@ class Engine:
         self.context, self.queue = devmod.context_and_queue(self.device)
         self.target_launch_s = target_launch_s
         self.kernel_hash = None
+        self.extra_options = ()
         self._kernels = {}
 
     @property
@@ -78,15 +82,21 @@ class Engine:
             return 1 << 20
         return 16 * max(1, self.info.compute_units)
 
-    def kernel(self, texture: str, precision: str, records: bool, lanes: int):
+    def kernel(self, texture: str, precision: str, records: bool, lanes: int,
+               weighted: bool = False):
         """The walk kernel for this structure; programs are built once per process."""
         if precision == "double" and not self.info.fp64:
             raise devmod.DeviceError(f"{self.info.device} has no double precision; "
                                      "use simulation.precision: single")
-        program, digest = devmod.build_program(self.device, WALK_FILES,
-                                               build_options(texture, precision, records, lanes))
+        if weighted and "cl_khr_int64_base_atomics" not in self.device.extensions:
+            raise devmod.DeviceError(f"{self.info.device} has no 64-bit atomics "
+                                     "(cl_khr_int64_base_atomics), which the weighted mode's "
+                                     "exact tallies need; use simulation.mode: analog")
+        options = (build_options(texture, precision, records, lanes, weighted)
+                   + self.extra_options)
+        program, digest = devmod.build_program(self.device, WALK_FILES, options)
         self.kernel_hash = digest
-        key = (texture, precision, records, lanes)
+        key = (texture, precision, records, lanes, weighted, self.extra_options)
         if key not in self._kernels:
             import pyopencl as cl
             self._kernels[key] = cl.Kernel(program, "walk")
@@ -127,10 +137,15 @@ class Engine:
 
         real = np.float64 if precision == "double" else np.float32
         lanes = int(lanes or default_lanes(self.info.kind, precision))
-        kern = self.kernel(params.texture, precision, records, lanes)
+        weighted = params.weighted
+        kern = self.kernel(params.texture, precision, records, lanes, weighted)
         edges = np.asarray(params.time_edges, dtype=real)
         n_time = len(edges) - 1
         gsize = int(global_size or self.default_global_size())
+        if local_size is None and self.info.kind != "gpu":
+            # PoCL runs the work-items of a group one after the other in one thread: groups
+            # of one work-item spread the vectors over every core (2x on 2 cores, measured).
+            local_size = 1
         if local_size:
             gsize = -(-gsize // local_size) * local_size
 
@@ -143,41 +158,54 @@ class Engine:
                   for k, s in hist_shapes.items()}
         d_stats = cl.Buffer(ctx, mf.READ_WRITE, size=8 * 8 * gsize)
         d_next = cl.Buffer(ctx, mf.READ_WRITE, size=4)
+        # weighted sums: 192-bit fixed point, three uint64 words per cell (cl/tally.h)
+        weight_shapes = {"w_time_in_fov": (4, n_time), "w_time_any": (4, n_time),
+                         "w_angular": (4, N_EMERGENCE), "w_total": (4,),
+                         "w2_time_in_fov": (4, n_time), "w2_total": (4,)} if weighted else {}
+        d_weight = {k: cl.Buffer(ctx, mf.READ_WRITE, size=8 * 3 * int(np.prod(s)))
+                    for k, s in weight_shapes.items()}
 
         cos_fov = params.cos_fov
         scalar_args = [
-            real(params.thickness), real(params.extinction), real(params.omega), real(params.g),
-            real(params.n), real(params.k), real(params.albedo), real(params.path_cap),
-            np.uint32(min(params.max_flights, 2 ** 31 - 1)),
+            real(params.thickness), real(params.flight_extinction), real(params.omega),
+            real(params.g), real(params.n), real(params.k), real(params.albedo),
+            real(params.path_cap), np.uint32(min(params.max_flights, 2 ** 31 - 1)),
             np.int32(params.bottom_interface == "fresnel"),
-            real(0.0), real(0.0), real(1.0),
+            real(params.absorption), real(params.roulette_weight),
+            real(params.roulette_survival),
             np.int32(params.rule == "time_window"), real(params.first_bf_time),
         ]
-        total = Counts(n_time=n_time)
+        total = Counts(n_time=n_time, weighted=weighted)
         rec_chunks = []
         done = 0
         size = int(batch) if batch else min(gsize * lanes * 4, photons) or 1
         while done < photons:
             n = min(size, photons - done, MAX_LAUNCH)
-            for buf in (*d_hist.values(), d_next):
+            for buf in (*d_hist.values(), *d_weight.values(), d_next):
                 cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)
             args = [np.uint32(params.seed), np.uint32(params.scenario),
                     np.uint64(first_photon + done), np.uint32(n), *scalar_args,
                     d_edges, np.int32(len(edges)), *(real(c) for c in cos_fov),
                     d_next, d_hist["time_in_fov"], d_hist["time_any"], d_hist["angular"], d_hist["total"],
-                    d_stats]
-            launch_items = min(gsize, -(-n // lanes)) if not local_size else gsize
+                    d_stats, *d_weight.values()]
+            launch_items = min(gsize, -(-n // lanes))
+            if local_size:
+                launch_items = -(-launch_items // local_size) * local_size
             if records:
                 d_ri = cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * 8 * n)
                 d_rr = cl.Buffer(ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * 3 * n)
                 args += [d_ri, d_rr]
             t0 = time.perf_counter()
             kern(queue, (launch_items,), (local_size,) if local_size else None, *args)
-            part = Counts(n_time=n_time, photons=n)
+            part = Counts(n_time=n_time, photons=n, weighted=weighted)
             for name, shape in hist_shapes.items():
                 host = np.empty(shape, dtype=np.uint32)
                 cl.enqueue_copy(queue, host, d_hist[name])
                 getattr(part, name)[...] = host
+            for name, shape in weight_shapes.items():
+                words = np.empty((*shape, 3), dtype=np.uint64)
+                cl.enqueue_copy(queue, words, d_weight[name])
+                setattr(part, name, _exact_sums(words))
             stats = np.empty((gsize, 8), dtype=np.uint64)
             cl.enqueue_copy(queue, stats, d_stats)
             stats = stats[:launch_items].astype(np.int64).sum(axis=0)
@@ -204,6 +232,12 @@ class Engine:
         return total
 
 
+def _exact_sums(words: np.ndarray) -> np.ndarray:
+    """192-bit fixed-point words (low, middle, high) as exact Python ints (object array)."""
+    lo, mid, hi = (words[..., i].astype(object) for i in range(3))
+    return (hi << 128) + (mid << 64) + lo
+
+
 def _records_from_chunks(chunks) -> dict:
     ri = np.concatenate([c[0] for c in chunks]) if chunks else np.empty((0, 8), np.int32)
     rr = np.concatenate([c[1] for c in chunks]).astype(np.float64) if chunks else np.empty((0, 3))
@@ -215,4 +249,5 @@ def _records_from_chunks(chunks) -> dict:
         "time_bin": ri[:, 6].astype(np.int64), "emergence_bin": ri[:, 7].astype(np.int64),
         "time_ns": np.where(exited, rr[:, 0], np.nan),
         "cos_exit": np.where(exited, rr[:, 1], np.nan),
+        "weight": rr[:, 2],
     }

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .params import COMPONENTS, Counts, N_EMERGENCE, WalkParams
+from .params import COMPONENTS, Counts, N_EMERGENCE, WalkParams, fixed_to_float
 
 SPECULAR_LIKE = (0, 1)   # specular, bf_direct: delta functions in angle, scaled by the lobe
 DIFFUSE = (2, 3)         # bf_diffuse, scattering: counted inside their numerical FOV
@@ -72,22 +72,36 @@ def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "con
         omega_sr[c] = fov_solid_angle(params.fov[c], solid_angle)
         ray_count[c] = counts.time_in_fov[c]
     scale = 1.0 / (n * omega_sr[:, None] * width[None, :])
-    reflectance = ray_count * scale
-    stderr = np.sqrt(ray_count) * scale   # Poisson error of each bin's count
     undersampled = ray_count < min_rays
     undersampled[0] = False
-
     e = np.radians(np.arange(N_EMERGENCE + 1, dtype=float))
     band = np.pi * np.diff(np.sin(e) ** 2)      # ∫ cos e dΩ over each 1° ring
+
+    if counts.weighted:
+        # docs/walk.md §6: every ray adds its weight w; the mean of w per launched ray is
+        # unbiased, with standard error sqrt((<w^2> - <w>^2) / N).
+        w_in, w_any = fixed_to_float(counts.w_time_in_fov), fixed_to_float(counts.w_time_any)
+        w2_in = fixed_to_float(counts.w2_time_in_fov)
+        w_bins = np.where(np.isin(np.arange(4), SPECULAR_LIKE)[:, None], w_any, w_in)
+        # specular and bf_direct use any angle: their w^2 sums are those of the any-angle
+        # cells, which the kernel also counts in time_in_fov (their FOV is 90 deg)
+        variance = np.maximum(w2_in / n - (w_bins / n) ** 2, 0.0) / n
+        sums = {"bins": w_bins, "any": w_any, "total": fixed_to_float(counts.w_total),
+                "angular": fixed_to_float(counts.w_angular)}
+        stderr = np.sqrt(variance) * n * scale
+    else:
+        sums = {"bins": ray_count, "any": counts.time_any, "total": counts.total,
+                "angular": counts.angular}
+        stderr = np.sqrt(ray_count) * scale   # Poisson error of each bin's count
     return {
-        "reflectance": reflectance,
+        "reflectance": sums["bins"] * scale,
         "reflectance_stderr": stderr,
         "ray_count": ray_count,
         "undersampled": undersampled,
-        "hemispherical_reflectance": counts.time_any / (n * width[None, :]),
-        "fraction": counts.total / n,
+        "hemispherical_reflectance": sums["any"] / (n * width[None, :]),
+        "fraction": sums["total"] / n,
         "fate_fraction": counts.fates / n,
-        "angular_reflectance": counts.angular / (n * band[None, :]),
+        "angular_reflectance": sums["angular"] / (n * band[None, :]),
         "omega_sr": omega_sr,
     }
 
