@@ -7,6 +7,8 @@ set of numbers: the optical depth τ0, the single-scattering albedo ω, the effe
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .errors import ConfigError
@@ -61,9 +63,19 @@ def normal_reflectance(n: float, k: float = 0.0) -> float:
     return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
 
 
+@functools.lru_cache(maxsize=4)
+def _gauss_legendre(order: int) -> tuple:
+    """Gauss–Legendre nodes and weights on [−1, 1], computed once per order (an eigenvalue
+    problem of size ``order``: ~0.1 s at 400, which a sweep would otherwise pay per point)."""
+    x, w = np.polynomial.legendre.leggauss(order)
+    x.flags.writeable = False
+    w.flags.writeable = False
+    return x, w
+
+
 def _hemispherical(reflectance, order: int = 400) -> float:
     """∫₀¹ R(μ) 2μ dμ by Gauss–Legendre quadrature (R smooth on [0, 1])."""
-    x, w = np.polynomial.legendre.leggauss(order)
+    x, w = _gauss_legendre(order)
     mu = 0.5 * (x + 1.0)
     return float(np.sum(0.5 * w * reflectance(mu) * 2.0 * mu))
 
@@ -82,7 +94,7 @@ def hemispherical_internal(n: float) -> float:
     if n <= 1.0:
         return _hemispherical(lambda mu: fresnel_internal(mu, n))
     mu_c = np.sqrt(1.0 - 1.0 / (n * n))
-    x, w = np.polynomial.legendre.leggauss(400)
+    x, w = _gauss_legendre(400)
     mu = mu_c + 0.5 * (x + 1.0) * (1.0 - mu_c)
     partial = np.sum(0.5 * (1.0 - mu_c) * w * fresnel_internal(mu, n) * 2.0 * mu)
     return float(mu_c ** 2 + partial)
