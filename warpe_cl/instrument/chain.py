@@ -69,8 +69,9 @@ def _shape_kernel(params, step, sigma_g, fwhm=None):
 
 
 def _photon_rate(amounts, kernel, origin, step):
-    """Photons per ns at the aperture: the per-bin photon amounts convolved with p ⊗ g."""
-    return convolve(amounts, kernel, origin) / step
+    """Photons per ns at the aperture: the per-bin photon amounts convolved with p ⊗ g
+    (FFT round-off below zero removed: both factors are non-negative)."""
+    return np.clip(convolve(amounts, kernel, origin), 0.0, None) / step
 
 
 def run_scenario(surface: SurfaceResponse, params, shots: int, seed: int,

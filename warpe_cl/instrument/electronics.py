@@ -14,12 +14,12 @@ import numpy as np
 from .grid import convolve
 from .pulse import gaussian_kernel
 
-GAUSS_SIGMA_TIMES_F3DB = math.sqrt(math.log(2.0)) / (2.0 * math.pi) * math.sqrt(2.0)   # 0.1325
+GAUSS_SIGMA_TIMES_F3DB = math.sqrt(math.log(2.0)) / (2.0 * math.pi)   # 0.1325
 
 
 def gaussian_filter_sigma(f3db_hz: float) -> float:
     """σ_h (ns) of a Gaussian filter whose power response is halved at f_3dB:
-    |H(f)|² = exp(−(2πfσ)²) = ½ ⇒ σ = √(ln 2 / 2)/(π f) = 0.1325/f. 33 MHz → 4.0 ns."""
+    |H(f)|² = exp(−(2πfσ)²) = ½ ⇒ σ = √(ln 2)/(2π f) = 0.1325/f. 33 MHz → 4.0 ns."""
     return GAUSS_SIGMA_TIMES_F3DB / f3db_hz * 1e9
 
 

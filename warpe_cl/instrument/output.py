@@ -62,11 +62,20 @@ VARIABLES = {
 COORDS = ("fine_time", "sample_time")
 
 
+def strip(ds):
+    """``ds`` without the variables, coordinates and attributes of an earlier instrument run
+    (so a result can be passed through another instrument)."""
+    names = [n for n in list(VARIABLES) + ["shot", "part", "photon"] if n in ds.variables]
+    out = ds.drop_vars(names)
+    out.attrs = {k: v for k, v in ds.attrs.items() if not k.startswith("instrument_")}
+    return out
+
+
 def build(ds, results: list, params, scenario_dim: bool, extra_attrs: dict):
     """``ds`` with the chain's arrays added (stacked along ``scenario`` for a sweep)."""
     import xarray as xr
 
-    out = ds.copy()
+    out = strip(ds)
     first = results[0]
     shots = next((r[k].shape[0] for r in results for k in ("signal_mv", "signal_counts") if k in r), 0)
     coords = {"fine_time": ("fine_time", first["fine_time"], {"units": "ns"}),

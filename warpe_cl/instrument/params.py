@@ -347,7 +347,8 @@ def resolve_instrument(spec) -> tuple[dict, str]:
     return raw, str(path)
 
 
-def load_instrument(spec, overrides: dict | None = None) -> InstrumentParams:
+def load_instrument(spec, overrides: dict | None = None,
+                    override_source: str | None = None) -> InstrumentParams:
     """Load and validate an instrument.
 
     Parameters
@@ -357,6 +358,8 @@ def load_instrument(spec, overrides: dict | None = None) -> InstrumentParams:
     overrides : dict, optional
         Nested or dotted keys applied on top (e.g. ``{"geometry.altitude": "400 km"}`` or the
         keys of a scenario's ``instrument:`` block), written as in a preset (strings with units).
+    override_source : str, optional
+        Where the overrides come from (``"command line"``, a scenario preset), for messages.
 
     Returns
     -------
@@ -370,12 +373,14 @@ def load_instrument(spec, overrides: dict | None = None) -> InstrumentParams:
     for key in list(flat) + list(over):
         if key not in PARAMS:
             raise ConfigError(f"unknown key{_did_you_mean(key)}", key=f"instrument.{key}",
-                              source=source)
+                              source=override_source if key in over and override_source else source)
     out = InstrumentParams()
     out.source = source
     for p in SCHEMA:
-        if p.key in over or p.key in flat:
-            out[p.key] = _check(p.key, over.get(p.key, flat.get(p.key)), source)
+        if p.key in over:
+            out[p.key] = _check(p.key, over[p.key], override_source or source)
+        elif p.key in flat:
+            out[p.key] = _check(p.key, flat[p.key], source)
         elif p.required:
             raise ConfigError("is required", key=f"instrument.{p.key}", source=source)
         else:
