@@ -28,7 +28,7 @@ def _xlim(cases):
         t = sc["fine_time"].values
         r = sc["photon_rate"].values
         if np.any(r > 0):
-            on = t[r > 1e-4 * r.max()]
+            on = t[r > 1e-3 * r.max()]
             lo, hi = min(lo, on[0]), max(hi, on[-1])
     if not np.isfinite(lo):
         return None
@@ -54,7 +54,8 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
         t = sc["time"].values
         rd = sum(sc["reflectance"].sel(component=c).values for c in ("scattering", "bf_diffuse"))
         if np.any(rd > 0):
-            top.plot(t, np.where(rd > 0, rd, np.nan), color=colour, lw=1.3, label=label)
+            top.plot(t, np.where(rd > 0, rd, np.nan), color=colour, lw=1.3, label=label,
+                     marker=".", ms=3, ls=("-", "--", ":")[i % 3])
             lows.append(np.nanmin(np.where(rd > 0, rd, np.nan)))
         else:
             top.plot([], [], color=colour, lw=1.3, label=label)
@@ -63,7 +64,7 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
             hit = r > 0
             if hit.any():
                 tt = np.full(hit.sum(), SPECULAR_TIME_NS) if comp == "specular" else t[hit]
-                top.plot(tt, r[hit], ls="none", marker=marker, color=colour, ms=6,
+                top.plot(tt, r[hit], ls="none", marker=marker, color=colour, ms=9 - 2 * (i % 3),
                          mfc="none" if comp == "bf_direct" else colour)
         # middle: photon rate at the receiver
         rr = sc["received_reflectance"].values
@@ -77,6 +78,12 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
                      label=f"{label}: unclipped peak {analog.max():.4g} mV")
             at = sc["sample_time"].values + float(sc["sampling_phase"].values[shot])
             bot.plot(at, sc["signal_mv"].values[shot], ls="none", marker="o", ms=4, color=colour)
+            base = float(sc["baseline_mv"])
+            top_mv = analog.max() - base
+            if top_mv > 0:
+                k = 0.9 * (sat - base) / top_mv
+                bot.plot(sc["fine_time"].values, base + (analog - base) * k, color=colour, ls="--",
+                         lw=0.9, label=f"shape (unclipped) x {k:.2g}")
         else:
             shots = sc.sizes["shot"]
             hist = sc["signal_counts"].values.sum(axis=0)
@@ -96,10 +103,11 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
     mid.set_xlabel("time (ns)")
     mid.set_ylabel("reflectance at the receiver (ns$^{-1}$ sr$^{-1}$)")
     mid.set_title("photon rate at the receiver: pulse and footprint applied", fontsize=9)
-    ymax = np.nanmax([np.nanmax(np.where(sc["received_reflectance"].values > 0,
-                                         sc["received_reflectance"].values, np.nan))
-                      for _, sc in cases] + [1e-30])
-    mid.set_ylim(ymax * 1e-7, ymax * 3)
+    peaks = [np.nanmax(np.where(sc["received_reflectance"].values > 0,
+                                sc["received_reflectance"].values, np.nan))
+             for _, sc in cases if np.any(sc["received_reflectance"].values > 0)]
+    if peaks:
+        mid.set_ylim(min(peaks) * 1e-3, max(peaks) * 3)
     lim = _xlim(cases)
     if lim:
         mid.set_xlim(*lim)
@@ -109,8 +117,8 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
         bot.axhline(sat, color="purple", ls=":", lw=1.5, label=f"saturation {sat:g} mV")
         bot.set_ylim(0, 1.1 * sat)
         bot.set_ylabel("electric signal (mV)")
-        bot.set_title(f"sampled signal: line = noiseless analog (clipped), dots = shot {shot}",
-                      fontsize=9)
+        bot.set_title(f"sampled signal: line = noiseless analog (clipped), dots = shot {shot}, "
+                      "dashed = unclipped shape scaled by the factor shown", fontsize=9)
     else:
         bot.set_ylabel("photons per bin (all shots)")
         bot.set_title("photon-counting histogram (dashed: expected, before dead time)", fontsize=9)
