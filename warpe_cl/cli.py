@@ -163,7 +163,8 @@ def _positive_int(text, what):
         value = float(text)
     except (TypeError, ValueError):
         raise ConfigError(f"{text!r} is not a number", key=what) from None
-    if value != int(value) or value < (1 if what == "--shots" else 0):
+    if value != value or value in (float("inf"), float("-inf")) or value != int(value) \
+            or value < (1 if what == "--shots" else 0):
         raise ConfigError(f"{text!r} is not allowed; give a whole number "
                           f"{'>= 1' if what == '--shots' else '>= 0'}", key=what)
     return int(value)

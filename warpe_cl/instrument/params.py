@@ -225,7 +225,7 @@ class InstrumentParams(dict):
             elif p.kind == "bool":
                 out[name] = int(bool(value))
             elif p.kind in ("number", "int", "modes"):
-                out[name] = value if not isinstance(value, str) else value
+                out[name] = value            # dimensionless (or "auto")
             else:
                 out[name] = format_value(value, p.kind)
         return out
