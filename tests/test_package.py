@@ -19,6 +19,9 @@ def test_wheel_contains_kernels_and_presets(tmp_path):
                    "tally.h"):
         assert f"warpe_cl/cl/{kernel}" in names, kernel
     assert "warpe_cl/presets/radiative/slab_co2_1m.yaml" in names
+    for instrument in ("bela", "gala", "atlas"):
+        assert f"warpe_cl/presets/instruments/{instrument}.yaml" in names, instrument
+    assert "warpe_cl/instrument/chain.py" in names
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "warpe-cl = warpe_cl.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
 

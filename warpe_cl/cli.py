@@ -77,6 +77,7 @@ def cmd_run(args) -> int:
     points = cfg.sweep_points()
     for _, pcfg in points:
         radiative_parameters(pcfg)    # bad input fails (exit 2) before a device is sought
+    instrument = _scenario_instrument(cfg)   # a bad instrument block fails before the walk too
     api.get_engine(args.device)       # no usable device fails (exit 3) before any output
     say = (lambda *a: None) if args.quiet else print
     say(f"warpe-cl run: {cfg.get('name')} ({cfg.source}), {len(points)} scenario(s), "
@@ -91,6 +92,10 @@ def cmd_run(args) -> int:
 
     ds = api.simulate(cfg, device=args.device, progress=None if not args.quiet else False,
                       before_point=before, after_point=lambda d: _print_summary(d, say))
+    if instrument is not None:
+        from .instrument import apply_instrument
+        ds = apply_instrument(ds, instrument, source=str(cfg.source))
+        _print_instrument(ds, say)
     io.write_netcdf(ds, out)
     say(f"wrote {out} ({time.perf_counter() - t0:.2f} s in all)")
     if args.plot:
@@ -112,6 +117,96 @@ def _print_summary(ds, say):
         f"{c} {v:.5f}" for c, v in zip(ds["component"].values, ds["fraction"].values)))
     say(f"  time              {wall:.2f} s   {photons / wall:,.0f} photons/s   "
         f"{events / wall:,.0f} scattering events/s")
+
+
+def _scenario_instrument(cfg):
+    """The validated instrument of a preset's ``instrument:`` block (interface.md §3), or None.
+
+    ``altitude`` and ``roughness`` map to ``geometry.altitude`` and ``geometry.roughness``;
+    the other keys (``shots``, ``seed``, sections such as ``electronics:``) override the
+    instrument preset as written."""
+    block = dict((cfg.raw or {}).get("instrument") or {})
+    name = block.pop("name", None)
+    if not name:
+        return None
+    from .instrument import load_instrument
+    overrides = {}
+    for key, value in block.items():
+        overrides[{"altitude": "geometry.altitude", "roughness": "geometry.roughness"}.get(key, key)] = value
+    return load_instrument(name, overrides, override_source=str(cfg.source))
+
+
+def _print_instrument(ds, say):
+    import numpy as np
+    from .instrument.plot import cases_of
+    say(f"instrument {ds.attrs.get('instrument_name')}: altitude "
+        f"{ds.attrs.get('instrument_geometry_altitude')}, roughness "
+        f"{ds.attrs.get('instrument_geometry_roughness')}, {ds.sizes.get('shot', 0)} shots")
+    for label, sc in cases_of(ds):
+        parts = "  ".join(f"{p} {v:.3g}" for p, v in zip(sc["part"].values,
+                                                       sc["photons_at_aperture"].values))
+        say(f"  {label or 'scenario'}")
+        say(f"    photons at aperture   {parts}")
+        if "signal_mv" in sc:
+            say(f"    expected peak         {float(sc['expected_analog_mv'].max()):.4g} mV (unclipped), "
+                f"noise {float(sc['noise_mv']):.3g} mV, saturated shots "
+                f"{float(sc['saturated'].mean()):.2f}")
+        else:
+            say(f"    photons recorded      {float(sc['photon_count'].mean()):.3g} per shot")
+        say(f"    detected              {float(sc['detected'].mean()):.2f} of shots; range "
+            f"{float(np.nanmean(sc['range_time'])) if sc['detected'].any() else float('nan'):.3g} ns, "
+            f"width {float(np.nanmean(sc['pulse_width'])) if sc['detected'].any() else float('nan'):.3g} ns")
+
+
+def _positive_int(text, what):
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{text!r} is not a number", key=what) from None
+    if value != value or value in (float("inf"), float("-inf")) or value != int(value) \
+            or value < (1 if what == "--shots" else 0):
+        raise ConfigError(f"{text!r} is not allowed; give a whole number "
+                          f"{'>= 1' if what == '--shots' else '>= 0'}", key=what)
+    return int(value)
+
+
+def _load_result(path: Path):
+    import xarray as xr
+    if not path.is_file():
+        raise ConfigError("no such file", key=str(path))
+    try:
+        return xr.load_dataset(path, engine="h5netcdf")
+    except Exception as err:  # noqa: BLE001
+        raise ConfigError(f"not a warpe-cl NetCDF file ({type(err).__name__})", key=str(path))
+
+
+def cmd_instrument(args) -> int:
+    from . import io
+    from .instrument import apply_instrument, load_instrument
+    overrides = {}
+    if args.altitude is not None:
+        overrides["geometry.altitude"] = args.altitude
+    if args.roughness is not None:
+        overrides["geometry.roughness"] = args.roughness
+    params = load_instrument(args.instrument, overrides, override_source="command line")
+    shots = _positive_int(args.shots, "--shots") if args.shots is not None else None
+    seed = _positive_int(args.seed, "--seed") if args.seed is not None else None
+    path = Path(args.file)
+    ds = _load_result(path)
+    out = Path(args.out)
+    _check_writable(out, "--out")
+    if args.plot:
+        _check_writable(Path(args.plot), "--plot")
+    say = (lambda *a: None) if args.quiet else print
+    ds = apply_instrument(ds, params, shots=shots, seed=seed, source=str(path))
+    _print_instrument(ds, say)
+    io.write_netcdf(ds, out)
+    say(f"wrote {out}")
+    if args.plot:
+        from .instrument.plot import plot_instrument
+        plot_instrument(ds, args.plot)
+        say(f"wrote {args.plot}")
+    return EXIT_OK
 
 
 def cmd_devices(args) -> int:
@@ -158,20 +253,24 @@ def cmd_presets(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    import xarray as xr
     from .plot import plot_angular, plot_waveform
     path = Path(args.file)
-    if not path.is_file():
-        raise ConfigError("no such file", key=str(path))
-    try:
-        ds = xr.load_dataset(path, engine="h5netcdf")
-    except Exception as err:  # noqa: BLE001
-        raise ConfigError(f"not a warpe-cl NetCDF file ({type(err).__name__})", key=str(path))
+    ds = _load_result(path)
+    kind = args.kind or ("instrument" if "received_reflectance" in ds else "waveform")
+    if kind == "instrument":
+        if "received_reflectance" not in ds:
+            raise ConfigError("has no instrument variables; give a file written by "
+                              "`warpe-cl instrument`", key=str(path))
+        _check_writable(Path(args.out), "--out")
+        from .instrument.plot import plot_instrument
+        plot_instrument(ds, args.out)
+        print(f"wrote {args.out}")
+        return EXIT_OK
     if "reflectance" not in ds:
         raise ConfigError("has no reflectance variable; give a file written by `warpe-cl run`",
                           key=str(path))
     _check_writable(Path(args.out), "--out")
-    (plot_angular if args.kind == "angular" else plot_waveform)(ds, args.out)
+    (plot_angular if kind == "angular" else plot_waveform)(ds, args.out)
     print(f"wrote {args.out}")
     return EXIT_OK
 
@@ -215,9 +314,24 @@ def make_parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("plot", help="draw the waveform of a result file")
     pl.add_argument("file", help="a NetCDF file written by `warpe-cl run`")
     pl.add_argument("--out", required=True, help="output PNG")
-    pl.add_argument("--kind", choices=("waveform", "angular"), default="waveform",
-                    help="waveform: reflectance against time; angular: the FOV figure")
+    pl.add_argument("--kind", choices=("waveform", "angular", "instrument"), default=None,
+                    help="waveform: reflectance against time; angular: the FOV figure; "
+                         "instrument: the seed's three-panel BELA figure (default for a file "
+                         "written by `warpe-cl instrument`, else waveform)")
     pl.set_defaults(func=cmd_plot)
+
+    ins = sub.add_parser("instrument", help="what an instrument records from a surface result")
+    ins.add_argument("file", help="a NetCDF file written by `warpe-cl run`")
+    ins.add_argument("--instrument", required=True,
+                     help="bela, gala, atlas, or an instrument YAML file")
+    ins.add_argument("--altitude", help='spacecraft altitude, e.g. "500 km" or 500km')
+    ins.add_argument("--roughness", help='facet roughness, e.g. "0.1 deg" or 0.1deg')
+    ins.add_argument("--shots", help="shots to simulate (default: the instrument's)")
+    ins.add_argument("--seed", help="noise seed (default: the surface result's)")
+    ins.add_argument("--out", required=True, help="output NetCDF file (surface + instrument)")
+    ins.add_argument("--plot", help="also draw the three-panel figure to this PNG")
+    ins.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    ins.set_defaults(func=cmd_instrument)
     return p
 
 

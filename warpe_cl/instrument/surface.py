@@ -1,0 +1,107 @@
+"""What the surface simulation hands to the instrument, instruments.md §3.0.
+
+From a result file (interface.md §5): the diffuse response R_d(t) = reflectance of
+``scattering`` + ``bf_diffuse`` (sr⁻¹ ns⁻¹, log-spaced bins), and the specular and BF-direct
+returns as fractions per launched ray (``ray_count / photons``) with their delays: t = 0 for the
+specular, t_k = k · 2 h n_eff / c for the k-th BF-direct passage (``first_bf_time_ns``), so that
+the instrument applies the aperture and lobe geometry once (the file's specular reflectance,
+already divided by a lobe solid angle, is not used). The wavelength is read from the resolved
+configuration stored with the result.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ConfigError
+
+NEEDED = ("time_edges", "reflectance", "ray_count", "photons")
+DIFFUSE = ("bf_diffuse", "scattering")
+
+
+@dataclass
+class SurfaceResponse:
+    """One scenario's surface response.
+
+    Attributes
+    ----------
+    edges : array (n + 1,)
+        Time bin edges, ns.
+    diffuse : array (n,)
+        R_d per bin, sr⁻¹ ns⁻¹.
+    returns : list of (str, float, float)
+        (component, delay ns, fraction per launched ray) of the specular and BF-direct returns.
+    wavelength : float or None
+        m.
+    """
+    edges: np.ndarray
+    diffuse: np.ndarray
+    returns: list = field(default_factory=list)
+    wavelength: float | None = None
+
+    @property
+    def diffuse_integral(self) -> float:
+        """∫R_d dt, sr⁻¹ (A/π for a Lambertian surface of albedo A)."""
+        return float(np.sum(self.diffuse * np.diff(self.edges)))
+
+
+def check_variables(ds, source: str = "<dataset>"):
+    """ConfigError (exit 2) unless ``ds`` holds what the instrument needs."""
+    missing = [v for v in NEEDED if v not in ds.variables]
+    if "component" not in ds.coords:
+        missing.append("component")
+    if missing:
+        raise ConfigError(f"has no {', '.join(missing)}: give a surface result written by "
+                          "`warpe-cl run`", key=source)
+    names = set(str(c) for c in ds["component"].values)
+    lacking = [c for c in ("specular", "bf_direct") + DIFFUSE if c not in names]
+    if lacking:
+        raise ConfigError(f"component coordinate lacks {', '.join(lacking)}", key=source)
+
+
+def wavelength_of(ds, scenario: int | None = None) -> float | None:
+    """The wavelength (m) the surface response was computed at: a swept ``wavelength``
+    coordinate, else the ``wavelength`` of the stored configuration; None if neither."""
+    from ..units import parse_quantity
+    if "wavelength" in ds.coords and scenario is not None and "scenario" in ds["wavelength"].dims:
+        value = ds["wavelength"].values[scenario]
+        return parse_quantity(str(value), "length")
+    text = ds.attrs.get("config")
+    if not text:
+        return None
+    import yaml
+    try:
+        value = (yaml.safe_load(text) or {}).get("wavelength")
+        return parse_quantity(str(value), "length") if value is not None else None
+    except Exception:  # noqa: BLE001 - an unreadable config: the wavelength is unknown
+        return None
+
+
+def response(ds, scenario: int | None = None) -> SurfaceResponse:
+    """The :class:`SurfaceResponse` of one scenario of ``ds`` (``scenario`` None: no sweep)."""
+    sc = ds.isel(scenario=scenario) if scenario is not None else ds
+    edges = np.asarray(ds["time_edges"].values, float)
+    refl = sc["reflectance"]
+    diffuse = sum(np.asarray(refl.sel(component=c).values, float) for c in DIFFUSE)
+    photons = float(sc["photons"])
+    t1 = float(sc["first_bf_time_ns"]) if "first_bf_time_ns" in sc.variables else \
+        float(sc.attrs.get("first_bf_time_ns", ds.attrs.get("first_bf_time_ns", math.nan)))
+    returns = []
+    spec = np.asarray(sc["ray_count"].sel(component="specular").values, float)
+    if spec.sum() > 0:
+        returns.append(("specular", 0.0, spec.sum() / photons))
+    bf = np.asarray(sc["ray_count"].sel(component="bf_direct").values, float)
+    merged: dict[float, float] = {}
+    for j in np.nonzero(bf)[0]:
+        lo, hi = edges[j], edges[j + 1]
+        t = math.sqrt(lo * hi) if lo > 0 else 0.5 * (lo + hi)
+        if math.isfinite(t1) and t1 > 0:
+            k = max(1, round(t / t1))
+            # the exact passage time 2 k h n_eff / c, when it lies in (or next to) the bin
+            if lo / 1.2 <= k * t1 <= hi * 1.2:
+                t = k * t1
+        merged[t] = merged.get(t, 0.0) + bf[j] / photons
+    returns += [("bf_direct", t, f) for t, f in sorted(merged.items())]
+    return SurfaceResponse(edges, diffuse, returns, wavelength_of(ds, scenario))
