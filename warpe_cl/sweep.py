@@ -176,7 +176,9 @@ def run_scenario(task: dict) -> dict:
     """
     worker_environment(task.get("threads"))
     import platform
-    record = {"index": task["index"], "host": platform.node(), "pid": os.getpid()}
+    record = {"index": task["index"], "host": platform.node(), "pid": os.getpid(),
+              "pocl_max_pthread_count": os.environ.get("POCL_MAX_PTHREAD_COUNT"),
+              "pocl_cache_dir": os.environ.get("POCL_CACHE_DIR")}
     t0 = time.perf_counter()
     try:
         from . import api, io
