@@ -177,6 +177,25 @@ def test_dask_local_cluster_gives_the_same_bits(reference, tmp_path):
             assert r["pocl_cache_dir"].startswith(tmp_root)
 
 
+def test_dask_scheduler_address_needs_workers_with_the_opencl_resource(reference, tmp_path,
+                                                                      capsys):
+    from distributed import LocalCluster
+    _, preset, run, _ = reference
+    folder = tmp_path / "dask"
+    # threaded workers in this process: quick to start; the address path is what is tested
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as bare:
+        rc = main(["sweep", str(preset), "--out", str(folder), "--scheduler",
+                   bare.scheduler_address])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and len(err.splitlines()) == 1 and "--resources opencl=1" in err, err
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      resources={"opencl": 1}, dashboard_address=None) as cluster:
+        assert main(["sweep", str(preset), "--out", str(folder), "--scheduler",
+                     cluster.scheduler_address, "--quiet"]) == 0
+    _assert_same_bits(warpe_cl.open_database(folder), run)
+
+
 def test_one_worker_process_per_device(reference, engine, tmp_path):
     _, preset, run, _ = reference
     folder = tmp_path / "pool"

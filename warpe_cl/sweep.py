@@ -139,7 +139,8 @@ def worker_environment(threads: int | None = None) -> dict:
     """
     if "pyopencl" in sys.modules:
         return {}
-    local = Path(os.environ.get("TMPDIR") or "/tmp") / f"warpe-cl-{os.getuid()}"
+    user = os.getuid() if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
+    local = Path(os.environ.get("TMPDIR") or "/tmp") / f"warpe-cl-{user}"
     wanted = {
         "POCL_MAX_PTHREAD_COUNT": str(max(1, threads or allocated_cpus())),
         "POCL_CACHE_DIR": str(local / "pocl-cache"),
@@ -426,25 +427,35 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
                           key=str(folder))
 
     # Where the scenarios run; device problems surface before anything is written.
-    dask_used = scheduler is not None
-    if dask_used:
+    runnable = sum(s.valid and s.index not in present for s in owned)
+    client = cluster = threads = devices = None
+    if scheduler is not None and device is not None and "," in device:
+        raise ConfigError(f"{device} is not allowed with --scheduler; each Dask worker uses "
+                          f"one device (give one spec, or none to let each worker's "
+                          f"$WARPE_CL_DEVICE choose)", key="--device")
+    if runnable == 0:
+        mode, engine_text = "none", "nothing to run"
+    elif scheduler is not None:
+        mode = "dask"
         client, cluster, threads, engine_text = _dask_client(scheduler)
-        devices = None
     else:
         devices = _local_devices(device)
         if len(devices) == 1:
+            mode = "in-process"
             worker_environment()
             from .api import get_engine
             engine = get_engine(devices[0])            # DeviceError -> exit 3
             info = getattr(engine, "info", None)
             engine_text = f"in-process, {info.device if info else engine.name}"
         else:
-            from .device import list_devices, _candidates
+            mode = "pool"
+            from .device import _candidates, list_devices
             listed = list_devices()
             for spec in devices:
                 if not _candidates(spec, listed):
                     raise DeviceError(f"--device {spec}: no OpenCL device matches")
             engine_text = f"{len(devices)} worker processes ({', '.join(devices)})"
+    dask_used = mode == "dask"
 
     folder.mkdir(parents=True, exist_ok=True)
     manifest_path = folder / ("manifest.json" if shard is None else
@@ -467,7 +478,10 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
             records[s.index] = {"status": "pending"}
             todo.append(s)
     started = _utc()
-    name = grid.points[0][1].name if valid else "?"
+    name = valid[0].cfg.name
+    preset_yaml = grid.to_yaml()
+    photons = sorted({int(s.cfg.get("simulation.photons")) for s in valid})
+    seeds = sorted({int(s.cfg.get("simulation.seed")) for s in valid})
     state = {"written": 0.0}
 
     def write_manifest(force=False):
@@ -488,7 +502,9 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
             "shard": None if shard is None else f"{shard[0]}/{shard[1]}",
             "engine": engine_text, "device": device, "scheduler": scheduler,
             "started_utc": started, "updated_utc": _utc(), "versions": _versions(dask_used),
-            "counts": counts, "preset_yaml": grid.to_yaml(), "scenarios": rows,
+            "photons": photons[0] if len(photons) == 1 else photons,
+            "seed": seeds[0] if len(seeds) == 1 else seeds,
+            "counts": counts, "preset_yaml": preset_yaml, "scenarios": rows,
         }
         _atomic_write_text(manifest_path, json.dumps(manifest, indent=1, default=_jsonable))
 
@@ -508,11 +524,11 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
     progress = _Progress(len(todo), quiet, label)
     t0 = time.perf_counter()
     try:
-        if dask_used:
+        if mode == "dask":
             for task in tasks:
                 task["threads"] = threads
             results = _run_dask(client, tasks, fingerprint)
-        elif len(devices) > 1:
+        elif mode == "pool":
             results = _run_pool(tasks, devices)
         else:
             for task in tasks:
