@@ -195,8 +195,7 @@ def run_scenario(task: dict) -> dict:
                       device=str(ds.attrs.get("opencl_device", "?")))
     except Exception as err:  # noqa: BLE001 - recorded in the manifest, the sweep goes on
         record.update(status="failed", error=_one_line(err), photons=0,
-                      wall_time_s=time.perf_counter() - t0,
-                      device_error=isinstance(err, DeviceError))
+                      wall_time_s=time.perf_counter() - t0)
     record["finished_utc"] = _utc()
     return record
 
@@ -327,7 +326,6 @@ class SweepSummary:
     photons: int = 0                # computed now
     wall_time_s: float = 0.0
     finished_in_folder: int = 0     # scenarios of the whole grid with a result file
-    device_failures: int = 0
     combined: Path | None = None
 
     @property
@@ -428,40 +426,118 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
 
     # Where the scenarios run; device problems surface before anything is written.
     runnable = sum(s.valid and s.index not in present for s in owned)
-    client = cluster = threads = devices = None
-    if scheduler is not None and device is not None and "," in device:
-        raise ConfigError(f"{device} is not allowed with --scheduler; each Dask worker uses "
-                          f"one device (give one spec, or none to let each worker's "
-                          f"$WARPE_CL_DEVICE choose)", key="--device")
-    if runnable == 0:
-        mode, engine_text = "none", "nothing to run"
-    elif scheduler is not None:
-        mode = "dask"
-        client, cluster, threads, engine_text = _dask_client(scheduler)
-    else:
+    engine = _Engine.open(scheduler, device, runnable)
+    try:
+        return _run(grid, scenarios, fingerprint, owned, present, previous, folder, combined,
+                    shard, scheduler, device, engine, quiet, say)
+    finally:
+        engine.close()
+
+
+class _Engine:
+    """Where scenarios run: nowhere (nothing to do), in this process, a spawned pool of one
+    worker per device, or Dask. ``results(tasks)`` yields each task's record as it finishes."""
+
+    def __init__(self, mode: str, text: str, devices=None, client=None, cluster=None,
+                 threads=None):
+        self.mode, self.text, self.devices = mode, text, devices
+        self.client, self.cluster, self.threads = client, cluster, threads
+
+    @classmethod
+    def open(cls, scheduler, device, runnable: int) -> "_Engine":
+        if scheduler is not None and device is not None and "," in device:
+            raise ConfigError(f"{device} is not allowed with --scheduler; each Dask worker uses "
+                              f"one device (give one spec, or none to let each worker's "
+                              f"$WARPE_CL_DEVICE choose)", key="--device")
+        if runnable == 0:
+            return cls("none", "nothing to run")
+        if scheduler is not None:
+            client, cluster, threads, text = _dask_client(scheduler)
+            return cls("dask", text, client=client, cluster=cluster, threads=threads)
         devices = _local_devices(device)
         if len(devices) == 1:
-            mode = "in-process"
             worker_environment()
             from .api import get_engine
             engine = get_engine(devices[0])            # DeviceError -> exit 3
             info = getattr(engine, "info", None)
-            engine_text = f"in-process, {info.device if info else engine.name}"
-        else:
-            mode = "pool"
-            from .device import _candidates, list_devices
-            listed = list_devices()
-            for spec in devices:
-                if not _candidates(spec, listed):
-                    raise DeviceError(f"--device {spec}: no OpenCL device matches")
-            engine_text = f"{len(devices)} worker processes ({', '.join(devices)})"
-    dask_used = mode == "dask"
+            return cls("in-process", f"in-process, {info.device if info else engine.name}",
+                       devices)
+        from .device import _candidates, list_devices
+        listed = list_devices()
+        for spec in devices:
+            if spec != "numpy" and not _candidates(spec, listed):
+                raise DeviceError(f"--device {spec}: no OpenCL device matches")
+        return cls("pool", f"{len(devices)} worker processes ({', '.join(devices)})", devices)
 
+    def results(self, tasks: list, fingerprint: str, quiet: bool):
+        for task in tasks:
+            if self.devices:
+                task["device"] = self.devices[0]
+            task["threads"] = self.threads
+        if self.mode == "dask":
+            return _run_dask(self.client, tasks, fingerprint)
+        if self.mode == "pool":
+            return _run_pool(tasks, self.devices)
+        for task in tasks:    # in this process: the ray progress bar on a terminal
+            task["progress"] = None if (not quiet and sys.stderr.isatty()) else False
+        return map(run_scenario, tasks)
+
+    def close(self):
+        if self.client is not None:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+class _Manifest:
+    """The manifest this process writes: the grid, and the status of its scenarios."""
+
+    def __init__(self, path: Path, grid, scenarios: list, fingerprint: str, header: dict):
+        self.path, self.scenarios, self.records = path, scenarios, {}
+        valid = [s for s in scenarios if s.valid]
+        photons = sorted({int(s.cfg.get("simulation.photons")) for s in valid})
+        seeds = sorted({int(s.cfg.get("simulation.seed")) for s in valid})
+        self.header = {
+            "format": FORMAT, "format_version": FORMAT_VERSION, "name": valid[0].cfg.name,
+            "preset": str(grid.source), "keys": grid.keys, "fingerprint": fingerprint,
+            **header, "started_utc": _utc(),
+            "photons": photons[0] if len(photons) == 1 else photons,
+            "seed": seeds[0] if len(seeds) == 1 else seeds,
+            "preset_yaml": grid.to_yaml(),
+        }
+        self.written = 0.0
+        _remove_partial(path.parent, path.name)
+
+    def write(self, force: bool = False):
+        """Rewrite the manifest atomically (at most every MANIFEST_INTERVAL_S unless forced)."""
+        now = time.monotonic()
+        if not force and now - self.written < MANIFEST_INTERVAL_S:
+            return
+        self.written = now
+        rows = []
+        for s in self.scenarios:
+            row = {"index": s.index, "point": s.point, "key": s.key, "file": s.file,
+                   "config_sha256": s.config_sha256}
+            row.update(self.records.get(s.index, {"status": "other shard"}))
+            rows.append(row)
+        counts = {k: sum(r["status"] == k for r in rows) for k in ("done", "failed", "pending")}
+        manifest = {**self.header, "updated_utc": _utc(),
+                    "versions": _versions("distributed" in sys.modules), "counts": counts,
+                    "scenarios": rows}
+        _atomic_write_text(self.path, json.dumps(manifest, indent=1, default=_jsonable))
+
+
+def _run(grid, scenarios, fingerprint, owned, present, previous, folder, combined, shard,
+         scheduler, device, engine, quiet, say) -> SweepSummary:
+    """The body of :func:`run_sweep` once the engine is open: manifest, tasks, progress."""
     folder.mkdir(parents=True, exist_ok=True)
-    manifest_path = folder / ("manifest.json" if shard is None else
-                              f"manifest-shard-{shard[0]}-of-{shard[1]}.json")
-    _remove_partial(folder, manifest_path.name)
-    records = {}
+    manifest = _Manifest(
+        folder / ("manifest.json" if shard is None else
+                  f"manifest-shard-{shard[0]}-of-{shard[1]}.json"),
+        grid, scenarios, fingerprint,
+        {"shard": None if shard is None else f"{shard[0]}/{shard[1]}", "engine": engine.text,
+         "device": device, "scheduler": scheduler})
+    records = manifest.records
     summary = SweepSummary(folder=folder, total=len(scenarios), owned=len(owned))
     todo = []
     for s in owned:
@@ -477,64 +553,23 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
             _remove_partial(folder, s.file)          # what a killed writer left behind
             records[s.index] = {"status": "pending"}
             todo.append(s)
-    started = _utc()
-    name = valid[0].cfg.name
-    preset_yaml = grid.to_yaml()
-    photons = sorted({int(s.cfg.get("simulation.photons")) for s in valid})
-    seeds = sorted({int(s.cfg.get("simulation.seed")) for s in valid})
-    state = {"written": 0.0}
-
-    def write_manifest(force=False):
-        now = time.monotonic()
-        if not force and now - state["written"] < MANIFEST_INTERVAL_S:
-            return
-        state["written"] = now
-        rows = []
-        for s in scenarios:
-            row = {"index": s.index, "point": s.point, "key": s.key, "file": s.file,
-                   "config_sha256": s.config_sha256}
-            row.update(records.get(s.index, {"status": "other shard"}))
-            rows.append(row)
-        counts = {k: sum(r["status"] == k for r in rows) for k in ("done", "failed", "pending")}
-        manifest = {
-            "format": FORMAT, "format_version": FORMAT_VERSION, "name": name,
-            "preset": str(grid.source), "keys": grid.keys, "fingerprint": fingerprint,
-            "shard": None if shard is None else f"{shard[0]}/{shard[1]}",
-            "engine": engine_text, "device": device, "scheduler": scheduler,
-            "started_utc": started, "updated_utc": _utc(), "versions": _versions(dask_used),
-            "photons": photons[0] if len(photons) == 1 else photons,
-            "seed": seeds[0] if len(seeds) == 1 else seeds,
-            "counts": counts, "preset_yaml": preset_yaml, "scenarios": rows,
-        }
-        _atomic_write_text(manifest_path, json.dumps(manifest, indent=1, default=_jsonable))
-
-    write_manifest(force=True)
-    label = "sweep" if shard is None else f"shard {shard[0]}/{shard[1]}"
-    say(f"warpe-cl sweep: {name} ({grid.source}), {len(scenarios)} scenario(s) in the grid"
+    manifest.write(force=True)
+    say(f"warpe-cl sweep: {manifest.header['name']} ({grid.source}), {len(scenarios)} "
+        f"scenario(s) in the grid"
         + ("" if shard is None else f", {len(owned)} in shard {shard[0]}/{shard[1]}")
         + f"; {summary.skipped} already done, {len(todo)} to run, "
-          f"{len(summary.failed)} invalid; {engine_text}; database {folder}")
-    for index, point, error in summary.failed:
+          f"{len(summary.failed)} invalid; {engine.text}; database {folder}")
+    for index, _, error in summary.failed:
         print(f"warpe-cl: scenario {index} failed: {error}", file=sys.stderr)
 
     tasks = [{"index": s.index, "point": s.point, "cfg": s.cfg, "path": str(folder / s.file),
-              "device": devices[0] if devices else device, "threads": None,
-              "fingerprint": fingerprint, "progress": False} for s in todo]
+              "device": device, "fingerprint": fingerprint, "progress": False} for s in todo]
     by_index = {s.index: s for s in todo}
-    progress = _Progress(len(todo), quiet, label)
+    progress = _Progress(len(todo), quiet,
+                         "sweep" if shard is None else f"shard {shard[0]}/{shard[1]}")
     t0 = time.perf_counter()
     try:
-        if mode == "dask":
-            for task in tasks:
-                task["threads"] = threads
-            results = _run_dask(client, tasks, fingerprint)
-        elif mode == "pool":
-            results = _run_pool(tasks, devices)
-        else:
-            for task in tasks:
-                task["progress"] = None if (not quiet and sys.stderr.isatty()) else False
-            results = map(run_scenario, tasks)
-        for rec in results:
+        for rec in engine.results(tasks, fingerprint, quiet):
             s = by_index[rec["index"]]
             records[s.index] = {**rec, "this_run": "computed"}
             where = ", ".join(f"{k}={v}" for k, v in s.point.items()) or "the preset"
@@ -544,21 +579,16 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
                 progress.advance(f"{s.file} done in {rec['wall_time_s']:.2f} s ({where})")
             else:
                 summary.failed.append((s.index, s.point, rec["error"]))
-                summary.device_failures += bool(rec.get("device_error"))
                 progress.advance(f"scenario {s.index} failed ({where}): {rec['error']}",
                                  error=True)
-            write_manifest()
+            manifest.write()
     finally:
         progress.close()
         summary.wall_time_s = time.perf_counter() - t0
         summary.pending = sum(r["status"] == "pending" for r in records.values())
-        write_manifest(force=True)
-        if dask_used:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+        manifest.write(force=True)
 
-    summary.finished_in_folder = sum((folder / s.file).is_file() for s in valid)
+    summary.finished_in_folder = sum((folder / s.file).is_file() for s in scenarios if s.valid)
     if combined is not None and summary.finished_in_folder == len(scenarios):
         from .io import write_netcdf
         write_netcdf(open_database(folder), combined)
