@@ -137,6 +137,23 @@ def test_local_sweep_equals_run(reference):
                                                                       "medium.radiative.tau0"]
 
 
+def test_fast_scenario_reader_matches_xarray(reference):
+    """open_database reads scenario files with h5py into a template's layout: the same
+    values, types and attributes as xarray.load_dataset gives."""
+    from warpe_cl.sweep import _read_scenario
+    tmp = reference[0]
+    files = sorted((tmp / "local").glob("s*.nc"))
+    template = xr.load_dataset(files[0], engine="h5netcdf")
+    for path in files:
+        slow, fast = xr.load_dataset(path, engine="h5netcdf"), _read_scenario(path, template)
+        assert fast.identical(slow), path.name
+        for name, value in slow.attrs.items():
+            assert type(fast.attrs[name]) is type(value), name
+        for name in slow.variables:
+            assert fast[name].dtype == slow[name].dtype, name
+    assert template.identical(xr.load_dataset(files[0], engine="h5netcdf"))  # left untouched
+
+
 def test_shards_in_one_folder_and_in_separate_folders(reference, tmp_path, capsys):
     _, preset, run, _ = reference
     folder = tmp_path / "shards"

@@ -222,7 +222,10 @@ def make_parser() -> argparse.ArgumentParser:
 
     sw = sub.add_parser("sweep", help="run a preset's sweep grid as a resumable database "
                                       "(one file per scenario; shards; Dask)")
-    common(sw)
+    common(sw, device=False)
+    sw.add_argument("--device", default=None,
+                    help="as for run; or a comma-separated list (0:0,0:1), or all (every GPU): "
+                         "one worker process per device")
     sw.add_argument("--out", required=True,
                     help="database folder (or X.nc: scenarios in X.sweep/, all of them "
                          "combined in X.nc once the grid is complete)")

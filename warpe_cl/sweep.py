@@ -691,6 +691,44 @@ def _run_dask(client, tasks: list, fingerprint: str):
 
 # --------------------------------------------------------------------------- reading
 
+def _attribute(value):
+    """A NetCDF attribute as read by h5py -> as xarray's h5netcdf backend gives it."""
+    import numpy as np
+    if isinstance(value, (bytes, np.bytes_)):
+        return value.decode()
+    if isinstance(value, np.ndarray) and value.ndim == 1 and value.size == 1:
+        return value[0]
+    return value
+
+
+def _read_scenario(path: Path, template):
+    """One scenario file, read with h5py into the layout of ``template`` (a scenario of the
+    same grid opened by xarray).
+
+    Opening a small file through xarray and h5netcdf costs tens of milliseconds, most of it
+    resolving dimension scales; a database holds thousands. Every scenario of a grid shares
+    its dimensions, coordinates and variable attributes, so only the values and the global
+    attributes are read here, the same bits as ``xarray.load_dataset`` gives (tested). A file
+    whose variables or coordinates do not match the template is read by xarray instead.
+    """
+    import h5py
+    import numpy as np
+    import xarray as xr
+    with h5py.File(path, "r") as h5:
+        same_layout = all(name in h5 and h5[name].shape == template[name].shape
+                          for name in list(template.data_vars) + list(template.coords))
+        same_layout = same_layout and all(
+            np.array_equal(h5[name][()], template[name].values)
+            for name in template.coords if template[name].dtype.kind in "fiu")
+        if same_layout:
+            ds = template.copy(deep=False)     # new Variable objects; the template keeps its data
+            for name, var in template.data_vars.items():
+                ds.variables[name].values = np.asarray(h5[name][()]).astype(var.dtype)
+            ds.attrs = {k: _attribute(v) for k, v in h5.attrs.items() if not k.startswith("_")}
+            return ds
+    return xr.load_dataset(path, engine="h5netcdf")
+
+
 def open_database(paths):
     """One Dataset of every finished scenario of a sweep database.
 
@@ -747,7 +785,8 @@ def open_database(paths):
         raise ConfigError("holds no finished scenario yet", key=", ".join(map(str, folders)))
     rows = {rec["index"]: rec for rec in grid["scenarios"]}
     indices = sorted(found)
-    datasets = [xr.load_dataset(found[i], engine="h5netcdf") for i in indices]
+    template = xr.load_dataset(found[indices[0]], engine="h5netcdf")
+    datasets = [template] + [_read_scenario(found[i], template) for i in indices[1:]]
     points = [rows[i]["point"] for i in indices]
     out = combine_scenarios(datasets, points, {"config": grid.get("preset_yaml", "")})
     out = out.assign_coords(scenario=("scenario", indices, {
