@@ -209,6 +209,25 @@ def cmd_instrument(args) -> int:
     return EXIT_OK
 
 
+def cmd_sweep(args) -> int:
+    """``warpe-cl sweep``: a grid as a resumable database (warpe_cl/sweep.py, docs/cluster.md).
+
+    Exit codes: 0 every scenario of this run (this shard) is done; 1 some failed (each is
+    recorded in the manifest with its error) or did not finish; 2 bad input found before any
+    scenario ran; 3 no usable device.
+    """
+    from .sweep import parse_shard, run_sweep, summary_lines
+    from .catalog import resolve_preset
+    shard = parse_shard(args.shard)
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    summary = run_sweep(resolve_preset(args.preset), args.out, overrides=_overrides(args),
+                        shard=shard, scheduler=args.scheduler, resume=args.resume,
+                        device=args.device, quiet=args.quiet, say=say)
+    for line in summary_lines(summary):
+        say(line)
+    return summary.exit_code
+
+
 def cmd_devices(args) -> int:
     from .device import INSTALL_HINT, list_devices, probe, resolve_spec, select_device
     devices = list_devices()
@@ -299,6 +318,27 @@ def make_parser() -> argparse.ArgumentParser:
     r.add_argument("--plot", help="also draw the waveform to this PNG")
     r.add_argument("--quiet", action="store_true", help="print nothing but errors")
     r.set_defaults(func=cmd_run)
+
+    sw = sub.add_parser("sweep", help="run a preset's sweep grid as a resumable database "
+                                      "(one file per scenario; shards; Dask)")
+    common(sw, device=False)
+    sw.add_argument("--device", default=None,
+                    help="as for run; or a comma-separated list (0:0,0:1), or all (every GPU): "
+                         "one worker process per device")
+    sw.add_argument("--out", required=True,
+                    help="database folder (or X.nc: scenarios in X.sweep/, all of them "
+                         "combined in X.nc once the grid is complete)")
+    sw.add_argument("--shard", metavar="I/N",
+                    help="run only the scenarios i with i %% N == I (job arrays)")
+    sw.add_argument("--scheduler", metavar="ADDRESS",
+                    help="Dask scheduler address, or local:N for N local worker processes "
+                         "(needs pip install 'warpe-cl[cluster]')")
+    sw.add_argument("--resume", action="store_true",
+                    help="keep the scenarios already in the folder, compute the rest")
+    sw.add_argument("--photons", help="rays per scenario (simulation.photons)")
+    sw.add_argument("--seed", help="random seed (simulation.seed)")
+    sw.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    sw.set_defaults(func=cmd_sweep)
 
     d = sub.add_parser("devices", help="list OpenCL devices and the one `auto` picks")
     d.add_argument("--device", default=None, help="a device spec to resolve")

@@ -36,7 +36,7 @@ from .errors import ConfigError
 from .units import UnitError, format_quantity, parse_quantity, unit_list
 
 __all__ = ["Field", "SCHEMA", "FIELDS", "Config", "load_preset", "time_edges",
-           "schema_markdown"]
+           "schema_markdown", "Grid", "load_grid"]
 
 
 # --------------------------------------------------------------------------- the table
@@ -1100,6 +1100,121 @@ def load_preset(source, overrides=None) -> Config:
         except ConfigError as exc:
             raise exc.with_source(name) from None
     return Config(raw, name, name_default=name_default, base_dir=base_dir)
+
+
+
+# --------------------------------------------------------------------------- sweep grids
+
+@dataclass
+class Grid:
+    """A preset's sweep grid with every point validated on its own (``warpe-cl sweep``).
+
+    Attributes
+    ----------
+    source : str
+        The preset's path as given, or ``"<dict>"``.
+    raw : dict
+        The preset as written, overrides applied and list overrides turned into sweep axes.
+    keys : list of str
+        The swept keys, in the order of the outer product (empty without a sweep).
+    points : list of (dict, Config or ConfigError)
+        For each point of the outer product (the order of :meth:`Config.sweep_points`), the
+        swept values as written and that point's validated configuration, or the one-line
+        error that rejects it.
+    """
+
+    source: str
+    raw: dict
+    keys: list
+    points: list
+
+    def to_yaml(self) -> str:
+        """The resolved preset (with its sweep block) when every point is valid, else the
+        preset as written (overrides applied)."""
+        try:
+            return Config(copy.deepcopy(self.raw), self.source).to_yaml()
+        except ConfigError:
+            text = yaml.safe_dump(self.raw, sort_keys=False, allow_unicode=True, width=100)
+            return f"# warpe-cl preset {self.source} as written (a sweep point is invalid)\n{text}"
+
+
+def load_grid(source, overrides=None) -> Grid:
+    """Load a preset as a grid of independent points, for a resumable sweep.
+
+    Unlike :func:`load_preset`, a value that rejects one point (a compacity of 1.2) does not
+    reject the preset: that point carries its :class:`ConfigError`, the others stand. Each
+    valid point's Config is built exactly as :meth:`Config.sweep_points` builds it, so it
+    gives the same scenario (and the same bits) as ``warpe-cl run``.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or dict
+        A YAML preset or a dict of the same shape.
+    overrides : dict or list of str, optional
+        As for :func:`load_preset`. An override whose value is a list, on a key that a sweep
+        may name and that is not itself a list (``medium.thickness=["1 mm", "10 mm"]``),
+        becomes a sweep axis: it replaces a swept key of the same name, or is added after
+        the preset's own.
+
+    Raises
+    ------
+    ConfigError
+        For what no point can survive: an unreadable file, a malformed sweep block, an
+        unknown sweep key; or, without a sweep, the single point's error.
+    """
+    if isinstance(source, dict):
+        name, raw, base_dir, name_default = "<dict>", copy.deepcopy(source), None, "unnamed"
+    elif isinstance(source, (str, os.PathLike)):
+        name = os.fspath(source)
+        raw = _read_yaml(name)
+        base_dir = os.path.dirname(os.path.abspath(name))
+        name_default = os.path.splitext(os.path.basename(name))[0]
+    else:
+        raise ConfigError(f"a preset is a YAML file path or a dict, not "
+                          f"{type(source).__name__}")
+    if not isinstance(raw, dict):
+        Config(raw, name, name_default=name_default, base_dir=base_dir)  # raises its message
+    try:
+        axes = {}
+        plain = {}
+        for key, value in _parse_overrides(overrides).items():
+            skey = _schema_key(_split(key))
+            if (isinstance(value, list) and skey in _SWEEPABLE
+                    and (skey == "medium" or FIELDS[skey].kind in SCALAR_KINDS)):
+                axes[key] = value
+            else:
+                plain[key] = value
+        _apply_overrides(raw, plain)
+        if axes:
+            sweep = raw.get("sweep") if isinstance(raw.get("sweep"), dict) else {}
+            raw["sweep"] = {**{k: v for k, v in sweep.items() if k not in axes}, **axes}
+        sweep = raw.get("sweep") or {}
+        if not isinstance(sweep, dict):
+            raise ConfigError(f"{_show(sweep)} is not a mapping; give KEY: [VALUE, ...], "
+                              f'e.g. medium.thickness: ["1 mm", "10 mm"]', "sweep")
+        for key, values in sweep.items():
+            target = _sweep_field(key, f"sweep.{key}")
+            if not isinstance(values, list) or not values:
+                raise ConfigError(f"{_show(values)} is not allowed; give a non-empty list of "
+                                  f"values, each {_allowed(target)}", f"sweep.{key}")
+    except ConfigError as exc:
+        raise exc.with_source(name) from None
+    base = {k: v for k, v in raw.items() if k != "sweep"}
+    keys = list(sweep)
+    points = []
+    for combo in itertools.product(*(sweep[k] for k in keys)):
+        point = dict(zip(keys, combo))
+        point_raw = copy.deepcopy(base)
+        try:
+            _apply_overrides(point_raw, copy.deepcopy(point))
+            cfg = Config(point_raw, name, name_default=name_default, base_dir=base_dir)
+        except ConfigError as exc:
+            if not keys:
+                raise
+            where = ", ".join(f"{k}={_show(v)}" for k, v in point.items())
+            cfg = ConfigError(f"{exc.message} (in the sweep point {where})", exc.key, name)
+        points.append((point, cfg))
+    return Grid(name, raw, keys, points)
 
 
 # --------------------------------------------------------------------------- docs

@@ -120,6 +120,13 @@ def provenance(extra: dict | None = None) -> dict:
     return out
 
 
+def _same_attr(a, b) -> bool:
+    """Attribute equality that also holds for array attributes (species_w, ...)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return a is not None and b is not None and np.array_equal(a, b)
+    return a == b
+
+
 def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     """Stack scenario Datasets along ``scenario``.
 
@@ -129,8 +136,9 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     """
     import xarray as xr
 
-    varying = {k for ds in datasets for k in ds.attrs
-               if any(d.attrs.get(k) != ds.attrs.get(k) for d in datasets)}
+    first = datasets[0].attrs            # an attribute varies if any scenario differs from
+    varying = {k for k in {k for ds in datasets for k in ds.attrs}   # the first: O(N), not N^2
+               if any(not _same_attr(ds.attrs.get(k), first.get(k)) for ds in datasets)}
     stripped = []
     for ds in datasets:
         ds = ds.copy()

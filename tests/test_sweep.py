@@ -1,0 +1,347 @@
+"""Sweeps as a database: the same bits locally, by shards, on Dask and from `run`; resume after
+SIGKILL; a bad point recorded while the others complete; open_database's layout."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import warpe_cl
+from warpe_cl.cli import main
+from warpe_cl.config import load_grid, load_preset
+from warpe_cl.errors import ConfigError
+
+GRID = """\
+name: tiny_grid
+medium:
+  texture: slab
+  thickness: "10 mm"
+  radiative: {tau0: 1.0, omega: 0.9, n: 1.3, k: 0.0}
+  bottom_albedo: 0.15
+simulation:
+  photons: 3000
+  seed: 3
+  time_bins: {start: "1e-3 ns", stop: "1e3 ns", per_decade: 5}
+sweep:
+  medium.thickness: ["5 mm", "10 mm"]
+  medium.radiative.tau0: [0.5, 2.0]
+"""
+THICKNESS = ["5 mm", "5 mm", "10 mm", "10 mm"]          # outer product, first key slowest
+TAU0 = ["0.5", "2.0", "0.5", "2.0"]
+
+BAD_POINT = """\
+name: bad_point
+medium:
+  texture: granular
+  thickness: "1 mm"
+  compacity: 0.5
+  inclusions:
+    - {material: H2O, proportion: 1.0, grain_size: "100 um"}
+simulation:
+  photons: 300
+  time_bins: {start: "1e-3 ns", stop: "1e3 ns", per_decade: 5}
+sweep:
+  medium.compacity: [0.5, 1.2, 1.0, 0.3]
+"""
+
+
+def _preset(tmp_path, text=GRID, name="grid.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _manifest(folder: Path, name="manifest.json") -> dict:
+    return json.loads((folder / name).read_text())
+
+
+def _assert_same_bits(a: xr.Dataset, b: xr.Dataset):
+    """Every variable but the wall time identical, bit for bit."""
+    assert sorted(a.data_vars) == sorted(b.data_vars)
+    for name in a.data_vars:
+        if name != "wall_time":
+            assert np.array_equal(a[name].values, b[name].values), name
+
+
+# --------------------------------------------------------------------------- grids
+
+def test_grid_points_are_those_of_run():
+    raw = yaml_load(GRID)
+    grid = load_grid(raw)
+    run_points = load_preset(raw).sweep_points()
+    assert grid.keys == ["medium.thickness", "medium.radiative.tau0"]
+    assert [p for p, _ in grid.points] == [p for p, _ in run_points]
+    assert all(c.data == r.data for (_, c), (_, r) in zip(grid.points, run_points))
+
+
+def test_list_override_becomes_a_sweep_axis():
+    raw = yaml_load(GRID)
+    del raw["sweep"]
+    grid = load_grid(raw, ['medium.thickness=["1 mm", "2 mm", "3 mm"]', "simulation.photons=10"])
+    assert grid.keys == ["medium.thickness"] and len(grid.points) == 3
+    assert [c.get("medium.thickness") for _, c in grid.points] == [0.001, 0.002, 0.003]
+    assert all(c.get("simulation.photons") == 10 for _, c in grid.points)
+    # a list on a swept key replaces that axis; other axes stay, in their order
+    grid = load_grid(yaml_load(GRID), ["medium.radiative.tau0=[3.0]"])
+    assert grid.keys == ["medium.thickness", "medium.radiative.tau0"] and len(grid.points) == 2
+
+
+def test_a_bad_value_rejects_only_its_point():
+    grid = load_grid(yaml_load(BAD_POINT))
+    errors = [c for _, c in grid.points if isinstance(c, ConfigError)]
+    assert len(errors) == 1 and "medium.compacity" in str(errors[0]) and "1.2" in str(errors[0])
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_grid(yaml_load(GRID.replace("medium.thickness:", "medium.thicknes:")))
+
+
+def yaml_load(text):
+    import yaml
+    return yaml.safe_load(text)
+
+
+# --------------------------------------------------------------------------- same bits
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The grid computed by `warpe-cl run` (all points in one file) and by a local sweep."""
+    tmp = tmp_path_factory.mktemp("sweep")
+    preset = _preset(tmp)
+    assert main(["run", str(preset), "--out", str(tmp / "run.nc"), "--quiet"]) == 0
+    assert main(["sweep", str(preset), "--out", str(tmp / "local"), "--quiet"]) == 0
+    return tmp, preset, xr.load_dataset(tmp / "run.nc"), warpe_cl.open_database(tmp / "local")
+
+
+def test_local_sweep_equals_run(reference):
+    tmp, _, run, local = reference
+    _assert_same_bits(local, run)
+    assert list(local["scenario"].values) == [0, 1, 2, 3]
+    assert list(local["medium.thickness"].values) == THICKNESS
+    assert list(local["medium.radiative.tau0"].values) == TAU0
+    assert np.allclose(local["thickness_m"], [0.005, 0.005, 0.01, 0.01], rtol=1e-12)
+    assert set(local.coords) == set(run.coords) and set(local.dims) == set(run.dims)
+    manifest = _manifest(tmp / "local")
+    assert [r["status"] for r in manifest["scenarios"]] == ["done"] * 4
+    assert [r["key"] for r in manifest["scenarios"]] == list(run["scenario_key"].values)
+    for rec in manifest["scenarios"]:
+        assert rec["file"] == f"s{rec['index']:05d}_{rec['key']:08x}.nc"
+        assert rec["photons"] == 3000 and rec["wall_time_s"] > 0
+    assert manifest["versions"]["warpe_cl"] and manifest["keys"] == ["medium.thickness",
+                                                                      "medium.radiative.tau0"]
+
+
+def test_fast_scenario_reader_matches_xarray(reference):
+    """open_database reads scenario files with h5py into a template's layout: the same
+    values, types and attributes as xarray.load_dataset gives."""
+    from warpe_cl.sweep import _read_scenario
+    tmp = reference[0]
+    files = sorted((tmp / "local").glob("s*.nc"))
+    template = xr.load_dataset(files[0], engine="h5netcdf")
+    for path in files:
+        slow, fast = xr.load_dataset(path, engine="h5netcdf"), _read_scenario(path, template)
+        assert fast.identical(slow), path.name
+        for name, value in slow.attrs.items():
+            assert type(fast.attrs[name]) is type(value), name
+        for name in slow.variables:
+            assert fast[name].dtype == slow[name].dtype, name
+    assert template.identical(xr.load_dataset(files[0], engine="h5netcdf"))  # left untouched
+
+
+def test_shards_in_one_folder_and_in_separate_folders(reference, tmp_path, capsys):
+    _, preset, run, _ = reference
+    folder = tmp_path / "shards"
+    for i in range(3):
+        assert main(["sweep", str(preset), "--out", str(folder), "--shard", f"{i}/3",
+                     "--quiet"]) == 0
+        owned = [r["index"] for r in _manifest(folder, f"manifest-shard-{i}-of-3.json")
+                 ["scenarios"] if r["status"] == "done"]
+        assert owned == [j for j in range(4) if j % 3 == i]     # round robin: i mod N
+    _assert_same_bits(warpe_cl.open_database(folder), run)
+    # shards in separate folders, merged by open_database
+    parts = [tmp_path / f"part{i}" for i in range(2)]
+    for i, part in enumerate(parts):
+        assert main(["sweep", str(preset), "--out", str(part), "--shard", f"{i}/2",
+                     "--quiet"]) == 0
+    half = warpe_cl.open_database(parts[0])
+    assert list(half["scenario"].values) == [0, 2]
+    assert list(half["medium.thickness"].values) == ["5 mm", "10 mm"]
+    _assert_same_bits(warpe_cl.open_database(parts), run)
+
+
+def test_dask_local_cluster_gives_the_same_bits(reference, tmp_path):
+    import distributed  # noqa: F401 - in the test extra: this test must run, never skip
+    _, preset, run, _ = reference
+    folder = tmp_path / "dask"
+    assert main(["sweep", str(preset), "--out", str(folder), "--scheduler", "local:2",
+                 "--quiet"]) == 0
+    _assert_same_bits(warpe_cl.open_database(folder), run)
+    records = _manifest(folder)["scenarios"]
+    assert len({r["pid"] for r in records}) <= 2 and os.getpid() not in {r["pid"] for r in records}
+    # cluster hygiene: PoCL threads from the CPUs shared by 2 workers, node-local kernel cache
+    cpus = len(os.sched_getaffinity(0))
+    tmp_root = os.environ.get("TMPDIR") or "/tmp"
+    for r in records:
+        if "POCL_MAX_PTHREAD_COUNT" not in os.environ:
+            assert r["pocl_max_pthread_count"] == str(max(1, cpus // 2))
+        if "POCL_CACHE_DIR" not in os.environ:
+            assert r["pocl_cache_dir"].startswith(tmp_root)
+
+
+def test_dask_scheduler_address_needs_workers_with_the_opencl_resource(reference, tmp_path,
+                                                                      capsys):
+    from distributed import LocalCluster
+    _, preset, run, _ = reference
+    folder = tmp_path / "dask"
+    # threaded workers in this process: quick to start; the address path is what is tested
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as bare:
+        rc = main(["sweep", str(preset), "--out", str(folder), "--scheduler",
+                   bare.scheduler_address])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and len(err.splitlines()) == 1 and "--resources opencl=1" in err, err
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      resources={"opencl": 1}, dashboard_address=None) as cluster:
+        assert main(["sweep", str(preset), "--out", str(folder), "--scheduler",
+                     cluster.scheduler_address, "--quiet"]) == 0
+    _assert_same_bits(warpe_cl.open_database(folder), run)
+
+
+def test_one_worker_process_per_device(reference, engine, tmp_path):
+    _, preset, run, _ = reference
+    folder = tmp_path / "pool"
+    spec = engine.info.spec
+    assert main(["sweep", str(preset), "--out", str(folder), "--device", f"{spec},{spec}",
+                 "--quiet"]) == 0
+    _assert_same_bits(warpe_cl.open_database(folder), run)
+    assert os.getpid() not in {r["pid"] for r in _manifest(folder)["scenarios"]}
+
+
+def test_out_file_gets_the_combined_grid(reference, tmp_path):
+    _, preset, run, _ = reference
+    out = tmp_path / "all.nc"
+    assert main(["sweep", str(preset), "--out", str(out), "--shard", "0/2", "--quiet"]) == 0
+    assert not out.exists() and (tmp_path / "all.sweep").is_dir()    # half the grid so far
+    assert main(["sweep", str(preset), "--out", str(out), "--shard", "1/2", "--quiet"]) == 0
+    _assert_same_bits(xr.load_dataset(out), run)
+
+
+# --------------------------------------------------------------------------- resume
+
+def test_sigkill_then_resume_recomputes_nothing(tmp_path, capsys):
+    # 2e6 rays per scenario: about half a second each on 2 CPU cores, so the kill lands
+    # while later scenarios are still to come.
+    preset = _preset(tmp_path)
+    folder = tmp_path / "db"
+    cmd = [sys.executable, "-m", "warpe_cl", "sweep", str(preset), "--out", str(folder),
+           "--photons", "2e6"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while not list(folder.glob("s*.nc")):
+        assert proc.poll() is None, proc.stderr.read().decode()
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    proc.stderr.close()
+    before = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in folder.glob("s*.nc")}
+    assert 0 < len(before) < 4, f"the kill came too late to test resuming: {sorted(before)}"
+    # a partial file a killed writer could leave: never a result, removed on resume
+    pending = next(r for r in _manifest(folder)["scenarios"] if r["file"] not in before)
+    partial = folder / f".{pending['file']}.x1y2z3.tmp"
+    partial.write_bytes(b"\x89HDF\r\n half a file")
+    assert main(["sweep", str(preset), "--out", str(folder), "--photons", "2e6"]) == 2, \
+        "without --resume, a folder holding results is refused"
+    capsys.readouterr()
+    assert main(["sweep", str(preset), "--out", str(folder), "--photons", "2e6",
+                 "--resume"]) == 0
+    out = capsys.readouterr().out
+    assert f"{4 - len(before)} done, {len(before)} skipped" in out
+    after = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in folder.glob("s*.nc")}
+    assert len(after) == 4 and all(after[n] == v for n, v in before.items())  # none recomputed
+    assert not list(folder.glob(".*")), "temporary files left behind"
+    records = _manifest(folder)["scenarios"]
+    assert [r["status"] for r in records] == ["done"] * 4
+    assert sorted(r["file"] for r in records if r["this_run"] == "skipped") == sorted(before)
+    db = warpe_cl.open_database(folder)
+    assert list(db["scenario"].values) == [0, 1, 2, 3]
+    assert (db["photons"] == 2_000_000).all()
+
+
+# --------------------------------------------------------------------------- failures
+
+def test_a_bad_point_is_recorded_and_the_rest_completes(tmp_path, capsys):
+    preset = _preset(tmp_path, BAD_POINT)
+    folder = tmp_path / "db"
+    assert main(["sweep", str(preset), "--out", str(folder)]) == 1
+    captured = capsys.readouterr()
+    assert "2 done, 0 skipped (already in the folder), 2 failed" in captured.out
+    assert "medium.compacity: 1.2 is not allowed" in captured.err
+    assert "Traceback" not in captured.err
+    records = _manifest(folder)["scenarios"]
+    assert [r["status"] for r in records] == ["done", "failed", "failed", "done"]
+    assert "1.2 is not allowed" in records[1]["error"] and records[1]["file"] is None
+    assert "not allowed for a granular medium" in records[2]["error"]   # found at run time
+    db = warpe_cl.open_database(folder)
+    assert list(db["scenario"].values) == [0, 3]
+    assert list(db["medium.compacity"].values) == ["0.5", "0.3"]
+    assert sorted(json.loads(db.attrs["sweep_failed"])) == ["1", "2"]
+    assert db.attrs["sweep_scenarios_total"] == 4
+    # resume retries the failed points (they fail again) and recomputes none of the others
+    assert main(["sweep", str(preset), "--out", str(folder), "--resume"]) == 1
+    assert "0 done, 2 skipped (already in the folder), 2 failed" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--shard", "3/3"], "--shard: 3/3 is not allowed"),
+    (["--shard", "x"], "--shard: x is not allowed"),
+    (["--scheduler", "local:0"], "--scheduler: local:0 is not allowed"),
+    (["--set", "sweep.medium.thickness=[]"], "sweep.medium.thickness"),
+    (["--set", "medium.radiative.omega=[1.5, 2.0]"], "omega"),   # every point invalid
+])
+def test_bad_sweep_command_lines_exit_2(tmp_path, capsys, extra, message):
+    preset = _preset(tmp_path)
+    rc = main(["sweep", str(preset), "--out", str(tmp_path / "db"), *extra])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "db").exists()
+
+
+def test_without_dask_the_scheduler_says_what_to_install(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)      # import distributed fails
+    rc = main(["sweep", str(_preset(tmp_path)), "--out", str(tmp_path / "db"),
+               "--scheduler", "local:2"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "pip install 'warpe-cl[cluster]'" in err
+
+
+def test_a_folder_holds_one_grid(reference, tmp_path, capsys):
+    _, preset, _, _ = reference
+    folder = tmp_path / "db"
+    assert main(["sweep", str(preset), "--out", str(folder), "--shard", "0/4", "--quiet"]) == 0
+    rc = main(["sweep", str(preset), "--out", str(folder), "--seed", "4", "--resume"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "another grid" in err
+
+
+def test_worker_environment_from_slurm_and_tmpdir(tmp_path):
+    code = ("import os, warpe_cl.sweep as s; s.worker_environment(); "
+            "print(os.environ['POCL_MAX_PTHREAD_COUNT'], os.environ['POCL_CACHE_DIR'], "
+            "os.environ['PYOPENCL_CACHE_DIR'])")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("POCL_MAX_PTHREAD_COUNT", "POCL_CACHE_DIR", "PYOPENCL_CACHE_DIR")}
+    env.update(SLURM_CPUS_PER_TASK="7", TMPDIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[0] == "7"
+    assert all(Path(p).is_dir() and Path(p).is_relative_to(tmp_path) for p in out[1:])
+    env["POCL_MAX_PTHREAD_COUNT"] = "3"                          # what the user set is kept
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[0] == "3"
