@@ -2,7 +2,7 @@
 """Benchmark the walk kernels on the scenes of the speed issue, and the NumPy reference beside them.
 
     python tools/bench.py [--photons N] [--device SPEC] [--precision single|double]
-                          [--compare numpy] [--json FILE]
+                          [--scenes B1,B2,B3] [--compare numpy] [--compare mcxcl] [--json FILE]
 
 Scenes (time cap 5 ns, Lambertian floor A = 0.15, HG g = 0.8):
   B1  slab 60 mm, tau0 = 60.3, omega = 0.99502, n = 1.3 (about 212 scatterings per photon)
@@ -12,16 +12,26 @@ Scenes (time cap 5 ns, Lambertian floor A = 0.15, HG g = 0.8):
 Prints and writes (JSON) photons/s and scattering events/s per scene, with the device, driver,
 cores, precision and date. ``--compare numpy`` runs the reference walk on the same scenes in the
 same run (fewer photons: it is ~100x slower) and prints the ratio.
+
+``--compare mcxcl`` runs MCX-CL (pmcxcl 0.7.5, in its own venv at $WARPE_MCXCL_VENV or
+/tmp/mcxcl-venv, created on first use) on B1 in the anchor's 60 mm voxel box, on the same OpenCL
+device, right after our kernel: MCX photons/s and scattering events/s (kernel and wall time), our
+events/s in the same run, their ratio, and our time-resolved reflectance against MCX's. A second,
+matched check puts MCX in a 400 mm wide box against our B1 with A = 0 (MCX has no Lambertian
+floor). See tools/mcxcl_compare.py and docs/performance.md, "MCX-CL anchor".
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as dt
 import json
 import os
 import platform
 import sys
 import time
+
+import numpy as np
 
 from warpe_cl.api import get_engine, walk_params
 from warpe_cl.config import load_preset
@@ -43,8 +53,9 @@ SCENES = {
 }
 
 
-def measure(engine, params, photons, precision, repeats=3):
-    """Best of ``repeats`` timed runs (after one warm-up that builds the kernel)."""
+def measure(engine, params, photons, precision, repeats=3, keep=None):
+    """Best of ``repeats`` timed runs (after one warm-up that builds the kernel); the best run's
+    :class:`~warpe_cl.params.Counts` go to ``keep["counts"]`` when ``keep`` is a dict."""
     engine.run(params, min(photons, 10_000), precision=precision)
     best = None
     for _ in range(repeats):
@@ -54,9 +65,102 @@ def measure(engine, params, photons, precision, repeats=3):
         if best is None or elapsed < best[0]:
             best = (elapsed, counts)
     elapsed, counts = best
+    if keep is not None:
+        keep["counts"] = counts
     return {"photons": photons, "seconds": elapsed, "photons_per_s": photons / elapsed,
             "scattering_events_per_s": counts.scattering_events / elapsed,
             "scatterings_per_photon": counts.scattering_events / photons}
+
+
+def loadavg():
+    """The 1, 5 and 15 min load averages (None where /proc/loadavg is missing)."""
+    try:
+        with open("/proc/loadavg") as fh:
+            return [float(v) for v in fh.read().split()[:3]]
+    except OSError:
+        return None
+
+
+def compare_mcxcl(engine, name, params, ours, counts, args, state) -> tuple:
+    """MCX-CL on scene ``name`` right after our kernel: its row for the JSON and a report.
+
+    ``state`` keeps MCX's python and platform between scenes. Raises ``McxclUnavailable``.
+    """
+    import mcxcl_compare as mc
+    wd = state.setdefault("workdir", mc.workdir())
+    if "python" not in state:
+        state["python"] = mc.ensure_venv(mc.venv_path(args.mcxcl_venv))
+        label, icd, gpuid = mc.choose_platform(args.mcxcl_icd, engine.info.device,
+                                               state["python"], wd)
+        state.update(icd_label=label, icd=icd, gpuid=gpuid)
+    py, icd, gpuid = state["python"], state["icd"], state["gpuid"]
+    row = {"icd": state["icd_label"], "ocl_icd_vendors": icd, "gpuid": gpuid}
+
+    # 1. timing, and the reflectance of B1 itself, in the anchor's box
+    scene = mc.mcx_scene(params, int(args.mcxcl_photons), box_mm=args.mcxcl_box,
+                         tstep_ns=args.mcxcl_tstep, gpuid=gpuid)
+    res = mc.run_mcx(py, icd, scene, wd)
+    ev = mc.mcx_events(res, scene["mus_per_mm"], scene["path_cap_mm"])
+    keys = ("nphoton", "kernel_ms", "wall_s", "cpu_s", "build_ms", "mcx_photons_per_ms",
+            "mcx_device", "launch", "faces", "inside_at_tend", "top_mean_scatterings",
+            "top_weighted_mean_scatterings", "loadavg_before", "loadavg_after", "pmcxcl", "log")
+    row["timing"] = {"box_mm": scene["vol_shape"], "tstep_ns": scene["cfg"]["tstep"] * 1e9,
+                     **{k: res.get(k) for k in keys}, **ev}
+    row["ratio_events_per_s"] = ours["scattering_events_per_s"] / ev["scattering_events_per_s"]
+    row["ratio_photons_per_s"] = ours["photons_per_s"] / ev["photons_per_s"]
+    row["tpsf"] = mc.compare_tpsf(counts, params, res)
+    t = row["timing"]
+    report = [
+        f"  MCX-CL {t['pmcxcl']} on {t['mcx_device']} ({row['icd']} ICD, gpuid {gpuid}), "
+        f"{t['box_mm'][0]}x{t['box_mm'][1]}x{t['box_mm'][2]} mm box, {t['nphoton']:.3g} photons: "
+        f"kernel {t['kernel_ms'] / 1e3:.2f} s, wall {t['wall_s']:.2f} s (build {t['build_ms']} ms); "
+        f"{ev['photons_per_s']:.3g} photons/s, {ev['scattering_events_per_s']:.3g} scattering "
+        f"events/s ({ev['scatterings_per_photon']:.1f} per launched photon; "
+        f"{t['top_mean_scatterings']:.1f} per photon detected at z = 0); wall "
+        f"{ev['photons_per_s_wall']:.3g} photons/s",
+        f"  ours (same run) {ours['scattering_events_per_s']:.3g} events/s "
+        f"({ours['scatterings_per_photon']:.1f} per launched photon), {ours['photons_per_s']:.3g} "
+        f"photons/s -> RATIO {row['ratio_events_per_s']:.2f}x in scattering events/s "
+        f"({row['ratio_photons_per_s']:.2f}x in photons/s)",
+        "  time-resolved reflectance, ours (A = 0.15, laterally infinite) vs MCX (box, no floor), "
+        "per photon entering the medium:",
+        mc.format_tpsf(row["tpsf"])]
+
+    # 2. matched check: a box wide enough to be laterally infinite, our floor black (A = 0)
+    if args.mcxcl_check_photons > 0:
+        n_chk = int(args.mcxcl_check_photons)
+        ours_a0 = dataclasses.replace(params, albedo=0.0)
+        wide = mc.mcx_scene(ours_a0, n_chk, box_mm=args.mcxcl_check_box, tstep_ns=1e9,
+                            gpuid=gpuid)          # one time gate: the box's fluence buffer stays small
+        res_w = mc.run_mcx(py, icd, wide, wd)
+        ev_w = mc.mcx_events(res_w, wide["mus_per_mm"], wide["path_cap_mm"])
+        c_a0 = engine.run(ours_a0, n_chk, precision=args.precision)
+        # MCX's path lengths do not depend on mua (absorption is a weight): compare the
+        # scattering counts with our walk without absorption (omega = 1)
+        c_w1 = engine.run(dataclasses.replace(ours_a0, omega=1.0), n_chk,
+                          precision=args.precision, records=True)
+        nsc = c_w1.records["n_scat"]
+        row["check"] = {
+            "box_mm": wide["vol_shape"], "nphoton": n_chk, "faces": res_w["faces"],
+            "inside_at_tend": res_w["inside_at_tend"], **{f"mcx_{k}": v for k, v in ev_w.items()},
+            "ours_omega1_scatterings_per_photon": float(nsc.mean()),
+            "ours_omega1_scatterings_per_photon_err": float(nsc.std() / np.sqrt(len(nsc))),
+            "ours_omega1_fates": (c_w1.fates / c_w1.photons).tolist(),
+            "tpsf": mc.compare_tpsf(c_a0, ours_a0, res_w)}
+        ck = row["check"]
+        dz = ((ck["mcx_scatterings_per_photon"] - ck["ours_omega1_scatterings_per_photon"])
+              / np.hypot(ck["mcx_scatterings_per_photon_err"],
+                         ck["ours_omega1_scatterings_per_photon_err"]))
+        report += [
+            f"  matched check, {n_chk:.3g} photons: MCX in a {wide['vol_shape'][0]} mm wide box vs "
+            f"ours with A = 0 (reflectance per photon entering):",
+            mc.format_tpsf(ck["tpsf"]),
+            f"    scatterings per launched photon, absorption as a weight (MCX) vs our walk with "
+            f"omega = 1: {ck['mcx_scatterings_per_photon']:.1f} ± "
+            f"{ck['mcx_scatterings_per_photon_err']:.1f} ({res_w['inside_at_tend']} still inside "
+            f"at the gate) vs {ck['ours_omega1_scatterings_per_photon']:.1f} ± "
+            f"{ck['ours_omega1_scatterings_per_photon_err']:.1f} (z = {dz:+.1f})"]
+    return row, "\n".join(report)
 
 
 def main(argv=None) -> int:
@@ -64,21 +168,47 @@ def main(argv=None) -> int:
     p.add_argument("--photons", type=float, default=1e6)
     p.add_argument("--device", default=None)
     p.add_argument("--precision", choices=("single", "double"), default="single")
-    p.add_argument("--compare", choices=("numpy",), action="append", default=[])
+    p.add_argument("--scenes", default=",".join(SCENES),
+                   help="comma-separated scenes to run (default: all)")
+    p.add_argument("--compare", choices=("numpy", "mcxcl"), action="append", default=[])
     p.add_argument("--numpy-photons", type=float, default=2e3)
+    p.add_argument("--mcxcl-photons", type=float, default=1e6,
+                   help="MCX-CL photons for the timing run (default 1e6)")
+    p.add_argument("--mcxcl-icd", default="auto",
+                   help="OpenCL platform for MCX-CL: auto (the one whose device has our device's "
+                        "name), system (/etc/OpenCL/vendors), pip (our pyopencl's PoCL) or a "
+                        "folder of .icd files")
+    p.add_argument("--mcxcl-venv", default=None,
+                   help="MCX-CL's venv (default $WARPE_MCXCL_VENV or /tmp/mcxcl-venv)")
+    p.add_argument("--mcxcl-box", type=float, default=None,
+                   help="lateral size of MCX's voxel box, mm (default: the slab thickness)")
+    p.add_argument("--mcxcl-tstep", type=float, default=0.05,
+                   help="MCX time-gate width, ns (the anchor's 0.05)")
+    p.add_argument("--mcxcl-check-photons", type=float, default=2e5,
+                   help="photons of the matched check (wide box, A = 0); 0 skips it")
+    p.add_argument("--mcxcl-check-box", type=float, default=400.0,
+                   help="lateral size of the matched check's box, mm")
     p.add_argument("--json", default=None, help="write the results here")
     args = p.parse_args(argv)
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    unknown = [s for s in scenes if s not in SCENES]
+    if unknown:
+        p.error(f"--scenes: unknown {', '.join(unknown)}; choose from {', '.join(SCENES)}")
 
     engine = get_engine(args.device)
     result = {"date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
               "host": platform.node(), "cores": os.cpu_count(),
               "cpu": platform.processor() or platform.machine(),
-              "device": engine.provenance, "precision": args.precision, "scenes": {}}
+              "device": engine.provenance, "precision": args.precision,
+              "loadavg_start": loadavg(), "scenes": {}}
     print(f"# {engine.provenance['opencl_device']} | {engine.provenance['opencl_platform']} | "
-          f"{os.cpu_count()} cores | {args.precision} precision")
-    for name, scene in SCENES.items():
-        params, _ = walk_params(load_preset(scene))
-        row = {"opencl": measure(engine, params, int(args.photons), args.precision)}
+          f"{os.cpu_count()} cores | {args.precision} precision | load average "
+          f"{result['loadavg_start']}")
+    mcx_state = {}
+    for name in scenes:
+        params, _ = walk_params(load_preset(SCENES[name]))
+        keep = {}
+        row = {"opencl": measure(engine, params, int(args.photons), args.precision, keep=keep)}
         line = (f"{name}: {row['opencl']['photons_per_s']:.3g} photons/s, "
                 f"{row['opencl']['scattering_events_per_s']:.3g} scattering events/s "
                 f"({row['opencl']['scatterings_per_photon']:.0f} per photon)")
@@ -89,7 +219,22 @@ def main(argv=None) -> int:
             row["ratio_to_numpy"] = ratio
             line += f"; numpy {row['numpy']['scattering_events_per_s']:.3g} events/s, ratio {ratio:.0f}x"
         print(line, flush=True)
+        if "mcxcl" in args.compare:
+            if params.texture != "slab":
+                print(f"  MCX-CL: not run on {name} (granular: MCX's voxel box has interfaces)")
+            else:
+                import mcxcl_compare
+                try:
+                    row["mcxcl"], report = compare_mcxcl(engine, name, params, row["opencl"],
+                                                         keep["counts"], args, mcx_state)
+                except mcxcl_compare.McxclUnavailable as err:
+                    print(f"bench: --compare mcxcl: {err}", file=sys.stderr)
+                    return 1
+                row["ratio_to_mcxcl"] = row["mcxcl"]["ratio_events_per_s"]
+                print(report, flush=True)
         result["scenes"][name] = row
+    result["loadavg_end"] = loadavg()
+    print(f"# load average at the end {result['loadavg_end']}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(result, fh, indent=1)
