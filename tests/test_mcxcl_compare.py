@@ -138,3 +138,16 @@ def test_summarise_detected_faces_and_weights():
     assert out["top_mean_scatterings"] == 4.0
     assert out["top_weighted_mean_scatterings"] == pytest.approx(
         (3 * np.exp(-0.1) + 5 * np.exp(-0.2)) / (np.exp(-0.1) + np.exp(-0.2)), rel=1e-6)
+
+
+def test_scattering_census_per_fate():
+    c = Counts(n_time=1, photons=5)
+    c.records = {"n_scat": np.array([0, 10, 20, 30, 40]),
+                 "fate": np.array([0, 1, 1, 2, 3], dtype=np.int8)}
+    out = mc.scattering_census(c)
+    assert out["per_launched"] == 20.0 and out["per_entered"] == 25.0
+    assert out["per_entered_err"] == pytest.approx(np.std([10, 20, 30, 40]) / 2.0)
+    assert out["fates"]["specular"] == {"fraction": 0.2, "mean_scatterings": 0.0}
+    assert out["fates"]["escaped"] == {"fraction": 0.4, "mean_scatterings": 15.0}
+    assert out["fates"]["terminated"] == {"fraction": 0.0, "mean_scatterings": None}
+    assert "escaped 0.4000 (15)" in mc.format_census("x", out)

@@ -162,32 +162,38 @@ def compare_mcxcl(engine, name, params, ours, counts, args, state) -> tuple:
         ev_w = mc.mcx_events(res_w, wide["mus_per_mm"], wide["path_cap_mm"])
         c_a0 = engine.run(ours_a0, n_chk, precision=args.precision)
         # MCX's paths do not depend on mua (absorption is a weight): compare its scattering
-        # counts with our walk in the same medium without absorption, E = mus, omega = 1, per
-        # ray that entered (MCX has no specular loss)
-        c_w1 = engine.run(dataclasses.replace(ours_a0, omega=1.0,
-                                              extinction=params.extinction * params.omega),
-                          n_chk, precision=args.precision, records=True)
-        nsc = c_w1.records["n_scat"][c_w1.records["fate"] != 0]
+        # counts with our walk in the same medium without absorption (E = mus, omega = 1), per
+        # ray that entered (MCX has no specular loss). The census of B1 itself and of B1 with
+        # omega = 1 explains the scatterings per photon (docs/performance.md, MCX-CL anchor).
+        walks = {"B1": params,
+                 "B1, omega = 1 (absorption not ending rays)": dataclasses.replace(params,
+                                                                                    omega=1.0),
+                 "B1, A = 0, E = mus, omega = 1 (MCX's medium)": dataclasses.replace(
+                     ours_a0, omega=1.0, extinction=params.extinction * params.omega)}
+        census = {k: mc.scattering_census(engine.run(p, n_chk, precision=args.precision,
+                                                     records=True))
+                  for k, p in walks.items()}
+        matched = census["B1, A = 0, E = mus, omega = 1 (MCX's medium)"]
+        dz = ((ev_w["scatterings_per_photon"] - matched["per_entered"])
+              / np.hypot(ev_w["scatterings_per_photon_err"], matched["per_entered_err"]))
         row["check"] = {
             "box_mm": wide["vol_shape"], "nphoton": n_chk, "faces": res_w["faces"],
             "inside_at_tend": res_w["inside_at_tend"], **{f"mcx_{k}": v for k, v in ev_w.items()},
-            "ours_omega1_scatterings_per_entered_photon": float(nsc.mean()),
-            "ours_omega1_scatterings_per_entered_photon_err": float(nsc.std() / np.sqrt(len(nsc))),
-            "ours_omega1_fates": (c_w1.fates / c_w1.photons).tolist(),
+            "mcx_top_mean_scatterings": res_w["top_mean_scatterings"],
+            "mcx_top_weighted_mean_scatterings": res_w["top_weighted_mean_scatterings"],
+            "ours_census": census, "scatterings_z": float(dz),
             "tpsf": mc.compare_tpsf(c_a0, ours_a0, res_w)}
-        ck = row["check"]
-        dz = ((ck["mcx_scatterings_per_photon"] - ck["ours_omega1_scatterings_per_entered_photon"])
-              / np.hypot(ck["mcx_scatterings_per_photon_err"],
-                         ck["ours_omega1_scatterings_per_entered_photon_err"]))
         report += [
             f"  matched check, {n_chk:.3g} photons: MCX in a {wide['vol_shape'][0]} mm wide box vs "
             f"ours with A = 0 (reflectance per photon entering):",
-            mc.format_tpsf(ck["tpsf"]),
-            f"    scatterings per photon in the medium, absorption as a weight (MCX) vs our walk "
-            f"with E = mus, omega = 1: {ck['mcx_scatterings_per_photon']:.1f} ± "
-            f"{ck['mcx_scatterings_per_photon_err']:.1f} ({res_w['inside_at_tend']} still inside "
-            f"at the gate) vs {ck['ours_omega1_scatterings_per_entered_photon']:.1f} ± "
-            f"{ck['ours_omega1_scatterings_per_entered_photon_err']:.1f} (z = {dz:+.1f})"]
+            mc.format_tpsf(row["check"]["tpsf"]),
+            f"    scatterings per photon entering, MCX (absorption as a weight) vs our walk in the "
+            f"same medium without absorption: {ev_w['scatterings_per_photon']:.1f} ± "
+            f"{ev_w['scatterings_per_photon_err']:.1f} ({res_w['inside_at_tend']} still inside "
+            f"at the gate) vs {matched['per_entered']:.1f} ± {matched['per_entered_err']:.1f} "
+            f"(z = {dz:+.1f})",
+            "  scattering census of our walks:"]
+        report += [mc.format_census(k, c) for k, c in census.items()]
     return row, "\n".join(report)
 
 

@@ -148,6 +148,41 @@ def mcx_events(result: dict, mus_per_mm: float, path_cap_mm: float) -> dict:
             "scattering_events_per_s": events / kernel_s, "photons_per_s_wall": n / result["wall_s"]}
 
 
+def scattering_census(counts) -> dict:
+    """Scatterings per ray of one of our walks run with ``records=True``.
+
+    Returns
+    -------
+    dict
+        ``per_launched`` (all rays), ``per_entered`` (all but specular: MCX's normalisation) with
+        its standard error ``per_entered_err``, and per fate (physics.md: specular, escaped,
+        absorbed_medium, absorbed_floor, terminated) the fraction of launched rays and their mean
+        scattering count.
+    """
+    from warpe_cl.params import FATES
+    rec = counts.records
+    nsc = np.asarray(rec["n_scat"], dtype=np.int64)
+    fate = np.asarray(rec["fate"])
+    entered = nsc[fate != 0]
+    out = {"photons": int(len(nsc)), "per_launched": float(nsc.mean()),
+           "per_entered": float(entered.mean()),
+           "per_entered_err": float(entered.std() / np.sqrt(len(entered))), "fates": {}}
+    for i, name in enumerate(FATES):
+        m = fate == i
+        out["fates"][name] = {"fraction": float(m.mean()),
+                              "mean_scatterings": float(nsc[m].mean()) if m.any() else None}
+    return out
+
+
+def format_census(label: str, c: dict, indent: str = "    ") -> str:
+    fates = ", ".join(f"{k} {v['fraction']:.4f}" + (f" ({v['mean_scatterings']:.0f})"
+                                                       if v["mean_scatterings"] is not None else "")
+                      for k, v in c["fates"].items() if v["fraction"] > 0)
+    return (f"{indent}{label}: {c['per_launched']:.1f} scatterings per launched ray, "
+            f"{c['per_entered']:.1f} ± {c['per_entered_err']:.1f} per ray entering; fates "
+            f"(mean scatterings): {fates}")
+
+
 #: boundaries of the time windows of the reflectance comparison, ns
 TPSF_WINDOWS_NS = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0, 3.0, 5.0)
 
