@@ -5,7 +5,8 @@
                           [--scenes B1,B2,B3] [--compare numpy] [--compare mcxcl] [--json FILE]
 
 Scenes (time cap 5 ns, Lambertian floor A = 0.15, HG g = 0.8):
-  B1  slab 60 mm, tau0 = 60.3, omega = 0.99502, n = 1.3 (about 212 scatterings per photon)
+  B1  slab 60 mm, tau0 = 60.3, omega = 0.99502, n = 1.3 (89 scatterings per launched ray in our
+      analog walk; about 220 where absorption does not end rays: docs/performance.md)
   B2  the same medium, granular (no interfaces)
   B3  granular CO2 ice, d = 200 um, compacity 0.9, h = 100 mm (physical form)
 
@@ -82,8 +83,8 @@ def loadavg():
         return None
 
 
-def compare_mcxcl(engine, name, params, ours, counts, args, state) -> tuple:
-    """MCX-CL on scene ``name`` right after our kernel: its row for the JSON and a report.
+def compare_mcxcl(engine, params, ours, counts, args, state) -> tuple:
+    """MCX-CL on a slab scene right after our kernel: its row for the JSON and a report.
 
     ``state`` keeps MCX's python and platform between scenes. Raises ``McxclUnavailable``.
     """
@@ -261,7 +262,7 @@ def main(argv=None) -> int:
             else:
                 import mcxcl_compare
                 try:
-                    row["mcxcl"], report = compare_mcxcl(engine, name, params, row["opencl"],
+                    row["mcxcl"], report = compare_mcxcl(engine, params, row["opencl"],
                                                          keep["counts"], args, mcx_state)
                 except mcxcl_compare.McxclUnavailable as err:
                     print(f"bench: --compare mcxcl: {err}", file=sys.stderr)
