@@ -2,7 +2,8 @@
 """Benchmark the walk kernels on the scenes of the speed issue, and the NumPy reference beside them.
 
     python tools/bench.py [--photons N] [--device SPEC] [--precision single|double]
-                          [--scenes B1,B2,B3] [--compare numpy] [--compare mcxcl] [--json FILE]
+                          [--scenes B1,B2,B3] [--modes analog,weighted]
+                          [--compare numpy] [--compare mcxcl] [--json FILE]
 
 Scenes (time cap 5 ns, Lambertian floor A = 0.15, HG g = 0.8):
   B1  slab 60 mm, tau0 = 60.3, omega = 0.99502, n = 1.3 (89 scatterings per launched ray in our
@@ -11,7 +12,9 @@ Scenes (time cap 5 ns, Lambertian floor A = 0.15, HG g = 0.8):
   B3  granular CO2 ice, d = 200 um, compacity 0.9, h = 100 mm (physical form)
 
 Prints and writes (JSON) photons/s and scattering events/s per scene, with the device, driver,
-cores, precision and date. ``--compare numpy`` runs the reference walk on the same scenes in the
+cores, precision and date. ``--modes analog,weighted`` measures each scene in both Monte Carlo
+modes (docs/walk.md §6) and prints their figures of merit, 1/(relative variance x time), for the
+scattering energy in its 12 deg FOV over all times and over t >= 2 ns. ``--compare numpy`` runs the reference walk on the same scenes in the
 same run (fewer photons: it is ~100x slower) and prints the ratio.
 
 ``--compare mcxcl`` runs MCX-CL (pmcxcl 0.7.5, in its own venv at $WARPE_MCXCL_VENV or
@@ -72,6 +75,28 @@ def measure(engine, params, photons, precision, repeats=3, keep=None):
             "photons_per_s": photons / elapsed,
             "scattering_events_per_s": counts.scattering_events / elapsed,
             "scatterings_per_photon": counts.scattering_events / photons}
+
+
+def figure_of_merit(counts, params, seconds: float, t_min: float = 0.0) -> dict:
+    """FOM = 1 / (relative variance x run time), 1/s, of the scattering component's
+    energy inside its FOV, exits at t >= t_min ns (every ray adds its weight; analog: 1).
+
+    A ray lands in at most one time bin, so for the sum over bins Q = sum(w)/N the variance is
+    (sum(w^2)/N - Q^2)/N with the sums over the selected bins (w = 1 in the analog walk)."""
+    from warpe_cl.params import fixed_to_float
+    edges = np.asarray(params.time_edges, dtype=float)
+    sel = edges[:-1] >= t_min
+    n = counts.photons
+    if counts.weighted:
+        s1 = fixed_to_float(counts.w_time_in_fov[3])[sel].sum()
+        s2 = fixed_to_float(counts.w2_time_in_fov[3])[sel].sum()
+    else:
+        s1 = s2 = float(counts.time_in_fov[3][sel].sum())
+    q = s1 / n
+    var = max(s2 / n - q * q, 0.0) / n
+    rel_var = var / (q * q) if q > 0 else float("inf")
+    return {"t_min_ns": t_min, "value": q, "relative_stderr": rel_var ** 0.5,
+            "fom_per_s": 1.0 / (rel_var * seconds) if rel_var > 0 else float("inf")}
 
 
 def loadavg():
@@ -225,8 +250,14 @@ def main(argv=None) -> int:
                    help="photons of the matched check (wide box, A = 0); 0 skips it")
     p.add_argument("--mcxcl-check-box", type=float, default=400.0,
                    help="lateral size of the matched check's box, mm")
+    p.add_argument("--modes", default="analog",
+                   help="comma-separated: analog, weighted (each scene in each mode, with the "
+                        "figure of merit of both; default analog)")
     p.add_argument("--json", default=None, help="write the results here")
     args = p.parse_args(argv)
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    if not modes or any(m not in ("analog", "weighted") for m in modes):
+        p.error(f"--modes: {args.modes!r}; choose from analog, weighted")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = [s for s in scenes if s not in SCENES]
     if unknown:
@@ -244,11 +275,26 @@ def main(argv=None) -> int:
     mcx_state = {}
     for name in scenes:
         params, _ = walk_params(load_preset(SCENES[name]))
-        keep = {}
-        row = {"opencl": measure(engine, params, int(args.photons), args.precision, keep=keep)}
-        line = (f"{name}: {row['opencl']['photons_per_s']:.3g} photons/s, "
-                f"{row['opencl']['scattering_events_per_s']:.3g} scattering events/s "
-                f"({row['opencl']['scatterings_per_photon']:.0f} per photon)")
+        row, lines = {}, []
+        for mode in modes:
+            mode_params = dataclasses.replace(params, mode=mode)
+            kept = {}
+            m = measure(engine, mode_params, int(args.photons), args.precision, keep=kept)
+            m["figure_of_merit"] = [figure_of_merit(kept["counts"], mode_params, m["seconds"], t)
+                                    for t in (0.0, 2.0)]
+            row["opencl" if mode == "analog" else "opencl_weighted"] = m
+            if mode == "analog":
+                keep = kept
+            fom = ", ".join(f"t >= {f['t_min_ns']:g} ns {f['fom_per_s']:.3g}/s"
+                            for f in m["figure_of_merit"])
+            lines.append(f"{name} {mode}: {m['photons_per_s']:.3g} photons/s, "
+                         f"{m['scattering_events_per_s']:.3g} scattering events/s "
+                         f"({m['scatterings_per_photon']:.0f} per photon); FOM of the "
+                         f"scattering energy in its FOV: {fom}")
+        if "analog" not in modes:
+            row["opencl"] = row["opencl_weighted"]
+            keep = kept
+        line = "\n".join(lines)
         if "numpy" in args.compare:
             row["numpy"] = measure(get_engine("numpy"), params, int(args.numpy_photons),
                                    "double", repeats=1)
