@@ -40,6 +40,8 @@ typedef int IREAL;
 typedef REAL VREAL;
 typedef IREAL VMASK;
 typedef uint VUINT;
+typedef ulong VULONG;
+#define CONVERT_VULONG(x) ((ulong)(x))
 #define CONVERT_VREAL(x) ((REAL)(x))
 #define CONVERT_VMASK(x) ((IREAL)(x))
 #define CONVERT_VUINT(x) ((uint)(x))
@@ -59,6 +61,8 @@ typedef WARPE_CAT(float, WARPE_LANES) VREAL;
 typedef WARPE_CAT(int, WARPE_LANES) VMASK;
 #endif
 typedef WARPE_CAT(uint, WARPE_LANES) VUINT;
+typedef WARPE_CAT(ulong, WARPE_LANES) VULONG;
+#define CONVERT_VULONG(x) WARPE_CAT(convert_ulong, WARPE_LANES)(x)
 #ifdef WARPE_DOUBLE
 #define CONVERT_VREAL(x) WARPE_CAT(convert_double, WARPE_LANES)(x)
 #define CONVERT_VMASK(x) WARPE_CAT(convert_long, WARPE_LANES)(x)

