@@ -44,3 +44,15 @@ __kernel void fresnel_grid(__global const REAL *mu, const REAL n, const REAL k,
     r_internal[i] = n * sqrt(fmax((REAL)1 - m * m, (REAL)0)) >= (REAL)1
                   ? (REAL)1 : fresnel_internal(m, n);
 }
+
+/* The walk's LOG and SINCOS (real.h: native_ functions in single precision) on a grid of
+ * uniforms, for the accuracy test: out = (-LOG(u), sin 2 pi u, cos 2 pi u). */
+__kernel void walk_math(__global const REAL *u, __global REAL *out)
+{
+    size_t i = get_global_id(0);
+    REAL s, c;
+    SINCOS((REAL)(2.0 * WARPE_PI) * u[i], s, c);
+    out[3 * i] = -LOG(u[i]);
+    out[3 * i + 1] = s;
+    out[3 * i + 2] = c;
+}

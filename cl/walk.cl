@@ -157,7 +157,7 @@ __kernel void walk(const uint seed, const uint scenario,
         fl &= !done;
         flights += ONE(fl);
         /* free flight: optical step -ln u0, physical step s = l/E (seed eq. 3) */
-        VREAL s = E > (REAL)0 ? -log(u0) / E : (VREAL)INFINITY;
+        VREAL s = E > (REAL)0 ? -LOG(u0) / E : (VREAL)INFINITY;
         VREAL s_b = SEL(SEL((VREAL)INFINITY, -z / uz, uz < (REAL)0), (h - z) / uz, uz > (REAL)0);
         VMASK coll = fl & (s < s_b);
         VMASK bnd = fl & !(s < s_b);
@@ -181,7 +181,8 @@ __kernel void walk(const uint seed, const uint scenario,
         w = SEL(w, w * exp(-mu_a * len), coll | bnd);
 #endif
         /* the azimuth of a scattering or of a floor reflection: psi = 2 pi u3 */
-        VREAL cos_psi, sin_psi = sincos(two_pi * u3, &cos_psi);
+        VREAL cos_psi, sin_psi;
+        SINCOS(two_pi * u3, sin_psi, cos_psi);
 
         /* collision, §5.4: absorbed iff u1 > omega, else HG deflection (u2) and azimuth (u3) */
 #ifndef WARPE_WEIGHTED
