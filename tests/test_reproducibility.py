@@ -62,3 +62,15 @@ def test_scenario_key_is_deterministic_and_grid_independent():
     other_keys = {str(pcfg.get("medium.thickness")): scenario_key(point, pcfg)
                   for point, pcfg in other.sweep_points()}
     assert other_keys["0.001"] == keys[0] and other_keys["0.01"] == keys[1]
+
+
+def test_lane_width_from_the_environment(monkeypatch):
+    from warpe_cl.engine import default_lanes
+    from warpe_cl.errors import ConfigError
+    monkeypatch.setenv("WARPE_CL_LANES", "4")
+    assert default_lanes("cpu", "single") == 4 and default_lanes("gpu", "double") == 4
+    monkeypatch.setenv("WARPE_CL_LANES", "3")
+    with pytest.raises(ConfigError, match="WARPE_CL_LANES"):
+        default_lanes("cpu", "single")
+    monkeypatch.delenv("WARPE_CL_LANES")
+    assert default_lanes("cpu", "single") == 16 and default_lanes("gpu", "single") == 1

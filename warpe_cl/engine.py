@@ -39,7 +39,18 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
 
 def default_lanes(kind: str, precision: str) -> int:
     """Photons per work-item: one on GPUs (their work-items are the lanes); on CPUs a vector
-    of 512 bits (16 floats or 8 doubles), which AVX-512 holds in one register and AVX2 in two."""
+    of 512 bits (16 floats or 8 doubles), which AVX-512 holds in one register and AVX2 in two.
+    ``$WARPE_CL_LANES`` overrides it (results never depend on it: e.g. ``WARPE_CL_LANES=1
+    pytest`` runs the whole suite on the GPU shape of the kernel, on any device)."""
+    import os
+    env = os.environ.get("WARPE_CL_LANES", "").strip()
+    if env:
+        if not env.isdigit() or int(env) not in LANE_WIDTHS:
+            from .errors import ConfigError
+            raise ConfigError(f"{env!r} is not allowed; give one of "
+                              f"{', '.join(map(str, LANE_WIDTHS))} (photons per work-item)",
+                              key="WARPE_CL_LANES", source="environment")
+        return int(env)
     if kind == "gpu":
         return 1
     return 8 if precision == "double" else 16
