@@ -27,6 +27,28 @@
 /* Lanes in `m` end with fate f (tally.h): they are tallied after this event. */
 #define FINISH(m, f) do { VMASK m_ = (m); done |= m_; fate = SEL(fate, (VMASK)(f), m_); } while (0)
 
+/* The floor's toll on the lanes in mask variable m, on the event's word u (walk.md §3.1, §6):
+ * analog, absorbed iff u > A; weighted, the weight times A (A = 0 ends the ray) and the
+ * roulette on u. Afterwards m holds the lanes the floor reflects. */
+#ifndef WARPE_WEIGHTED
+#define FLOOR_TOLL(m, u) do { FINISH((m) & ((u) > A), FATE_ABSORBED_FLOOR); (m) &= !done; } while (0)
+#else
+#define FLOOR_TOLL(m, u) do {                                                                \
+        if (A == (REAL)0) { FINISH((m), FATE_ABSORBED_FLOOR); (m) = 0; }                   \
+        w = SEL(w, w * A, (m));                                                              \
+        ROULETTE(m, u, FATE_ABSORBED_FLOOR);                                                 \
+    } while (0)
+/* Russian roulette (walk.md §6) of the lanes in mask variable m whose weight fell below
+ * roulette_weight: they live on iff u <= roulette_survival, their weight divided by it; the
+ * others end with fate f. Afterwards m holds the lanes that live on. */
+#define ROULETTE(m, u, f) do {                                                               \
+        VMASK low_ = (m) & (w < roulette_weight), dies_ = low_ & ((u) > roulette_survival);  \
+        FINISH(dies_, (f));                                                                  \
+        w = SEL(w, w / roulette_survival, low_ & !dies_);                                    \
+        (m) &= !dies_;                                                                       \
+    } while (0)
+#endif
+
 __kernel void walk(const uint seed, const uint scenario,
                    const ulong first_photon, const uint n_photons,
                    const REAL h, const REAL E, const REAL omega, const REAL g,
@@ -189,13 +211,7 @@ __kernel void walk(const uint seed, const uint scenario,
         FINISH(coll & (u1 > omega), FATE_ABSORBED_MEDIUM);
         coll &= !done;
 #else
-        {   /* Russian roulette below roulette_weight (walk.md §6), on u1 */
-            VMASK low = coll & (w < roulette_weight);
-            VMASK dies = low & (u1 > roulette_survival);
-            FINISH(dies, FATE_ABSORBED_MEDIUM);
-            w = SEL(w, w / roulette_survival, low & !dies);
-            coll &= !dies;
-        }
+        ROULETTE(coll, u1, FATE_ABSORBED_MEDIUM);    /* weighted: every collision scatters */
 #endif
         n_scat += ONE(coll);
         if (ANY(coll)) {
@@ -238,21 +254,7 @@ __kernel void walk(const uint seed, const uint scenario,
             if (ANY(bottom)) {
                 /* §5.5 Lambertian floor in optical contact: absorbed iff u1 > A, else
                  * mu = sqrt(u2) and the azimuth u3 */
-#ifndef WARPE_WEIGHTED
-                FINISH(bottom & (u1 > A), FATE_ABSORBED_FLOOR);
-                bottom &= !done;
-#else
-                if (A == (REAL)0) {
-                    FINISH(bottom, FATE_ABSORBED_FLOOR);
-                    bottom = 0;
-                }
-                w = SEL(w, w * A, bottom);
-                VMASK low = bottom & (w < roulette_weight);
-                VMASK dies = low & (u1 > roulette_survival);
-                FINISH(dies, FATE_ABSORBED_FLOOR);
-                w = SEL(w, w / roulette_survival, low & !dies);
-                bottom &= !dies;
-#endif
+                FLOOR_TOLL(bottom, u1);
                 n_lamb += ONE(bottom);
                 VREAL vx, vy, vz;
                 lambert_direction(sqrt(u2), cos_psi, sin_psi, &vx, &vy, &vz);
@@ -266,24 +268,11 @@ __kernel void walk(const uint seed, const uint scenario,
         /* GAP, §5.5: one reflection by the floor below the slab's lower face */
         if (ANY(in_gap)) {
             VMASK gap = in_gap;
-#ifndef WARPE_WEIGHTED
-            FINISH(gap & (u0 > A), FATE_ABSORBED_FLOOR);                   /* absorbed iff u0 > A */
-            gap &= !done;
-#else
-            if (A == (REAL)0) {
-                FINISH(gap, FATE_ABSORBED_FLOOR);
-                gap = 0;
-            }
-            w = SEL(w, w * A, gap);
-            VMASK low = gap & (w < roulette_weight);
-            VMASK dies = low & (u0 > roulette_survival);
-            FINISH(dies, FATE_ABSORBED_FLOOR);
-            w = SEL(w, w / roulette_survival, low & !dies);
-            gap &= !dies;
-#endif
+            FLOOR_TOLL(gap, u0);                                /* absorbed iff u0 > A */
             n_lamb += ONE(gap);
             VREAL mu_v = sqrt(u1);                                  /* Lambertian, in vacuum */
-            VREAL c2, s2 = sincos(two_pi * u2, &c2);
+            VREAL c2, s2;
+            SINCOS(two_pi * u2, s2, c2);
             /* u3 <= R_ext(mu_v; n, k): the slab's lower face sends it back to the floor */
             VMASK enter = gap & (u3 > fresnel_external(mu_v, n, k));
             /* refraction in (Snell, real part): sin theta_s = sin theta_v / n */

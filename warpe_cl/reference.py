@@ -314,6 +314,26 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
     def ended(fate, cos_exit=nan):
         return RayOutcome(fate, cos_exit, path, n_scat, n_lamb, n_bspec, n_top, weight)
 
+    def survives_roulette(u):
+        """walk.md §6: below roulette_weight the ray lives on iff u <= roulette_survival."""
+        nonlocal weight
+        if weight < roulette_weight:
+            if u > roulette_survival:
+                return False
+            weight /= roulette_survival
+        return True
+
+    def floor_reflects(u):
+        """The floor's toll (walk.md §3.1, §6): analog, reflected iff u <= A; weighted, the
+        weight times A (A = 0 ends the ray), then the roulette on u."""
+        nonlocal weight
+        if not weighted:
+            return u <= albedo
+        if albedo == 0.0:
+            return False
+        weight *= albedo
+        return survives_roulette(u)
+
     # 2. Entry (physics.md §5.2), event 0 of a slab: u0 decides the specular reflection.
     #    "An event of probability P happens iff U <= P" (walk.md §2).
     if walk.is_slab:
@@ -350,12 +370,11 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
             if path > path_cap:
                 return ended(FATE_TERMINATED)
             if weighted:
-                # walk.md §6: absorption along the flight; roulette on u1 below the threshold.
+                # walk.md §6: absorption along the flight; every collision scatters, and the
+                # roulette draws on u1.
                 weight *= math.exp(-mu_a * step)
-                if weight < roulette_weight:
-                    if u1 > roulette_survival:
-                        return ended(FATE_ABSORBED_MEDIUM)
-                    weight /= roulette_survival
+                if not survives_roulette(u1):
+                    return ended(FATE_ABSORBED_MEDIUM)
             elif u1 > omega:
                 return ended(FATE_ABSORBED_MEDIUM)
             n_scat += 1
@@ -388,15 +407,7 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
                 while True:
                     g0, g1, g2, g3 = next_block()
                     # (1) the floor absorbs with probability 1 − A (weighted: weight × A)
-                    if weighted:
-                        if albedo == 0.0:
-                            return ended(FATE_ABSORBED_FLOOR)
-                        weight *= albedo
-                        if weight < roulette_weight:
-                            if g0 > roulette_survival:
-                                return ended(FATE_ABSORBED_FLOOR)
-                            weight /= roulette_survival
-                    elif g0 > albedo:
+                    if not floor_reflects(g0):
                         return ended(FATE_ABSORBED_FLOOR)
                     # (2) Lambertian reflection into vacuum: μ_v = sqrt(g1), ψ = 2π g2
                     n_lamb += 1
@@ -413,15 +424,7 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
             else:
                 # Floor in contact with the medium (slab "none", granular): bare Lambertian,
                 # absorbed iff u1 > A (weighted: weight × A), μ = sqrt(u2), ψ = 2π u3.
-                if weighted:
-                    if albedo == 0.0:
-                        return ended(FATE_ABSORBED_FLOOR)
-                    weight *= albedo
-                    if weight < roulette_weight:
-                        if u1 > roulette_survival:
-                            return ended(FATE_ABSORBED_FLOOR)
-                        weight /= roulette_survival
-                elif u1 > albedo:
+                if not floor_reflects(u1):
                     return ended(FATE_ABSORBED_FLOOR)
                 n_lamb += 1
                 mu = math.sqrt(u2)
