@@ -1059,6 +1059,18 @@ def _export(value, skey: str):
     return value
 
 
+def _read_source(source) -> tuple:
+    """A preset given as a dict or a YAML path: (name, raw mapping, base folder for relative
+    paths or None, default preset name)."""
+    if isinstance(source, dict):
+        return "<dict>", copy.deepcopy(source), None, "unnamed"
+    if isinstance(source, (str, os.PathLike)):
+        name = os.fspath(source)
+        return (name, _read_yaml(name), os.path.dirname(os.path.abspath(name)),
+                os.path.splitext(os.path.basename(name))[0])
+    raise ConfigError(f"a preset is a YAML file path or a dict, not {type(source).__name__}")
+
+
 def load_preset(source, overrides=None) -> Config:
     """Load, complete and validate a preset.
 
@@ -1084,16 +1096,7 @@ def load_preset(source, overrides=None) -> Config:
     """
     if isinstance(source, Config):
         return source.with_overrides(overrides)
-    if isinstance(source, dict):
-        name, raw, base_dir, name_default = "<dict>", copy.deepcopy(source), None, "unnamed"
-    elif isinstance(source, (str, os.PathLike)):
-        name = os.fspath(source)
-        raw = _read_yaml(name)
-        base_dir = os.path.dirname(os.path.abspath(name))
-        name_default = os.path.splitext(os.path.basename(name))[0]
-    else:
-        raise ConfigError(f"a preset is a YAML file path or a dict, not "
-                          f"{type(source).__name__}")
+    name, raw, base_dir, name_default = _read_source(source)
     if overrides and isinstance(raw, dict):  # a non-mapping is reported by Config
         try:
             _apply_overrides(raw, _parse_overrides(overrides))
@@ -1162,16 +1165,7 @@ def load_grid(source, overrides=None) -> Grid:
         For what no point can survive: an unreadable file, a malformed sweep block, an
         unknown sweep key; or, without a sweep, the single point's error.
     """
-    if isinstance(source, dict):
-        name, raw, base_dir, name_default = "<dict>", copy.deepcopy(source), None, "unnamed"
-    elif isinstance(source, (str, os.PathLike)):
-        name = os.fspath(source)
-        raw = _read_yaml(name)
-        base_dir = os.path.dirname(os.path.abspath(name))
-        name_default = os.path.splitext(os.path.basename(name))[0]
-    else:
-        raise ConfigError(f"a preset is a YAML file path or a dict, not "
-                          f"{type(source).__name__}")
+    name, raw, base_dir, name_default = _read_source(source)
     if not isinstance(raw, dict):
         Config(raw, name, name_default=name_default, base_dir=base_dir)  # raises its message
     try:
