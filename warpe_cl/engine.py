@@ -9,6 +9,7 @@ histograms into int64 :class:`~warpe_cl.params.Counts`.
 """
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -42,7 +43,6 @@ def default_lanes(kind: str, precision: str) -> int:
     of 512 bits (16 floats or 8 doubles), which AVX-512 holds in one register and AVX2 in two.
     ``$WARPE_CL_LANES`` overrides it (results never depend on it: e.g. ``WARPE_CL_LANES=1
     pytest`` runs the whole suite on the GPU shape of the kernel, on any device)."""
-    import os
     env = os.environ.get("WARPE_CL_LANES", "").strip()
     if env:
         if not env.isdigit() or int(env) not in LANE_WIDTHS:

@@ -104,8 +104,3 @@ def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "con
         "angular_reflectance": sums["angular"] / (n * band[None, :]),
         "omega_sr": omega_sr,
     }
-
-
-def summary_fractions(counts: Counts) -> dict:
-    """Component fractions keyed by name, for printing."""
-    return {name: counts.total[i] / counts.photons for i, name in enumerate(COMPONENTS)}
