@@ -229,23 +229,52 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_devices(args) -> int:
-    from .device import INSTALL_HINT, list_devices, probe, resolve_spec, select_device
+    from .device import INSTALL_HINT, list_devices, probe, qualification, resolve_spec, select_device
     devices = list_devices()
     if not devices:
         print(f"no OpenCL platform found; {INSTALL_HINT}")
         return EXIT_DEVICE
+    if args.requalify:
+        from .qualify import VerdictCache
+        VerdictCache().clear()
     for info, dev in devices:
+        print(info.describe(), flush=True)
         reason = probe(dev)
-        print(info.describe())
-        print("      usable" if reason is None else f"      NOT usable: {reason}")
+        if reason is not None:
+            print(f"      NOT usable: {reason}")
+            continue
+        status = qualification(info)
+        if not status.usable:
+            print(f"      NOT usable: {status.reason}")
+            continue
+        speed = (f"{status.events_per_s:.3g} scattering events/s on scene B1"
+                 if status.events_per_s else "speed not measured")
+        print(f"      qualified: {status.lanes} lane{'s' if status.lanes > 1 else ''}, {speed} "
+              f"(single precision; checked {status.date or '?'} in {status.seconds or 0:.1f} s)")
+        for lanes, why in status.failures:
+            print(f"      failed at {lanes} lanes: {why}")
+        if args.all:
+            _print_all_verdicts(info)
     spec = resolve_spec(args.device)
     try:
         info, _ = select_device(spec)
-        print(f"--device {spec} picks {info.spec} ({info.device})")
+        print(f"--device {spec} picks {info.spec} ({info.device}, {info.platform} "
+              f"{info.platform_version})")
     except DeviceError as err:
         print(err)
         return EXIT_DEVICE
     return EXIT_OK
+
+
+def _print_all_verdicts(info):
+    """Every kernel combination's widest qualified lane width (``devices --all``)."""
+    from .qualify import all_combos, qualifier_for
+    q = qualifier_for(info)
+    for combo in all_combos(info.fp64):
+        lanes, failures = q.best_lanes(combo)
+        verdict = (f"{lanes} lanes" if lanes else "NOT usable") + "".join(
+            f"; failed at {w}: {r}" for w, r in failures)
+        print(f"        {combo.label:26s} {verdict}")
 
 
 def cmd_show_config(args) -> int:
@@ -340,8 +369,13 @@ def make_parser() -> argparse.ArgumentParser:
     sw.add_argument("--quiet", action="store_true", help="print nothing but errors")
     sw.set_defaults(func=cmd_sweep)
 
-    d = sub.add_parser("devices", help="list OpenCL devices and the one `auto` picks")
+    d = sub.add_parser("devices", help="list OpenCL devices, their qualification (a known-answer "
+                       "walk against the NumPy reference) and the one `auto` picks")
     d.add_argument("--device", default=None, help="a device spec to resolve")
+    d.add_argument("--all", action="store_true",
+                   help="qualify and show every kernel combination (texture, precision, mode)")
+    d.add_argument("--requalify", action="store_true",
+                   help="forget every cached verdict and check the devices again")
     d.set_defaults(func=cmd_devices)
 
     s = sub.add_parser("show-config", help="print the resolved configuration and derived parameters")
@@ -382,6 +416,10 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 def main(argv=None) -> int:
     import warnings
     warnings.showwarning = _one_line_warning
+    # pyopencl's "Non-empty compiler output" (Intel's compiler always talks): the build's
+    # correctness is what the qualification checks (docs/devices.md); WARPE_CL_DEBUG=1 shows it
+    if os.environ.get("WARPE_CL_DEBUG", "") != "1":
+        warnings.filterwarnings("ignore", message="Non-empty compiler output")
     parser = make_parser()
     try:
         args = parser.parse_args(argv)

@@ -5,9 +5,12 @@ the concatenation of its files in a fixed order, each preceded by a ``#line 1 "f
 directive so that compiler messages name the real file and line (the sasmodels way), and
 the hash of that text identifies the kernel in every output file.
 
-A device is *usable* only once it has compiled our self-test program: an OpenCL driver that
-lists a device but cannot build for it (PoCL 3.0 from pip, built on LLVM 14, does not know
-AMD Zen 4/5 CPUs and fails with "unknown target CPU 'generic'") is skipped with its reason.
+A device is *usable* only once it has compiled our self-test program and passed the
+known-answer walk of :mod:`warpe_cl.qualify` (ray by ray against the NumPy reference, in a
+child process, cached per user): an OpenCL driver that lists a device but cannot build for it,
+or builds kernels that compute wrong numbers (PoCL 3.0 from pip on AVX-512 CPUs that its
+LLVM 14 does not know: every ray "specular" at 8 lanes, an abort at 16), is skipped or held to
+the lane widths that pass, with its reason.
 """
 from __future__ import annotations
 
@@ -22,9 +25,11 @@ from .errors import DeviceError
 SELFTEST_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "selftest.cl")
 
 INSTALL_HINT = (
-    "install an OpenCL driver: `pip install pocl-binary-distribution` (PoCL 3.0, CPUs known to "
-    "LLVM 14), or on Debian/Ubuntu `sudo apt-get install pocl-opencl-icd` (PoCL 3.1, any x86-64 "
-    "CPU), or your GPU vendor's driver; `--device numpy` runs the slow reference walk without OpenCL")
+    "install an OpenCL driver: on Linux x86-64 `pip install intel-opencl-rt intel-cmplr-lib-rt` "
+    "(Intel's CPU runtime, also on AMD CPUs; warpe-cl registers it), or `pip install "
+    "pocl-binary-distribution` (PoCL 3.0), or on Debian/Ubuntu `sudo apt-get install "
+    "pocl-opencl-icd`, or your GPU vendor's driver; `--device numpy` runs the slow reference "
+    "walk without OpenCL (docs/devices.md)")
 
 
 def kernel_dir() -> Path:
@@ -80,6 +85,8 @@ class DeviceInfo:
 
 
 def _cl():
+    from .drivers import register
+    register()          # pip-installed drivers (Intel's CPU runtime), before the first CL call
     import pyopencl as cl
     return cl
 
@@ -182,7 +189,7 @@ def resolve_spec(spec: str | None = None) -> str:
     return "auto"
 
 
-def select_device(spec: str | None = None):
+def select_device(spec: str | None = None, qualify: bool = True):
     """Choose a usable OpenCL device.
 
     Parameters
@@ -190,6 +197,11 @@ def select_device(spec: str | None = None):
     spec : str, optional
         ``auto``, ``cpu``, ``gpu``, ``P:D`` (platform and device index), or a substring of the
         device or platform name. ``None`` reads ``$WARPE_CL_DEVICE``, then ``$PYOPENCL_CTX``.
+    qualify : bool
+        Require the device to pass the known-answer walk (:mod:`warpe_cl.qualify`) at some
+        lane width; ``auto``, ``cpu`` and ``gpu`` then pick the fastest qualified device
+        (scattering events/s on scene B1, measured once and cached). ``False`` only builds
+        the self-test program (the qualification's own child process uses this).
 
     Returns
     -------
@@ -198,8 +210,8 @@ def select_device(spec: str | None = None):
     Raises
     ------
     DeviceError
-        When nothing matches, or nothing that matches can build our kernels; the message says why
-        and what to install.
+        When nothing matches, or nothing that matches is usable; the message says why and
+        what to install.
     """
     spec = resolve_spec(spec)
     devices = list_devices()
@@ -209,11 +221,51 @@ def select_device(spec: str | None = None):
     if not matches:
         listing = "; ".join(d[0].describe() for d in devices)
         raise DeviceError(f"--device {spec}: no OpenCL device matches; available: {listing}")
-    reasons = []
+    reasons, ranked = [], []
     for info, dev in matches:
         reason = probe(dev)
-        if reason is None:
+        if reason is None and qualify:
+            status = qualification(info)
+            reason = None if status.usable else status.reason
+            if reason is None:
+                ranked.append((status.events_per_s or 0.0, info, dev))
+                if spec not in ("auto", "cpu", "gpu"):
+                    break
+                continue
+        elif reason is None:
             return info, dev
         reasons.append(f"{info.spec} {info.device} ({info.platform} {info.platform_version}): {reason}")
+    if ranked:
+        best = max(ranked, key=lambda r: r[0])       # the first of equals: list order
+        return best[1], best[2]
     raise DeviceError(f"--device {spec}: no usable OpenCL device: " + "; ".join(reasons)
                       + f"; {INSTALL_HINT}")
+
+
+@dataclass(frozen=True)
+class Qualification:
+    """A device's verdict for the ranking kernel (slab, single precision, analog)."""
+
+    usable: bool
+    lanes: int | None
+    events_per_s: float | None
+    reason: str | None
+    failures: tuple = ()
+    seconds: float | None = None     # wall time of the passing check (child process, builds,
+                                     # known-answer walk, speed)
+    date: str | None = None          # when it ran
+
+
+def qualification(info, say=None) -> Qualification:
+    """Qualify ``info`` for the ranking kernel at its widest passing lane width (cached)."""
+    from .qualify import RANK_COMBO, qualifier_for
+    q = qualifier_for(info, say=say)
+    lanes, failures = q.best_lanes(RANK_COMBO, measure=True)
+    if lanes is None:
+        return Qualification(False, None, None,
+                             "failed the known-answer walk at every lane width: "
+                             + "; ".join(f"{w} lanes: {r}" for w, r in failures),
+                             tuple(failures))
+    entry = q.verdicts(lanes, [RANK_COMBO], measure=True)[RANK_COMBO]
+    return Qualification(True, lanes, entry.get("events_per_s"), None, tuple(failures),
+                         entry.get("child_wall_s", entry.get("seconds")), entry.get("date"))

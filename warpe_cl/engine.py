@@ -38,19 +38,28 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
     return tuple(opts)
 
 
-def default_lanes(kind: str, precision: str) -> int:
-    """Photons per work-item: one on GPUs (their work-items are the lanes); on CPUs a vector
-    of 512 bits (16 floats or 8 doubles), which AVX-512 holds in one register and AVX2 in two.
-    ``$WARPE_CL_LANES`` overrides it (results never depend on it: e.g. ``WARPE_CL_LANES=1
-    pytest`` runs the whole suite on the GPU shape of the kernel, on any device)."""
+def requested_lanes() -> int | None:
+    """The lane width asked for by ``$WARPE_CL_LANES`` (results never depend on it: e.g.
+    ``WARPE_CL_LANES=1 pytest`` runs the whole suite on the GPU shape of the kernel, on any
+    device), or None."""
     env = os.environ.get("WARPE_CL_LANES", "").strip()
-    if env:
-        if not env.isdigit() or int(env) not in LANE_WIDTHS:
-            from .errors import ConfigError
-            raise ConfigError(f"{env!r} is not allowed; give one of "
-                              f"{', '.join(map(str, LANE_WIDTHS))} (photons per work-item)",
-                              key="WARPE_CL_LANES", source="environment")
-        return int(env)
+    if not env:
+        return None
+    if not env.isdigit() or int(env) not in LANE_WIDTHS:
+        from .errors import ConfigError
+        raise ConfigError(f"{env!r} is not allowed; give one of "
+                          f"{', '.join(map(str, LANE_WIDTHS))} (photons per work-item)",
+                          key="WARPE_CL_LANES", source="environment")
+    return int(env)
+
+
+def default_lanes(kind: str, precision: str) -> int:
+    """Photons per work-item before qualification: one on GPUs (their work-items are the
+    lanes); on CPUs a vector of 512 bits (16 floats or 8 doubles), which AVX-512 holds in one
+    register and AVX2 in two. ``$WARPE_CL_LANES`` overrides it."""
+    env = requested_lanes()
+    if env is not None:
+        return env
     if kind == "gpu":
         return 1
     return 8 if precision == "double" else 16
@@ -70,13 +79,61 @@ class Engine:
 
     name = "opencl"
 
-    def __init__(self, device: str | None = None, target_launch_s: float = 0.3):
-        self.info, self.device = devmod.select_device(device)
+    def __init__(self, device: str | None = None, target_launch_s: float = 0.3,
+                 qualify: bool = True):
+        self.info, self.device = devmod.select_device(device, qualify=qualify)
         self.context, self.queue = devmod.context_and_queue(self.device)
         self.target_launch_s = target_launch_s
         self.kernel_hash = None
         self.extra_options = ()
         self._kernels = {}
+        self.qualifier = None
+        if qualify:
+            from .qualify import qualifier_for
+            self.qualifier = qualifier_for(self.info)
+        self._lanes = {}
+
+    def lanes_for(self, texture: str, precision: str, weighted: bool,
+                  lanes: int | None = None) -> int:
+        """The lane width to walk this kernel with, qualified on this device (docs/devices.md).
+
+        ``lanes`` (or ``$WARPE_CL_LANES``) asks for one width: it is used if it qualifies,
+        otherwise :class:`~warpe_cl.errors.DeviceError` says why. Without a request, the widest
+        width that qualifies, from 16 (8 in double; 1 on GPUs) down through 8, 4 and 1; a
+        fallback is said in one warning line.
+        """
+        if lanes is None:
+            lanes = requested_lanes()
+        if self.qualifier is None:
+            return int(lanes or default_lanes(self.info.kind, precision))
+        from .qualify import Combo, describe_short
+        combo = Combo(texture, precision, bool(weighted))
+        key = (combo, lanes)
+        if key in self._lanes:
+            return self._lanes[key]
+        if lanes is not None:
+            entry = self.qualifier.verdicts(int(lanes), [combo], measure=False)[combo]
+            if not entry["passed"]:
+                raise devmod.DeviceError(
+                    f"{describe_short(self.info)} failed qualification at {lanes} lanes for "
+                    f"{combo.label}: "
+                    f"{entry['reason']}")
+            chosen = int(lanes)
+        else:
+            chosen, failures = self.qualifier.best_lanes(combo)
+            if chosen is None:
+                raise devmod.DeviceError(
+                    f"{describe_short(self.info)} is not usable for {combo.label}: "
+                    + "; ".join(f"{w} lanes: {r}" for w, r in failures))
+            if failures:
+                import warnings
+                from .errors import WarpeWarning
+                warnings.warn(
+                    f"{describe_short(self.info)}: {combo.label} failed qualification at "
+                    f"{', '.join(str(w) for w, _ in failures)} lanes "
+                    f"({failures[0][1]}); walking {chosen} lanes", WarpeWarning, stacklevel=2)
+        self._lanes[key] = chosen
+        return chosen
 
     @property
     def provenance(self) -> dict:
@@ -116,7 +173,7 @@ class Engine:
     def run(self, params: WalkParams, photons: int, precision: str = "single",
             first_photon: int = 0, records: bool = False, batch: int | None = None,
             global_size: int | None = None, local_size: int | None = None,
-            lanes: int | None = None, progress=None) -> Counts:
+            lanes: int | None = None, progress=None, qualified: bool = False) -> Counts:
         """Walk ``photons`` rays, numbered from ``first_photon``.
 
         Parameters
@@ -136,9 +193,12 @@ class Engine:
             Work-items per launch and per work-group (results never depend on them).
         lanes : int, optional
             Photons walked at once by one work-item (1, 2, 4, 8, 16; results never depend on
-            it); by default :func:`default_lanes` for the device.
+            it); by default the widest that qualifies on the device (:meth:`lanes_for`).
         progress : callable, optional
             Called with the number of photons finished after each launch.
+        qualified : bool
+            Skip the qualification of this combination (for the known-answer walk itself,
+            :mod:`warpe_cl.qualify`, which compares the result with the reference).
 
         Returns
         -------
@@ -147,8 +207,11 @@ class Engine:
         import pyopencl as cl
 
         real = np.float64 if precision == "double" else np.float32
-        lanes = int(lanes or default_lanes(self.info.kind, precision))
         weighted = params.weighted
+        if qualified:
+            lanes = int(lanes or default_lanes(self.info.kind, precision))
+        else:
+            lanes = self.lanes_for(params.texture, precision, weighted, lanes)
         kern = self.kernel(params.texture, precision, records, lanes, weighted)
         edges = np.asarray(params.time_edges, dtype=real)
         n_time = len(edges) - 1

@@ -1,0 +1,166 @@
+"""Device qualification (warpe_cl/qualify.py, docs/devices.md): a known-answer walk against the
+NumPy reference, in a child process, cached per user, with a fallback through lane widths.
+
+The faults of real drivers are reproduced with ``$WARPE_CL_QUALIFY_FAULT``: ``abort`` kills the
+child as pip's PoCL 3.0 did while building 16 lanes on an AVX-512 CPU; ``wrong`` reports every
+ray specular as it did at 8 lanes. Each test uses its own cache folder.
+"""
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+import subprocess
+import sys
+import types
+
+import numpy as np
+import pytest
+
+from warpe_cl import device as devmod
+from warpe_cl import qualify
+from warpe_cl.errors import DeviceError, WarpeWarning
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("WARPE_CL_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("WARPE_CL_LANES", raising=False)
+    qualify._qualifiers.clear()
+    yield qualify.VerdictCache(tmp_path)
+    qualify._qualifiers.clear()
+
+
+def _fresh_engine(engine):
+    """An Engine on the session's device whose qualifier reads the test's cache."""
+    from warpe_cl.engine import Engine
+    e = Engine.__new__(Engine)
+    e.__dict__.update(engine.__dict__)
+    e._lanes = {}
+    e._kernels = {}
+    e.qualifier = qualify.Qualifier(engine.info, cache=qualify.VerdictCache(), say=lambda m: None)
+    return e
+
+
+def test_compare_records_catches_a_wrong_kernel(engine):
+    """The check itself: the reference against itself passes; every ray 'specular' (the
+    8-lane PoCL 3.0 bug), one changed bin, or shifted times fail, in both precisions."""
+    from warpe_cl.reference import simulate_reference
+    params = qualify._scenes(qualify.Combo("slab", "double", False))["slab_fresnel"]
+    ref = simulate_reference(params, 500, records=True)
+    assert qualify.compare_records(ref, ref, "double", False) is None
+    assert qualify.compare_counts(ref, ref, "double") is None
+
+    def altered(**changes):
+        rec = {k: v.copy() for k, v in ref.records.items()}
+        for k, f in changes.items():
+            rec[k] = f(rec[k])
+        return types.SimpleNamespace(records=rec)
+
+    all_specular = altered(fate=lambda a: np.zeros_like(a), component=lambda a: np.zeros_like(a))
+    one_bin = altered(time_bin=lambda a: np.where(np.arange(a.size) == 3, a + 1, a))
+    late = altered(time_ns=lambda a: a * (1 + 1e-3))
+    for precision in ("single", "double"):
+        assert qualify.compare_records(all_specular, ref, precision, False) is not None
+        assert qualify.compare_records(late, ref, precision, False) is not None
+    assert qualify.compare_records(one_bin, ref, "double", False) is not None
+
+
+def test_the_session_device_passes_every_combination_in_process(engine):
+    """The known-answer walk of every kernel combination passes on the device the suite runs
+    on, at the lane width the engine walks (measure off: no timing in unit tests)."""
+    for combo in qualify.all_combos(engine.info.fp64):
+        lanes = engine.lanes_for(combo.texture, combo.precision, combo.weighted)
+        entry = qualify.check(engine, lanes, combo, measure=False)
+        assert entry["passed"], (combo.label, lanes, entry["reason"])
+
+
+def test_a_crash_or_a_wrong_kernel_falls_back_and_says_so(engine, cache, monkeypatch):
+    """16 lanes abort the child, 8 lanes compute wrong rays: the walk runs at 4 lanes, gives
+    the reference's counts, and warns once in one line naming both failures."""
+    if engine.info.kind == "gpu":
+        pytest.skip("GPUs walk one ray per work-item: there is no lane width to fall back to")
+    monkeypatch.setenv(qualify.FAULT_ENV, "16:abort,8:wrong")
+    e = _fresh_engine(engine)
+    params = qualify._scenes(qualify.Combo("granular", "single", False))["granular"]
+    with pytest.warns(WarpeWarning) as caught:
+        counts = e.run(params, 3000, precision="single")
+    messages = [str(w.message) for w in caught if issubclass(w.category, WarpeWarning)]
+    assert len(messages) == 1 and "\n" not in messages[0]
+    assert "SIGABRT" in messages[0] and "16, 8 lanes" in messages[0] and "walking 4 lanes" in messages[0]
+    assert e.lanes_for("granular", "single", False) == 4
+    direct = engine.run(params, 3000, precision="single", lanes=4)
+    assert counts.same_as(direct)
+    # the verdicts are on disk, each under a key that names the injected fault
+    stored = cache._read()
+    assert len(stored) == 3 and all(v["key"].get("fault") or v["passed"] for v in stored.values())
+
+
+def test_an_explicit_lane_width_that_fails_is_an_error(engine, cache, monkeypatch):
+    if engine.info.kind == "gpu":
+        pytest.skip("GPUs walk one ray per work-item")
+    monkeypatch.setenv(qualify.FAULT_ENV, "8:wrong")
+    e = _fresh_engine(engine)
+    params = qualify._scenes(qualify.Combo("slab", "single", False))["slab_contact"]
+    with pytest.raises(DeviceError, match="failed qualification at 8 lanes.*follow the reference"):
+        e.run(params, 100, precision="single", lanes=8)
+
+
+def test_verdicts_are_cached_and_invalidated_by_any_key(engine, cache, monkeypatch):
+    combo = qualify.Combo("slab", "single", False)
+    q = qualify.Qualifier(engine.info, cache=cache, say=lambda m: None)
+    first = q.verdicts(1, [combo], measure=False)[combo]
+    assert first["passed"]
+
+    def no_child(*a, **k):
+        raise AssertionError("a cached verdict must not run the check again")
+    monkeypatch.setattr(qualify, "run_child", no_child)
+    again = qualify.Qualifier(engine.info, cache=qualify.VerdictCache(cache.folder))
+    assert again.verdicts(1, [combo], measure=False)[combo]["passed"]
+    # a new driver version, another lane width or changed sources: a new check
+    newer = dataclasses.replace(engine.info, driver=engine.info.driver + "-new")
+    for info, lanes in ((newer, 1), (engine.info, 2)):
+        with pytest.raises(AssertionError, match="cached verdict"):
+            qualify.Qualifier(info, cache=cache).verdicts(lanes, [combo], measure=False)
+    monkeypatch.setattr(qualify, "QUALIFY_VERSION", qualify.QUALIFY_VERSION + 1)
+    with pytest.raises(AssertionError, match="cached verdict"):
+        qualify.Qualifier(engine.info, cache=cache).verdicts(1, [combo], measure=False)
+
+
+def _put_many(folder, tag, n):
+    c = qualify.VerdictCache(folder)
+    for i in range(n):
+        c.put([({"tag": tag, "i": i}, {"passed": True})])
+
+
+def test_the_cache_is_safe_for_concurrent_processes(tmp_path):
+    """Two processes writing 40 verdicts each at once: all 80 are kept (lock + atomic replace)."""
+    ctx = multiprocessing.get_context("spawn")
+    procs = [ctx.Process(target=_put_many, args=(str(tmp_path), t, 40)) for t in ("a", "b")]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+    assert all(p.exitcode == 0 for p in procs)
+    assert len(qualify.VerdictCache(tmp_path)._read()) == 80
+
+
+def test_auto_picks_the_fastest_qualified_device(monkeypatch):
+    infos = [devmod.DeviceInfo(0, 0, "P", "1", f"dev{i}", "cpu", "d", 2, True) for i in range(3)]
+    monkeypatch.setattr(devmod, "list_devices", lambda: [(i, i.device) for i in infos])
+    monkeypatch.setattr(devmod, "probe", lambda dev: None)
+    speeds = {"dev0": 1e8, "dev1": 3e8, "dev2": None}
+    monkeypatch.setattr(devmod, "qualification", lambda info, say=None: devmod.Qualification(
+        speeds[info.device] is not None, 16, speeds[info.device],
+        None if speeds[info.device] else "wrong rays"))
+    assert devmod.select_device("auto")[0].device == "dev1"
+    assert devmod.select_device("dev0")[0].device == "dev0"
+    with pytest.raises(DeviceError, match="dev2.*wrong rays"):
+        devmod.select_device("dev2")
+
+
+def test_devices_shows_the_verdicts(engine):
+    out = subprocess.run([sys.executable, "-m", "warpe_cl", "devices"], capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert "qualified:" in out.stdout and "scattering events/s" in out.stdout
+    assert "picks" in out.stdout

@@ -1,0 +1,504 @@
+"""Device qualification: a known-answer walk before a device is trusted (docs/devices.md).
+
+An OpenCL driver can build our kernels and still compute garbage: pip's PoCL 3.0 (LLVM 14) on
+an AVX-512 CPU it does not know compiles the 8-lane walk into one whose every ray is
+"specular", and aborts the process while building the 16-lane one. So before warpe-cl uses a
+*combination* -- device, driver version, kernel source, and the build switches that change the
+machine code (lane width, precision, texture, weighted mode) -- it walks a few thousand rays of
+small scenes that cover every path of that kernel and compares them ray by ray with the NumPy
+reference (warpe_cl/reference.py), with the tolerances of tests/test_parity.py:
+
+* double precision: every ray has the same fate, component, counters, time and emergence bins
+  as the reference, times and exit cosines to 1e-9 relative, weights to 1e-9 relative;
+* single precision: >= 99.5 % of the rays have identical histories, and their times agree to
+  1e-4 t + 1e-7 ns (weights to 1e-4 relative);
+* and the production kernel (built without per-ray records) gives the reference's histograms:
+  identical in double, within 2 x 0.5 % of the rays (L1 over fates, components, time bins) in
+  single.
+
+The check runs in a child process (a driver that aborts or crashes kills the child, not
+warpe-cl) and its verdict is cached per user in ``qualification.json`` of
+:func:`warpe_cl.drivers.cache_dir`, under a lock, keyed by everything above plus the hash of
+the reference walk and of this check; a changed key means a new check. A passing check of the
+slab, analog kernel also measures the device's speed on scene B1 (events/s), which ``auto``
+uses to pick the fastest qualified device.
+
+Run by hand: ``python -m warpe_cl.qualify --device P:D --lanes 16 --combos slab:single:analog``.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+#: bump when the check itself changes meaning (the hash of this file is in the key as well)
+QUALIFY_VERSION = 1
+#: the lane widths a CPU falls back through (docs/walk.md §5); GPUs walk one ray per work-item
+FALLBACK_LANES = (16, 8, 4, 1)
+#: rays per scene of the known-answer walk
+N_RAYS = 2000
+#: a check that takes longer than this is a failure, s (``$WARPE_CL_QUALIFY_TIMEOUT``): a
+#: build takes seconds, the walk and the speed probe about one; a driver stuck in its compiler
+#: (pip's PoCL 3.0 at 16 lanes on Zen 4 spins for 2-3 minutes before it aborts) must not hold
+#: a user's first run for long; `warpe-cl devices --requalify` checks again
+CHILD_TIMEOUT_S = 60
+MARK = "WARPE-QUALIFY "
+
+
+@dataclass(frozen=True)
+class Combo:
+    """One kernel build: texture (slab/granular), precision (single/double), weighted mode."""
+
+    texture: str
+    precision: str
+    weighted: bool
+
+    @property
+    def label(self) -> str:
+        return f"{self.texture}:{self.precision}:{'weighted' if self.weighted else 'analog'}"
+
+    @classmethod
+    def parse(cls, text: str) -> "Combo":
+        texture, precision, mode = text.split(":")
+        if texture not in ("slab", "granular") or precision not in ("single", "double") \
+                or mode not in ("analog", "weighted"):
+            raise ValueError(f"bad combination {text!r}")
+        return cls(texture, precision, mode == "weighted")
+
+
+#: the combination whose speed ranks devices (scene B1 is a slab walked analog)
+RANK_COMBO = Combo("slab", "single", False)
+
+
+def all_combos(fp64: bool) -> list:
+    """Every combination a device can be asked for."""
+    return [Combo(t, p, w) for p in (("single", "double") if fp64 else ("single",))
+            for t in ("slab", "granular") for w in (False, True)]
+
+
+# --------------------------------------------------------------------------------------------
+# the known-answer walk (runs in the child)
+
+def _scenes(combo: Combo) -> dict:
+    """The small media of the check: every path of the kernel that ``combo`` builds."""
+    from .params import WalkParams
+    edges = 1e-6 * 10 ** (np.arange(0, 221) / 20)          # 1e-6 .. 1e5 ns
+    base = dict(thickness=0.01, time_edges=edges, seed=7, bottom_interface="fresnel")
+    if combo.texture == "slab":
+        media = {
+            # Fresnel top and bottom, a vacuum gap over the floor, HG scattering, absorption
+            "slab_fresnel": dict(texture="slab", extinction=100.0, omega=0.9, g=0.8, n=1.3,
+                                 k=1e-4, albedo=0.5),
+            # the floor in optical contact (no bottom interface)
+            "slab_contact": dict(texture="slab", bottom_interface="none", extinction=50.0,
+                                 omega=0.97, g=0.6, n=1.45, k=0.0, albedo=0.8),
+            # a thin, high-index slab: total internal reflection, isotropic scattering
+            "slab_thin_tir": dict(texture="slab", extinction=20.0, omega=0.99, g=0.0, n=1.92,
+                                  k=9.5e-6, albedo=0.9, thickness=0.02),
+        }
+    else:
+        media = {
+            "granular": dict(texture="granular", extinction=200.0, omega=0.95, g=0.5, n=1.36,
+                             k=0.0, albedo=0.5),
+            "granular_time_window": dict(texture="granular", extinction=150.0, omega=0.99,
+                                         g=0.8, n=1.27, k=0.0, albedo=0.3, rule="time_window"),
+        }
+    out = {}
+    for name, kw in media.items():
+        kw = {**base, **kw}
+        if combo.weighted:
+            kw.update(mode="weighted", roulette_weight=0.05)
+        out[name] = WalkParams(**kw)
+    return out
+
+
+EXACT_FIELDS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
+                "emergence_bin")
+HIST_FIELDS = ("fates", "total", "time_any", "time_in_fov", "angular")
+
+
+def compare_records(ker, ref, precision: str, weighted: bool) -> str | None:
+    """Ray-by-ray comparison of kernel and reference records; ``None`` or what differs."""
+    kr, rr = ker.records, ref.records
+    n = len(rr["fate"])
+    same = np.ones(n, dtype=bool)
+    for field in EXACT_FIELDS:
+        same &= kr[field] == rr[field]
+    exited = np.isfinite(rr["time_ns"])
+    if precision == "double":
+        if not same.all():
+            i = int(np.argmin(same))
+            bad = [f for f in EXACT_FIELDS if kr[f][i] != rr[f][i]]
+            return f"ray {i}: {', '.join(bad)} differ from the reference ({int((~same).sum())} of {n} rays)"
+        for field, rtol in (("time_ns", 1e-9), ("cos_exit", 1e-9)):
+            a, b = kr[field][exited], rr[field][exited]
+            if not np.all(np.abs(a - b) <= rtol * np.abs(b) + 1e-12):
+                return f"{field} differs from the reference by more than {rtol:g}"
+        if weighted and not np.allclose(kr["weight"], rr["weight"], rtol=1e-9, atol=0):
+            return "ray weights differ from the reference by more than 1e-9"
+        return None
+    if same.mean() < 0.995:
+        return (f"only {same.mean():.1%} of the rays follow the reference's history "
+                f"(>= 99.5 % required)")
+    ok = same & exited
+    t_ker, t_ref = kr["time_ns"][ok], rr["time_ns"][ok]
+    if not np.all(np.abs(t_ker - t_ref) <= 1e-4 * t_ref + 1e-7):
+        return "exit times differ from the reference by more than 1e-4 t + 1e-7 ns"
+    if weighted:
+        w_ker, w_ref = kr["weight"][same], rr["weight"][same]
+        if not np.all(np.abs(w_ker - w_ref) <= 1e-4 * np.abs(w_ref)):
+            return "ray weights differ from the reference by more than 1e-4"
+    return None
+
+
+def compare_counts(ker, ref, precision: str) -> str | None:
+    """The production kernel's histograms against the reference's (same rays)."""
+    if ker.photons != ref.photons:
+        return "the kernel walked a different number of rays"
+    allowed = 0 if precision == "double" else 2 * int(np.ceil(0.005 * ref.photons))
+    for name in HIST_FIELDS:
+        a = np.asarray(getattr(ker, name), dtype=np.int64)
+        b = np.asarray(getattr(ref, name), dtype=np.int64)
+        diff = int(np.abs(a - b).sum())
+        if diff > allowed:
+            return (f"its {name} histogram differs from the reference's by {diff} rays "
+                    f"of {ref.photons} (at most {allowed} allowed)")
+    return None
+
+
+def _b1_params():
+    """Scene B1 of tools/bench.py (60 mm slab, tau0 = 60.3, omega = 0.995): the speed probe."""
+    from .params import WalkParams
+    edges = 1e-6 * 10 ** (np.arange(0, 221) / 20)
+    return WalkParams(texture="slab", thickness=0.06, extinction=1005.0, omega=0.99502, g=0.8,
+                      n=1.3, k=0.0, albedo=0.15, time_edges=edges, seed=1, max_time=5.0,
+                      bottom_interface="fresnel")
+
+
+def measure_speed(engine, lanes: int, precision: str, seconds: float = 0.5) -> float:
+    """Scattering events per second of scene B1 on ``engine`` at ``lanes``."""
+    params = _b1_params()
+    engine.run(params, 2000, precision=precision, lanes=lanes, batch=2000)     # warm-up
+    n = 20_000
+    while True:
+        t0 = time.perf_counter()
+        counts = engine.run(params, n, precision=precision, lanes=lanes)
+        dt = time.perf_counter() - t0
+        if dt >= seconds or n >= 1 << 26:
+            return counts.scattering_events / dt
+        n = int(min(n * max(2.0, 1.2 * seconds / max(dt, 1e-3)), 1 << 26))
+
+
+def check(engine, lanes: int, combo: Combo, measure: bool = True, corrupt: bool = False) -> dict:
+    """Qualify one combination on ``engine`` (in this process). Returns the verdict entry.
+
+    ``corrupt`` stands in for a miscompiling driver (every ray reported specular, as pip's
+    PoCL 3.0 did at 8 lanes on AVX-512 CPUs): the test of the check itself."""
+    from .reference import simulate_reference
+    t0 = time.perf_counter()
+    entry = {"passed": False, "reason": None, "events_per_s": None}
+    try:
+        for name, params in _scenes(combo).items():
+            ref = simulate_reference(params, N_RAYS, first_photon=11, records=True)
+            ker = engine.run(params, N_RAYS, precision=combo.precision, first_photon=11,
+                             records=True, lanes=lanes, qualified=True)
+            if corrupt:
+                ker.records["fate"][:] = 0
+                ker.records["component"][:] = 0
+            reason = compare_records(ker, ref, combo.precision, combo.weighted)
+            if reason is None:
+                prod = engine.run(params, N_RAYS, precision=combo.precision, first_photon=11,
+                                  lanes=lanes, qualified=True)
+                reason = compare_counts(prod, ref, combo.precision)
+            if reason is not None:
+                entry["reason"] = f"{name}: {reason}"
+                break
+        else:
+            entry["passed"] = True
+            if measure and combo.texture == "slab" and not combo.weighted:
+                entry["events_per_s"] = measure_speed(engine, lanes, combo.precision)
+    except Exception as err:  # noqa: BLE001 - any failure of the driver is a verdict
+        text = " ".join(str(err).split())
+        entry["reason"] = f"{type(err).__name__}: {text[:300]}"
+    entry["seconds"] = round(time.perf_counter() - t0, 3)
+    return entry
+
+
+# --------------------------------------------------------------------------------------------
+# the cache of verdicts
+
+def _source_digest() -> str:
+    """Hash of everything that decides a verdict besides the device: kernel sources, the
+    reference walk, its random numbers, and this check."""
+    from . import device as devmod
+    from .engine import WALK_FILES
+    h = hashlib.sha256(devmod.assemble_source(WALK_FILES).encode())
+    here = Path(__file__).resolve().parent
+    for name in ("reference.py", "rng.py", "params.py", "qualify.py"):
+        h.update((here / name).read_bytes())
+    h.update(str(QUALIFY_VERSION).encode())
+    return h.hexdigest()
+
+
+def combo_key(info, lanes: int, combo: Combo) -> dict:
+    """Everything a verdict depends on."""
+    from .engine import build_options
+    fault = _fault(lanes)
+    return {**({"fault": fault} if fault else {}), "platform": f"{info.platform} {info.platform_version}", "device": info.device,
+            "driver": info.driver, "sources": _source_digest(),
+            "options": list(build_options(combo.texture, combo.precision, False, lanes,
+                                          combo.weighted)),
+            "lanes": lanes, "combo": combo.label}
+
+
+def _key_id(key: dict) -> str:
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:32]
+
+
+class VerdictCache:
+    """Verdicts on disk (JSON), shared by every process of the user under a file lock."""
+
+    def __init__(self, folder: Path | None = None):
+        from .drivers import cache_dir
+        self.folder = Path(folder) if folder else cache_dir()
+        self.path = self.folder / "qualification.json"
+
+    @contextlib.contextmanager
+    def _locked(self):
+        self.folder.mkdir(parents=True, exist_ok=True)
+        with open(self.folder / "qualification.lock", "a+") as fh:
+            try:
+                import fcntl
+                fcntl.flock(fh, fcntl.LOCK_EX)
+            except (ImportError, OSError):
+                pass
+            yield
+
+    def _read(self) -> dict:
+        try:
+            data = json.loads(self.path.read_text())
+            return data if isinstance(data, dict) else {}
+        except (OSError, ValueError):
+            return {}
+
+    def get(self, key: dict) -> dict | None:
+        return self._read().get(_key_id(key))
+
+    def clear(self) -> None:
+        """Forget every verdict (``warpe-cl devices --requalify``)."""
+        with contextlib.suppress(OSError), self._locked():
+            self.path.unlink(missing_ok=True)
+
+    def put(self, items) -> None:
+        """Store ``[(key, entry), ...]`` (read-modify-write under the lock, atomic replace)."""
+        try:
+            with self._locked():
+                data = self._read()
+                for key, entry in items:
+                    data[_key_id(key)] = {**entry, "key": key}
+                fd, tmp = tempfile.mkstemp(prefix=".qualification-", dir=self.folder)
+                with os.fdopen(fd, "w") as fh:
+                    json.dump(data, fh, indent=1, sort_keys=True)
+                os.replace(tmp, self.path)
+        except OSError:
+            pass   # a cache that cannot be written costs time, never correctness
+
+
+# --------------------------------------------------------------------------------------------
+# the parent's side
+
+def _signal_name(code: int) -> str:
+    try:
+        return signal.Signals(-code).name
+    except ValueError:
+        return f"signal {-code}"
+
+
+def _crash_reason(proc: subprocess.CompletedProcess, lanes: int) -> str:
+    how = (f"was killed by {_signal_name(proc.returncode)}" if proc.returncode < 0
+           else f"exited with code {proc.returncode}")
+    lines = [ln.strip() for ln in (proc.stderr or "").splitlines() if ln.strip()]
+    hint = next((ln for ln in lines if "ERROR" in ln or "Error" in ln), lines[-1] if lines else "")
+    return (f"the driver's process {how} while building or walking {lanes} lanes"
+            + (f" ({hint[:200]})" if hint else ""))
+
+
+def run_child(info, lanes: int, combos, measure: bool = True) -> dict:
+    """Qualify ``combos`` at ``lanes`` on the device ``info`` in a child process.
+
+    Returns ``{combo: entry}``; a child that crashes, hangs or prints nothing fails every
+    combination it was given, with the reason.
+    """
+    cmd = [sys.executable, "-m", "warpe_cl.qualify", "--device", info.spec, "--lanes",
+           str(lanes), "--combos", ",".join(c.label for c in combos), "--expect", info.device]
+    if not measure:
+        cmd.append("--no-measure")
+    env = dict(os.environ)
+    env.pop("WARPE_CL_LANES", None)
+    timeout = float(os.environ.get("WARPE_CL_QUALIFY_TIMEOUT", "") or CHILD_TIMEOUT_S)
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        reason = (f"the check did not finish in {timeout:g} s at {lanes} lanes "
+                  "($WARPE_CL_QUALIFY_TIMEOUT)")
+        return {c: {"passed": False, "reason": reason, "events_per_s": None,
+                    "seconds": timeout} for c in combos}
+    results = None
+    for line in proc.stdout.splitlines():
+        if line.startswith(MARK):
+            results = json.loads(line[len(MARK):])
+    if proc.returncode != 0 or results is None:
+        reason = _crash_reason(proc, lanes)
+        took = round(time.perf_counter() - t0, 3)
+        return {c: {"passed": False, "reason": reason, "events_per_s": None, "seconds": took}
+                for c in combos}
+    return {Combo.parse(label): entry for label, entry in results.items()}
+
+
+class Qualifier:
+    """Verdicts for one device: cached, else checked in a child process."""
+
+    def __init__(self, info, cache: VerdictCache | None = None, say=None):
+        self.info = info
+        self.cache = cache or VerdictCache()
+        self.say = say
+        self._memo = {}
+
+    def lane_chain(self, precision: str) -> tuple:
+        """The lane widths tried, widest first (a vector of 512 bits on CPUs)."""
+        if self.info.kind == "gpu":
+            return (1,)
+        widest = 8 if precision == "double" else 16
+        return tuple(w for w in FALLBACK_LANES if w <= widest)
+
+    def verdicts(self, lanes: int, combos, measure: bool = True) -> dict:
+        """``{combo: entry}`` at ``lanes``; the missing ones are checked in one child."""
+        out, missing = {}, []
+        for c in combos:
+            key = combo_key(self.info, lanes, c)
+            kid = _key_id(key)
+            entry = self._memo.get(kid) or self.cache.get(key)
+            if entry is not None and (not measure or entry.get("events_per_s") is not None
+                                      or not entry["passed"] or c != RANK_COMBO):
+                out[c] = self._memo[kid] = entry
+            else:
+                missing.append(c)
+        if missing:
+            if self.say:
+                self.say(f"qualifying {describe_short(self.info)} at {lanes} lanes: "
+                         f"{', '.join(c.label for c in missing)} (first use; cached after)")
+            t0 = time.perf_counter()
+            fresh = run_child(self.info, lanes, missing, measure)
+            wall = round(time.perf_counter() - t0, 2)
+            stamp = time.strftime("%Y-%m-%dT%H:%M:%S")
+            items = []
+            for c in missing:
+                entry = {**fresh.get(c, {"passed": False, "reason": "no verdict returned",
+                                         "events_per_s": None, "seconds": 0.0}),
+                         "date": stamp, "child_wall_s": wall}
+                out[c] = self._memo[_key_id(combo_key(self.info, lanes, c))] = entry
+                items.append((combo_key(self.info, lanes, c), entry))
+            self.cache.put(items)
+        return out
+
+    def best_lanes(self, combo: Combo, measure: bool = False):
+        """The widest qualified lane width for ``combo`` and the failures above it.
+
+        Returns
+        -------
+        (int or None, list of (lanes, reason))
+        """
+        failures = []
+        for lanes in self.lane_chain(combo.precision):
+            entry = self.verdicts(lanes, [combo], measure=measure)[combo]
+            if entry["passed"]:
+                return lanes, failures
+            failures.append((lanes, entry["reason"]))
+        return None, failures
+
+
+_qualifiers: dict = {}
+
+
+def describe_short(info) -> str:
+    """``P:D device (driver)`` in a few words, for one-line messages."""
+    return f"{info.spec} {info.device} ({info.platform_version.split(',')[0].strip()})"
+
+
+def qualifier_for(info, say=None) -> Qualifier:
+    """The process's :class:`Qualifier` of the device ``info`` (one per device)."""
+    key = (info.platform, info.platform_version, info.device, info.driver, info.spec)
+    if key not in _qualifiers:
+        _qualifiers[key] = Qualifier(info, say=say or _stderr)
+    return _qualifiers[key]
+
+
+def _stderr(message: str) -> None:
+    print(f"warpe-cl: {message}", file=sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------------------------------
+# the child
+
+FAULT_ENV = "WARPE_CL_QUALIFY_FAULT"
+
+
+def _fault(lanes: int) -> str | None:
+    """The fault injected at ``lanes`` by ``$WARPE_CL_QUALIFY_FAULT`` (tests of the check
+    itself: ``"16:abort,8:wrong"`` makes the child abort at 16 lanes and report wrong rays at
+    8). A faulted verdict has its own cache key, so it never stands for a real one."""
+    for item in os.environ.get(FAULT_ENV, "").split(","):
+        if ":" in item:
+            w, kind = item.split(":", 1)
+            if w.strip() == str(lanes) and kind.strip() in ("abort", "wrong"):
+                return kind.strip()
+    return None
+
+
+def _child(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m warpe_cl.qualify",
+                                     description="Qualify one OpenCL device (docs/devices.md).")
+    parser.add_argument("--device", required=True, help="P:D, as `warpe-cl devices` lists it")
+    parser.add_argument("--lanes", type=int, required=True)
+    parser.add_argument("--combos", default=",".join(c.label for c in all_combos(True)))
+    parser.add_argument("--expect", default=None, help="the device name P:D must have")
+    parser.add_argument("--no-measure", action="store_true")
+    args = parser.parse_args(argv)
+    from .engine import Engine
+    engine = Engine(args.device, qualify=False)
+    if args.expect is not None and engine.info.device != args.expect:
+        print(f"device {args.device} is {engine.info.device!r}, not {args.expect!r}",
+              file=sys.stderr)
+        return 4
+    fault = _fault(args.lanes)
+    if fault == "abort":
+        os.abort()
+    results = {}
+    for label in args.combos.split(","):
+        combo = Combo.parse(label)
+        if combo.precision == "double" and not engine.info.fp64:
+            results[label] = {"passed": False, "reason": "no double precision",
+                              "events_per_s": None, "seconds": 0.0}
+            continue
+        results[label] = check(engine, args.lanes, combo, measure=not args.no_measure,
+                               corrupt=fault == "wrong")
+        print(f"{label}: {'pass' if results[label]['passed'] else results[label]['reason']}",
+              file=sys.stderr, flush=True)
+    print(MARK + json.dumps(results), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_child())
