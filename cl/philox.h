@@ -3,10 +3,11 @@
  * Philox4x32-10 (Salmon, Moraes, Dror & Shaw 2011, "Parallel random numbers: as easy as
  * 1, 2, 3", the Random123 library), pinned by Random123's known-answer vectors in
  * tests/test_rng.py.
- * Key = (seed, scenario); counter = (block, photon_lo, photon_hi, 0). The walk uses block k of
- * a photon for its k-th event (one block per event, at most four draws), so a ray's numbers
- * depend only on (seed, scenario, photon index, event index): never on the device, the lane
- * width, the work-group size or the batch.
+ * Key = (seed, key_lo); counter = (block, photon_lo, photon_hi, key_hi), where (key_lo, key_hi)
+ * are the low and high words of the 64-bit scenario key (docs/walk.md §2). The walk uses block
+ * k of a photon for its k-th event (one block per event, at most four draws), so a ray's
+ * numbers depend only on (seed, scenario key, photon index, event index): never on the device,
+ * the lane width, the work-group size or the batch.
  */
 #ifndef WARPE_PHILOX_H
 #define WARPE_PHILOX_H
@@ -30,12 +31,12 @@ inline uint4 philox4x32_10(uint4 ctr, uint2 key)
     return ctr;
 }
 
-/* The same rounds on every lane at once (lanes.h): counter (c0, c1, c2, 0), key (k0, k1);
+/* The same rounds on every lane at once (lanes.h): counter (c0, c1, c2, c3w), key (k0, k1);
  * returns the four output words in x0..x3. */
-inline void philox_lanes(VUINT c0, VUINT c1, VUINT c2, uint k0, uint k1,
+inline void philox_lanes(VUINT c0, VUINT c1, VUINT c2, uint c3w, uint k0, uint k1,
                          VUINT *x0, VUINT *x1, VUINT *x2, VUINT *x3)
 {
-    VUINT c3 = (VUINT)0u;
+    VUINT c3 = (VUINT)c3w;
     for (int round = 0; round < 10; ++round) {
         if (round > 0) {
             k0 += PHILOX_W0;
@@ -68,18 +69,32 @@ inline VREAL uniform_lanes(VUINT x)
 #endif
 }
 
+/* An event "U > P" (probability 1 - P) decided exactly on the word x: true iff x >= T with
+ * T = floor(P 2^32 + 1/2) in [0, 2^32], computed exactly by the host (params.py
+ * word_threshold). In exact arithmetic this is U > P for U = (x + 1/2) 2^-32, so it happens
+ * with probability (2^32 - T) 2^-32, within 2^-33 of 1 - P in any precision; T = 2^32 (P = 1)
+ * never happens, T = 0 (P = 0) always does (docs/walk.md §2). */
+inline VMASK word_at_least(VUINT x, ulong T)
+{
+    if (T > 0xFFFFFFFFul)
+        return (VMASK)0;
+    return CONVERT_VMASK(x >= (VUINT)(uint)T);
+}
+
 /* One photon's stream of draws, in order (the self-test kernels). */
 typedef struct {
     uint2 key;
+    uint key_hi;
     uint photon_lo, photon_hi;
     uint block;   /* next block to generate */
     uint used;    /* words of `words` already consumed (4: generate a new block) */
     uint words[4];
 } rng_t;
 
-inline void rng_init(rng_t *r, uint seed, uint scenario, ulong photon)
+inline void rng_init(rng_t *r, uint seed, ulong scenario, ulong photon)
 {
-    r->key = (uint2)(seed, scenario);
+    r->key = (uint2)(seed, (uint)scenario);
+    r->key_hi = (uint)(scenario >> 32);
     r->photon_lo = (uint)photon;
     r->photon_hi = (uint)(photon >> 32);
     r->block = 0;
@@ -89,7 +104,7 @@ inline void rng_init(rng_t *r, uint seed, uint scenario, ulong photon)
 inline uint rng_next(rng_t *r)
 {
     if (r->used == 4) {
-        uint4 w = philox4x32_10((uint4)(r->block, r->photon_lo, r->photon_hi, 0u), r->key);
+        uint4 w = philox4x32_10((uint4)(r->block, r->photon_lo, r->photon_hi, r->key_hi), r->key);
         r->words[0] = w.x; r->words[1] = w.y; r->words[2] = w.z; r->words[3] = w.w;
         r->block += 1;
         r->used = 0;

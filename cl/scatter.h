@@ -2,14 +2,19 @@
 #ifndef WARPE_SCATTER_H
 #define WARPE_SCATTER_H
 
-/* Henyey-Greenstein deflection cosine from one uniform U (physics.md §5.4):
- *   cos(Theta) = [1 + g^2 - ((1 - g^2)/(1 - g + 2gU))^2] / (2g),  g != 0;  2U - 1 for g = 0. */
+/* Henyey-Greenstein deflection cosine from one uniform U (physics.md §5.4, docs/walk.md §3),
+ * in the form that has no cancellation for small |g|: with s = 2U - 1, 1 - s^2 = 4U(1 - U)
+ * and d = 1 + g s = (1 - g) + 2gU,
+ *   cos(Theta) = s + g (1 - s^2) (3 + 2 g s - g^2) / (2 d^2),
+ * an exact rewrite of [1 + g^2 - ((1 - g^2)/(1 - g + 2gU))^2] / (2g) that gives s at g = 0 and
+ * +-1 at U = 1, 0. In float its error is ~1 ulp of 1 for every g (the classic form loses
+ * 6e-8/g: <cos> = -0.34 at g = 1e-7), and no larger than the classic form's at g = 0.8-0.999. */
 inline VREAL hg_cos_theta(REAL g, VREAL U)
 {
-    if (g == (REAL)0)
-        return (REAL)2 * U - (REAL)1;
-    VREAL f = ((REAL)1 - g * g) / (((REAL)1 - g) + (REAL)2 * g * U);
-    VREAL c = ((REAL)1 + g * g - f * f) / ((REAL)2 * g);
+    VREAL s = (REAL)2 * U - (REAL)1;
+    VREAL q = (REAL)4 * U * ((REAL)1 - U);
+    VREAL d = ((REAL)1 - g) + (REAL)2 * g * U;
+    VREAL c = s + g * q * (((REAL)3 - g * g) + (REAL)2 * g * s) / ((REAL)2 * d * d);
     return clamp(c, (REAL)-1, (REAL)1);
 }
 

@@ -9,7 +9,7 @@ __kernel void philox_kat(__global const uint4 *ctr, __global const uint2 *key, _
 }
 
 /* The first n_draws uniforms of each photon first_photon + i. */
-__kernel void photon_uniforms(const uint seed, const uint scenario, const ulong first_photon,
+__kernel void photon_uniforms(const uint seed, const ulong scenario, const ulong first_photon,
                               const int n_draws, __global REAL *out)
 {
     size_t i = get_global_id(0);
@@ -55,4 +55,12 @@ __kernel void walk_math(__global const REAL *u, __global REAL *out)
     out[3 * i] = -LOG(u[i]);
     out[3 * i + 1] = s;
     out[3 * i + 2] = c;
+}
+
+/* The walk's exact event rule (philox.h word_at_least) on given words: out = 1 where the event
+ * "U > P" happens for the threshold T = floor(P 2^32 + 1/2). */
+__kernel void word_events(const ulong T, __global const uint *x, __global int *out)
+{
+    size_t i = get_global_id(0);
+    out[i] = word_at_least(x[i], T) ? 1 : 0;
 }

@@ -20,14 +20,18 @@
 #define FATE_TERMINATED 4
 #define N_FATES 5
 
-/* Index i with edges[i] <= t < edges[i+1]; 0 if t < edges[0]; -1 if t >= edges[n_edges-1]. */
+#define TIME_BIN_LATE (-1)
+#define TIME_BIN_EARLY (-2)
+
+/* Index i with edges[i] <= t < edges[i+1]; TIME_BIN_EARLY (-2) if t < edges[0] (an early exit,
+ * counted apart, never in a bin: walk.md §4); TIME_BIN_LATE (-1) if t >= edges[n_edges-1]. */
 inline int time_bin(REAL t, __global const REAL *edges, int n_edges)
 {
     int lo = 0, hi = n_edges - 1;
     if (t >= edges[hi])
-        return -1;
+        return TIME_BIN_LATE;
     if (t < edges[0])
-        return 0;
+        return TIME_BIN_EARLY;
     while (hi - lo > 1) {
         int mid = (lo + hi) / 2;
         if (edges[mid] <= t)
@@ -53,6 +57,13 @@ inline int emergence_bin(REAL cos_exit)
  * work-items and launches add them (no float atomics); a weight of 1e-20 keeps 83 bits.
  * fixed_add adds floor(w 2^150) for 0 <= w < 2^42; a carry out of a word is seen by the one
  * atomic add that made it wrap, which passes it on to the next word. */
+/* True for a weight that the exact sums would drop: NaN, negative, or w >= 2^21, whose square
+ * (the w^2 sums) reaches 2^42 (walk.md §6). */
+inline int weight_lost(REAL w)
+{
+    return !(w >= (REAL)0 && w < (REAL)0x1p21);
+}
+
 inline void fixed_add(__global ulong *acc, REAL w)
 {
     if (!(w > (REAL)0))

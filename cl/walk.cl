@@ -27,13 +27,17 @@
 /* Lanes in `m` end with fate f (tally.h): they are tallied after this event. */
 #define FINISH(m, f) do { VMASK m_ = (m); done |= m_; fate = SEL(fate, (VMASK)(f), m_); } while (0)
 
-/* The floor's toll on the lanes in mask variable m, on the event's word u (walk.md §3.1, §6):
- * analog, absorbed iff u > A; weighted, the weight times A (A = 0 ends the ray) and the
+/* The floor's toll on the lanes in mask variable m, on the event's word x and its uniform u
+ * (walk.md §3.1, §6): analog, absorbed iff x >= albedo_words (U > A decided exactly on the
+ * word, philox.h word_at_least); weighted, the weight times A (A = 0 ends the ray) and the
  * roulette on u. Afterwards m holds the lanes the floor reflects. */
 #ifndef WARPE_WEIGHTED
-#define FLOOR_TOLL(m, u) do { FINISH((m) & ((u) > A), FATE_ABSORBED_FLOOR); (m) &= !done; } while (0)
+#define FLOOR_TOLL(m, u, x) do {                                                             \
+        FINISH((m) & word_at_least((x), albedo_words), FATE_ABSORBED_FLOOR);                \
+        (m) &= !done;                                                                        \
+    } while (0)
 #else
-#define FLOOR_TOLL(m, u) do {                                                                \
+#define FLOOR_TOLL(m, u, x) do {                                                             \
         if (A == (REAL)0) { FINISH((m), FATE_ABSORBED_FLOOR); (m) = 0; }                   \
         w = SEL(w, w * A, (m));                                                              \
         ROULETTE(m, u, FATE_ABSORBED_FLOOR);                                                 \
@@ -49,10 +53,10 @@
     } while (0)
 #endif
 
-__kernel void walk(const uint seed, const uint scenario,
+__kernel void walk(const uint seed, const ulong scenario,
                    const ulong first_photon, const uint n_photons,
-                   const REAL h, const REAL E, const REAL omega, const REAL g,
-                   const REAL n, const REAL k, const REAL A,
+                   const REAL h, const REAL E, const ulong omega_words, const REAL g,
+                   const REAL n, const REAL k, const REAL A, const ulong albedo_words,
                    const REAL L_max, const uint max_flights, const int bottom_fresnel,
                    const REAL mu_a, const REAL roulette_weight, const REAL roulette_survival,
                    const int rule_time_window, const REAL t1,
@@ -64,12 +68,14 @@ __kernel void walk(const uint seed, const uint scenario,
                    __global uint *time_any,      /* [4][n_edges - 1] */
                    __global uint *angular,       /* [4][90] */
                    __global uint *total,         /* [4] */
+                   __global uint *early,         /* [4] exits before time_edges[0] */
                    __global ulong *item_stats    /* [global size][8] */
 #ifdef WARPE_WEIGHTED
                    , __global ulong *w_time_in_fov  /* [4][n_edges - 1][3] sums of weights */
                    , __global ulong *w_time_any     /* [4][n_edges - 1][3] */
                    , __global ulong *w_angular      /* [4][90][3] */
                    , __global ulong *w_total        /* [4][3] */
+                   , __global ulong *w_early        /* [4][3] */
                    , __global ulong *w2_time_in_fov /* [4][n_edges - 1][3] sums of squares */
                    , __global ulong *w2_total       /* [4][3] */
 #endif
@@ -83,6 +89,8 @@ __kernel void walk(const uint seed, const uint scenario,
                              cos_fov_scattering};
     const int n_time = n_edges - 1;
     const uint base_lo = (uint)first_photon, base_hi = (uint)(first_photon >> 32);
+    /* the 64-bit scenario key: its low word keys Philox, its high word is counter word 3 */
+    const uint key_lo = (uint)scenario, key_hi = (uint)(scenario >> 32);
     const REAL ns_per_m = n / (REAL)WARPE_C_M_PER_NS;   /* seed eq. 4: t = L n_eff / c */
     const REAL two_pi = (REAL)(2.0 * WARPE_PI);
 #ifdef WARPE_TEXTURE_SLAB
@@ -92,7 +100,7 @@ __kernel void walk(const uint seed, const uint scenario,
     const IREAL phase_start = PHASE_FLIGHT;
 #endif
     ulong fates[N_FATES] = {0, 0, 0, 0, 0};
-    ulong scattering_events = 0, mixed = 0;
+    ulong scattering_events = 0, mixed = 0, lost = 0;
 
     /* the lanes' rays (walk.md §3): position, direction, path, counters, stream */
     VREAL z = 0, ux = 0, uy = 0, uz = 1, Ls = 0, Lc = 0, cos_exit = 1;
@@ -156,7 +164,7 @@ __kernel void walk(const uint seed, const uint scenario,
 
         /* ---- one event of every live lane, from block `event` of its stream (walk.md §2) ---- */
         VUINT x0, x1, x2, x3;
-        philox_lanes(CONVERT_VUINT(event), p_lo, p_hi, seed, scenario, &x0, &x1, &x2, &x3);
+        philox_lanes(CONVERT_VUINT(event), p_lo, p_hi, key_hi, seed, key_lo, &x0, &x1, &x2, &x3);
         const VREAL u0 = uniform_lanes(x0), u1 = uniform_lanes(x1);
         const VREAL u2 = uniform_lanes(x2), u3 = uniform_lanes(x3);
         event += (VMASK)1;
@@ -206,9 +214,10 @@ __kernel void walk(const uint seed, const uint scenario,
         VREAL cos_psi, sin_psi;
         SINCOS(two_pi * u3, sin_psi, cos_psi);
 
-        /* collision, §5.4: absorbed iff u1 > omega, else HG deflection (u2) and azimuth (u3) */
+        /* collision, §5.4: absorbed iff U1 > omega, decided exactly on the word: x1 >=
+         * omega_words (walk.md §2); else HG deflection (u2) and azimuth (u3) */
 #ifndef WARPE_WEIGHTED
-        FINISH(coll & (u1 > omega), FATE_ABSORBED_MEDIUM);
+        FINISH(coll & word_at_least(x1, omega_words), FATE_ABSORBED_MEDIUM);
         coll &= !done;
 #else
         ROULETTE(coll, u1, FATE_ABSORBED_MEDIUM);    /* weighted: every collision scatters */
@@ -252,9 +261,9 @@ __kernel void walk(const uint seed, const uint scenario,
             FINISH(top, FATE_ESCAPED);
 #endif
             if (ANY(bottom)) {
-                /* §5.5 Lambertian floor in optical contact: absorbed iff u1 > A, else
+                /* §5.5 Lambertian floor in optical contact: absorbed iff U1 > A, else
                  * mu = sqrt(u2) and the azimuth u3 */
-                FLOOR_TOLL(bottom, u1);
+                FLOOR_TOLL(bottom, u1, x1);
                 n_lamb += ONE(bottom);
                 VREAL vx, vy, vz;
                 lambert_direction(sqrt(u2), cos_psi, sin_psi, &vx, &vy, &vz);
@@ -268,7 +277,7 @@ __kernel void walk(const uint seed, const uint scenario,
         /* GAP, §5.5: one reflection by the floor below the slab's lower face */
         if (ANY(in_gap)) {
             VMASK gap = in_gap;
-            FLOOR_TOLL(gap, u0);                                /* absorbed iff u0 > A */
+            FLOOR_TOLL(gap, u0, x0);                            /* absorbed iff U0 > A */
             n_lamb += ONE(gap);
             VREAL mu_v = sqrt(u1);                                  /* Lambertian, in vacuum */
             VREAL c2, s2;
@@ -338,9 +347,16 @@ __kernel void walk(const uint seed, const uint scenario,
                         atomic_inc(&time_any[component * n_time + tb]);
                         if (in_fov)
                             atomic_inc(&time_in_fov[component * n_time + tb]);
+                    } else if (tb == TIME_BIN_EARLY) {
+                        atomic_inc(&early[component]);   /* walk.md §4: never in a bin */
                     }
 #ifdef WARPE_WEIGHTED
                     const REAL wj = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
+                    /* a weight the exact sums cannot hold (NaN, < 0, or w^2 >= 2^42) is
+                     * counted, and the host refuses the result (walk.md §6) */
+                    lost += weight_lost(wj) ? 1 : 0;
+                    if (tb == TIME_BIN_EARLY)
+                        fixed_add(w_early + 3 * component, wj);
                     fixed_add(w_total + 3 * component, wj);
                     fixed_add(w2_total + 3 * component, wj * wj);
                     fixed_add(w_angular + 3 * (component * N_EMERGENCE + eb), wj);
@@ -378,5 +394,5 @@ __kernel void walk(const uint seed, const uint scenario,
         st[f] = fates[f];
     st[5] = scattering_events;
     st[6] = mixed;
-    st[7] = 0;
+    st[7] = lost;   /* weights dropped by the exact sums (weighted mode) */
 }

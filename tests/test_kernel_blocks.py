@@ -47,7 +47,7 @@ def test_kernel_streams_equal_numpy(engine, selftest, precision):
     out = np.zeros((n_photons, n_draws), dtype=real)
     d_out = cl.Buffer(engine.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     _run(engine, selftest[precision].photon_uniforms, n_photons, np.uint32(12345),
-         np.uint32(678), np.uint64(first), np.int32(n_draws), d_out)
+         np.uint64(678), np.uint64(first), np.int32(n_draws), d_out)
     cl.enqueue_copy(engine.queue, out, d_out)
     for i in range(n_photons):
         words = np.concatenate([

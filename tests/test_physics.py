@@ -46,7 +46,8 @@ def test_specular_fraction_is_r0(engine, n, k):
     c = engine.run(medium(n=n, k=k), N)
     r0 = radiative.normal_reflectance(n, k)
     assert abs(c.fates[0] / N - r0) < 5 * binomial_sigma(r0, N)
-    assert c.total[0] == c.fates[0] and c.time_any[0, 0] == c.fates[0]   # t = 0: first bin
+    # t = 0, before the first edge (1e-6 ns): early exits, in no time bin (walk.md §4)
+    assert c.total[0] == c.fates[0] and c.early[0] == c.fates[0] and c.time_any[0].sum() == 0
 
 
 def test_pure_slab_bf_direct_series_and_peak_times(engine):

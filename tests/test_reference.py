@@ -162,9 +162,11 @@ def test_fates_sum_and_tallies_match_records(name):
     emergence = np.minimum(np.floor(np.degrees(np.arccos(np.minimum(cos_exit, 1.0)))), 89)
     np.testing.assert_array_equal(records["emergence_bin"][exited], emergence)
     time_bin = np.searchsorted(edges, time_ns, side="right") - 1
-    time_bin[time_ns < edges[0]] = 0
+    time_bin[time_ns < edges[0]] = -2      # early: counted apart, in no bin
     time_bin[time_ns >= edges[-1]] = -1
     np.testing.assert_array_equal(records["time_bin"][exited], time_bin)
+    np.testing.assert_array_equal(counts.early, np.bincount(component[time_bin == -2],
+                                                            minlength=4))
 
     total = np.bincount(component, minlength=4)
     angular = np.zeros((4, 90), dtype=np.int64)

@@ -131,7 +131,7 @@ def test_local_sweep_equals_run(reference):
     assert [r["status"] for r in manifest["scenarios"]] == ["done"] * 4
     assert [r["key"] for r in manifest["scenarios"]] == list(run["scenario_key"].values)
     for rec in manifest["scenarios"]:
-        assert rec["file"] == f"s{rec['index']:05d}_{rec['key']:08x}.nc"
+        assert rec["file"] == f"s{rec['index']:05d}_{rec['key']}.nc" and len(rec["key"]) == 16
         assert rec["photons"] == 3000 and rec["wall_time_s"] > 0
     assert manifest["versions"]["warpe_cl"] and manifest["keys"] == ["medium.thickness",
                                                                       "medium.radiative.tau0"]

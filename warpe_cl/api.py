@@ -7,10 +7,10 @@
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 import time
-import zlib
 
 from . import io, tally
 from .config import Config, load_preset, time_edges
@@ -52,14 +52,78 @@ def walk_params(cfg: Config, scenario: int = 0) -> tuple:
     return params, derived
 
 
-def scenario_key(point: dict, cfg: Config) -> int:
-    """A deterministic 32-bit Philox key word for a sweep point (0 for a run without sweep):
-    the CRC-32 of its swept keys and their resolved values, so a point's random numbers do not
-    depend on the grid it belongs to or on the order points are computed in."""
-    if not point:
-        return 0
-    canonical = json.dumps({k: cfg.get(k) for k in sorted(point)}, sort_keys=True, default=str)
-    return zlib.crc32(canonical.encode())
+#: The blocks of a point's configuration that key its random streams (scenario_key).
+KEYED_BLOCKS = ("medium", "materials", "wavelength", "simulation")
+#: Simulation keys left out of the key: the seed is the other key word, and the photon count is
+#: left out so that a longer run extends a shorter one ray for ray (photon p draws the same
+#: numbers whatever the number of photons).
+UNKEYED = ("simulation.seed", "simulation.photons")
+
+
+def keyed_configuration(data: dict) -> dict:
+    """The part of a resolved configuration (``Config.data``) that :func:`scenario_key` hashes:
+    the blocks of :data:`KEYED_BLOCKS`, without the keys of :data:`UNKEYED`."""
+    out = {name: data.get(name) for name in KEYED_BLOCKS}
+    sim = dict(out.get("simulation") or {})
+    for key in UNKEYED:
+        sim.pop(key.split(".", 1)[1], None)
+    out["simulation"] = sim
+    return out
+
+
+def scenario_key(point: dict | None, cfg) -> int:
+    """The 64-bit scenario key of a point's configuration (docs/walk.md §2).
+
+    The first 8 bytes (big-endian) of the SHA-256 of the canonical JSON (sorted keys, floats
+    as ``repr``, no whitespace) of :func:`keyed_configuration`: the full resolved medium,
+    materials, wavelength and simulation blocks (canonical units), seed and photon count left
+    out. So two scenarios that differ in any value of those blocks draw from different streams
+    (a collision among 1e5 points has probability ~3e-10), and a point's key (hence its rays)
+    does not depend on the grid it belongs to, on its index or on the order points are computed
+    in: ``warpe-cl run`` of the point alone gives the same bits.
+
+    Parameters
+    ----------
+    point : dict or None
+        The swept values (unused: the resolved configuration already holds them; kept for the
+        callers' signature).
+    cfg : Config or dict
+        The point's validated configuration, or its ``data`` mapping.
+
+    Returns
+    -------
+    int
+        In [0, 2**64): low word = second Philox key word, high word = fourth counter word.
+    """
+    data = cfg.data if hasattr(cfg, "data") else cfg
+    canonical = json.dumps(keyed_configuration(data), sort_keys=True, separators=(",", ":"),
+                           default=_json_default, allow_nan=True)
+    return int.from_bytes(hashlib.sha256(canonical.encode()).digest()[:8], "big")
+
+
+def _json_default(value):
+    import numpy as np
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
+def format_key(key: int) -> str:
+    """A scenario key as the 16 hexadecimal digits the output files carry."""
+    return f"{int(key):016x}"
+
+
+def parse_key(value) -> int:
+    """A scenario key as read back from a file: the hex string :func:`format_key` writes (or,
+    from older files, an integer)."""
+    import numpy as np
+    if isinstance(value, (bytes, np.bytes_)):
+        value = value.decode()
+    if isinstance(value, str):
+        return int(value, 16)
+    return int(value)
 
 
 def get_engine(device: str | None = None):
@@ -114,7 +178,7 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
         "config": cfg.to_yaml(),
         "source": str(cfg.source),
         "seed": int(params.seed),
-        "scenario_key": int(params.scenario),
+        "scenario_key": format_key(params.scenario),
         "precision": precision,
         "mode": cfg.get("simulation.mode"),
         "texture": params.texture,

@@ -1,7 +1,7 @@
 """The OpenCL engine: launches photon batches of the walk kernel and reduces their tallies.
 
 Each launch walks a contiguous range of photon indices; every ray draws its random numbers
-from Philox keyed by (seed, scenario) with the photon index in the counter, so the counts do
+from Philox keyed by (seed, scenario key) with the photon index in the counter, so the counts do
 not depend on the device, the work-group size, the global size or how photons are split into
 launches. Launches are sized to take about ``target_launch_s`` seconds and at most 2^31
 photons (the per-launch uint32 histograms cannot overflow); the host adds each launch's
@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from . import device as devmod
+from .errors import WeightError
 from .params import Counts, N_EMERGENCE, WalkParams
 
 WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "tally.h", "walk.cl")
@@ -203,6 +204,12 @@ class Engine:
         Returns
         -------
         Counts
+
+        Raises
+        ------
+        WeightError
+            Weighted mode: some exiting ray's weight was NaN, negative or >= 2**21, so the
+            exact sums would have dropped it (docs/walk.md §6).
         """
         import pyopencl as cl
 
@@ -227,7 +234,7 @@ class Engine:
         ctx, queue = self.context, self.queue
         d_edges = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=edges)
         hist_shapes = {"time_in_fov": (4, n_time), "time_any": (4, n_time),
-                       "angular": (4, N_EMERGENCE), "total": (4,)}
+                       "angular": (4, N_EMERGENCE), "total": (4,), "early": (4,)}
         d_hist = {k: cl.Buffer(ctx, mf.READ_WRITE, size=4 * int(np.prod(s)))
                   for k, s in hist_shapes.items()}
         d_stats = cl.Buffer(ctx, mf.READ_WRITE, size=8 * 8 * gsize)
@@ -235,14 +242,16 @@ class Engine:
         # weighted sums: 192-bit fixed point, three uint64 words per cell (cl/tally.h)
         weight_shapes = {"w_time_in_fov": (4, n_time), "w_time_any": (4, n_time),
                          "w_angular": (4, N_EMERGENCE), "w_total": (4,),
-                         "w2_time_in_fov": (4, n_time), "w2_total": (4,)} if weighted else {}
+                         "w2_time_in_fov": (4, n_time), "w2_total": (4,),
+                         "w_early": (4,)} if weighted else {}
         d_weight = {k: cl.Buffer(ctx, mf.READ_WRITE, size=8 * 3 * int(np.prod(s)))
                     for k, s in weight_shapes.items()}
 
         cos_fov = params.cos_fov
         scalar_args = [
-            real(params.thickness), real(params.flight_extinction), real(params.omega),
-            real(params.g), real(params.n), real(params.k), real(params.albedo),
+            real(params.thickness), real(params.flight_extinction),
+            np.uint64(params.omega_words), real(params.g), real(params.n), real(params.k),
+            real(params.albedo), np.uint64(params.albedo_words),
             real(params.path_cap), np.uint32(min(params.max_flights, 2 ** 31 - 1)),
             np.int32(params.bottom_interface == "fresnel"),
             real(params.absorption), real(params.roulette_weight),
@@ -250,6 +259,7 @@ class Engine:
             np.int32(params.rule == "time_window"), real(params.first_bf_time),
         ]
         total = Counts(n_time=n_time, weighted=weighted)
+        lost_weights = 0   # weighted exits whose weight the exact sums cannot hold
         rec_chunks = []
         done = 0
         size = int(batch) if batch else min(gsize * lanes * 4, photons) or 1
@@ -257,11 +267,14 @@ class Engine:
             n = min(size, photons - done, MAX_LAUNCH)
             for buf in (*d_hist.values(), *d_weight.values(), d_next):
                 cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)
-            args = [np.uint32(params.seed), np.uint32(params.scenario),
+            args = [np.uint32(params.seed), np.uint64(params.scenario),
                     np.uint64(first_photon + done), np.uint32(n), *scalar_args,
                     d_edges, np.int32(len(edges)), *(real(c) for c in cos_fov),
-                    d_next, d_hist["time_in_fov"], d_hist["time_any"], d_hist["angular"], d_hist["total"],
-                    d_stats, *d_weight.values()]
+                    d_next, d_hist["time_in_fov"], d_hist["time_any"], d_hist["angular"],
+                    d_hist["total"], d_hist["early"], d_stats,
+                    *(d_weight[k] for k in ("w_time_in_fov", "w_time_any", "w_angular",
+                                            "w_total", "w_early", "w2_time_in_fov",
+                                            "w2_total") if k in d_weight)]
             launch_items = min(gsize, -(-n // lanes))
             if local_size:
                 launch_items = -(-launch_items // local_size) * local_size
@@ -286,6 +299,7 @@ class Engine:
             part.fates[...] = stats[:5]
             part.scattering_events = int(stats[5])
             part.mixed_history = int(stats[6])
+            lost_weights += int(stats[7])
             if records:
                 ri = np.empty((n, 8), dtype=np.int32)
                 rr = np.empty((n, 3), dtype=real)
@@ -301,6 +315,8 @@ class Engine:
             if not batch:
                 rate = n / max(elapsed, 1e-6)
                 size = int(min(max(rate * self.target_launch_s, gsize * lanes), 4 * n, MAX_LAUNCH))
+        if lost_weights:
+            raise WeightError(lost_weights)
         if records:
             total.records = _records_from_chunks(rec_chunks)
         return total

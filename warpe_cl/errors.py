@@ -2,11 +2,12 @@
 
 Every error a user can cause by what they type or write derives from :class:`WarpeError`,
 so the command line can turn it into one readable line and an exit code
-(interface.md §2): :class:`ConfigError` -> 2, :class:`DeviceError` -> 3.
+(interface.md §2): :class:`ConfigError` -> 2, :class:`DeviceError` -> 3, any other
+:class:`WarpeError` (e.g. :class:`WeightError`) -> 1.
 """
 from __future__ import annotations
 
-__all__ = ["WarpeError", "ConfigError", "DeviceError", "WarpeWarning"]
+__all__ = ["WarpeError", "ConfigError", "DeviceError", "WeightError", "WarpeWarning"]
 
 
 class WarpeError(Exception):
@@ -50,6 +51,31 @@ class ConfigError(WarpeError):
 
 class DeviceError(WarpeError):
     """No usable OpenCL device (or the requested one does not exist); exit code 3."""
+
+
+class WeightError(WarpeError):
+    """The weighted walk produced weights its exact tallies cannot hold (NaN, negative, or so
+    large that w^2 >= 2^42: docs/walk.md §6); the result is refused instead of returned with
+    those rays silently missing. Exit code 1.
+
+    Parameters
+    ----------
+    rays : int
+        How many exiting rays had such a weight.
+    """
+
+    def __init__(self, rays: int):
+        self.rays = int(rays)
+        super().__init__(
+            f"{self.rays} exiting ray(s) had a weight the exact tallies cannot hold (NaN, "
+            f"negative, or >= 2^21 so that w^2 >= 2^42); the result is refused. Check the "
+            f"medium (omega in [0, 1]) and the roulette keys (roulette_survival not tiny)")
+
+
+def lost_weight(weight: float) -> bool:
+    """True for a weight the exact sums would drop (the kernel's ``weight_lost``, cl/tally.h):
+    NaN, negative, or >= 2**21."""
+    return not (0.0 <= weight < 2.0 ** 21)
 
 
 class WarpeWarning(UserWarning):

@@ -65,6 +65,10 @@ def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
             "fraction": ("component", arrays["fraction"], {
                 "units": "1", "long_name": "rays of the component leaving at any angle and time, "
                                           "per launched ray"}),
+            "early_fraction": ("component", arrays["early_fraction"], {
+                "units": "1", "long_name": "rays of the component leaving before the first time "
+                                          "edge, per launched ray (in fraction, in no time "
+                                          "bin)"}),
             "solid_angle": ("component", arrays["omega_sr"], {
                 "units": "sr", "long_name": "solid angle that reflectance is divided by"}),
             "fate_fraction": ("fate", arrays["fate_fraction"], {

@@ -24,7 +24,40 @@ MODES = ("analog", "weighted")
 #: Weighted tallies are exact sums of floor(w * 2**FIXED_SHIFT) (docs/walk.md §6).
 FIXED_SHIFT = 150
 WEIGHT_TALLIES = ("w_time_in_fov", "w_time_any", "w_angular", "w_total", "w2_time_in_fov",
-                  "w2_total")
+                  "w2_total", "w_early")
+#: The analog tallies of :class:`Counts`, in the order the kernel fills them.
+COUNT_TALLIES = ("time_in_fov", "time_any", "angular", "total", "early", "fates")
+#: A weighted ray whose weight reaches this (or is NaN) cannot be tallied exactly: its square
+#: would pass 2**42, the top of the 192-bit sums (docs/walk.md §6).
+MAX_WEIGHT = 2.0 ** 21
+
+
+def word_threshold(probability: float) -> int:
+    """T = floor(P 2**32 + 1/2), exactly: the words x with x < T are the x whose uniform
+    U = (x + 1/2) 2**-32 satisfies U <= P (docs/walk.md §2).
+
+    The walk decides an event "U > P" (absorption in the medium, P = omega; absorption by the
+    floor, P = A) as ``x >= T`` on the raw 32-bit Philox word, in every precision, so that
+    its probability (2**32 - T) 2**-32 is within 2**-33 of 1 - P.
+
+    Parameters
+    ----------
+    probability : float
+        P (dimensionless); values outside [0, 1] are clipped.
+
+    Returns
+    -------
+    int
+        T in [0, 2**32]: 0 for P = 0 (the event always happens), 2**32 for P = 1 (never).
+    """
+    from fractions import Fraction
+    import math
+    p = float(probability)
+    if not p > 0.0:          # 0, negative or NaN: the event always happens
+        return 0
+    if p >= 1.0:
+        return 2 ** 32
+    return math.floor(Fraction(p) * 2 ** 32 + Fraction(1, 2))
 
 
 @dataclass(frozen=True)
@@ -59,8 +92,11 @@ class WalkParams:
         90 or more means any angle.
     rule : {"history", "time_window"}
         How diffuse exits are split between ``bf_diffuse`` and ``scattering``.
-    seed, scenario : int
-        Philox key words (uint32 each).
+    seed : int
+        Philox key word (uint32).
+    scenario : int
+        The scenario's 64-bit key (:func:`warpe_cl.api.scenario_key`): its low word is the
+        second Philox key word, its high word the fourth counter word (docs/walk.md §2).
     mode : {"analog", "weighted"}
         Analog walk, or survival weighting with Russian roulette (docs/walk.md §6).
     roulette_weight, roulette_survival : float
@@ -91,6 +127,18 @@ class WalkParams:
     @property
     def weighted(self) -> bool:
         return self.mode == "weighted"
+
+    @property
+    def omega_words(self) -> int:
+        """Word threshold of the analog absorption in the medium: absorbed iff x1 >= it
+        (:func:`word_threshold` of omega; docs/walk.md §3)."""
+        return word_threshold(self.omega)
+
+    @property
+    def albedo_words(self) -> int:
+        """Word threshold of the analog absorption by the floor: absorbed iff x >= it
+        (:func:`word_threshold` of A; docs/walk.md §3.1)."""
+        return word_threshold(self.albedo)
 
     @property
     def flight_extinction(self) -> float:
@@ -160,6 +208,9 @@ class Counts:
         Exits per component and 1-degree emergence bin, any time.
     total : numpy.ndarray, shape (4,)
         Exits per component, any angle, any time.
+    early : numpy.ndarray, shape (4,)
+        Exits per component before the first time edge (t < time_edges[0]): counted in
+        ``total`` and ``angular``, never in a time bin (docs/walk.md §4).
     fates : numpy.ndarray, shape (5,)
         Rays per fate, in the order of :data:`FATES`; sums to ``photons``.
     scattering_events : int
@@ -173,7 +224,8 @@ class Counts:
     weighted : bool
         Weighted walk (docs/walk.md §6): the ``w_*`` and ``w2_*`` tallies hold exact sums of
         floor(w 2^150) and floor(w^2 2^150) (Python ints, object arrays) over the same cells as
-        ``time_in_fov``, ``time_any``, ``angular`` and ``total``; use :func:`fixed_to_float`.
+        ``time_in_fov``, ``time_any``, ``angular``, ``total`` and ``early``; use
+        :func:`fixed_to_float`.
     """
 
     n_time: int
@@ -182,6 +234,7 @@ class Counts:
     time_any: np.ndarray = None
     angular: np.ndarray = None
     total: np.ndarray = None
+    early: np.ndarray = None
     fates: np.ndarray = None
     scattering_events: int = 0
     mixed_history: int = 0
@@ -193,12 +246,13 @@ class Counts:
     w_total: np.ndarray = field(default=None, repr=False)
     w2_time_in_fov: np.ndarray = field(default=None, repr=False)
     w2_total: np.ndarray = field(default=None, repr=False)
+    w_early: np.ndarray = field(default=None, repr=False)
 
     def __post_init__(self):
         if self.weighted:
             shapes = {"w_time_in_fov": (4, self.n_time), "w_time_any": (4, self.n_time),
                       "w_angular": (4, N_EMERGENCE), "w_total": (4,),
-                      "w2_time_in_fov": (4, self.n_time), "w2_total": (4,)}
+                      "w2_time_in_fov": (4, self.n_time), "w2_total": (4,), "w_early": (4,)}
             for name, shape in shapes.items():
                 if getattr(self, name) is None:
                     setattr(self, name, _exact_zeros(*shape))
@@ -210,13 +264,15 @@ class Counts:
             self.angular = _zeros(4, N_EMERGENCE)
         if self.total is None:
             self.total = _zeros(4)
+        if self.early is None:
+            self.early = _zeros(4)
         if self.fates is None:
             self.fates = _zeros(len(FATES))
 
     def __iadd__(self, other: "Counts") -> "Counts":
         """Add another batch's counts (records are concatenated)."""
         self.photons += other.photons
-        for name in ("time_in_fov", "time_any", "angular", "total", "fates"):
+        for name in COUNT_TALLIES:
             getattr(self, name)[...] += getattr(other, name)
         self.scattering_events += other.scattering_events
         self.mixed_history += other.mixed_history
@@ -237,7 +293,7 @@ class Counts:
         """True when every tally (not the records) is identical."""
         return (self.photons == other.photons
                 and all(np.array_equal(getattr(self, n), getattr(other, n))
-                        for n in ("time_in_fov", "time_any", "angular", "total", "fates"))
+                        for n in COUNT_TALLIES)
                 and self.scattering_events == other.scattering_events
                 and self.mixed_history == other.mixed_history
                 and self.weighted == other.weighted

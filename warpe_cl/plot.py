@@ -2,7 +2,9 @@
 
 ``plot_waveform``: log–log reflectance (ns⁻¹ sr⁻¹) against time (ns), one colour per sweep value;
 scattering as solid lines, BF diffuse dashed, specular (drawn at 1e-6 ns) and BF-direct peaks
-as markers; under each curve a shaded domain where a bin would hold fewer than ``min_rays``
+as markers (the specular leaves at t = 0, before log bins start: its marker is its fraction as if
+spread over the first bin, the seed's convention; no other component's early exits are drawn:
+they are in no bin, ``early_fraction``); under each curve a shaded domain where a bin would hold fewer than ``min_rays``
 rays (the Monte Carlo limit the seed shades), and the first back-and-forth time 2 h n_eff / c
 as a dashed vertical line.
 
@@ -63,6 +65,11 @@ def plot_waveform(ds, path, title: str | None = None):
                 lows.append(np.nanmin(np.where(r > 0, r, np.nan)))
         for comp, marker in (("specular", "o"), ("bf_direct", "^")):
             r = sc["reflectance"].sel(component=comp).values
+            if comp == "specular" and "early_fraction" in sc.variables:
+                spec = float(sc["early_fraction"].sel(component=comp))
+                omega = float(sc["solid_angle"].sel(component=comp))
+                r = r.copy()
+                r[0] += spec / (omega * width[0])   # t = 0 < edges[0]: drawn at the first bin
             hit = r > 0
             if hit.any():
                 tt = np.maximum(t[hit], SPECULAR_TIME_NS) if comp == "specular" else t[hit]

@@ -43,6 +43,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .errors import WeightError, lost_weight
 from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, N_EMERGENCE, RULES,
                      TEXTURES, Counts, WalkParams, fixed_point)
 from .rng import PhotonStream
@@ -69,11 +70,14 @@ RECORD_FIELDS = {
     "n_lamb": np.int64,         # floor (Lambertian) reflections
     "n_bspec": np.int64,        # specular reflections at the bottom interface
     "n_top": np.int64,          # internal reflections at the top
-    "time_bin": np.int64,       # -1 if no time bin or not exited
+    "time_bin": np.int64,       # -1 if t >= edges[-1] or not exited, -2 if t < edges[0]
     "emergence_bin": np.int64,  # 1-degree bin, -1 if not exited
 }
 
 TWO_PI = 2.0 * math.pi
+TWO_POW_32 = 4294967296.0
+#: time_bin of an exit after the last edge (or of a ray that did not exit), and before the first
+TIME_BIN_LATE, TIME_BIN_EARLY = -1, -2
 
 
 # --------------------------------------------------------------------------------------------
@@ -167,12 +171,16 @@ def henyey_greenstein_cosine(g: float, u: float) -> float:
     Returns
     -------
     float
-        cos Θ = [1 + g² − ((1 − g²)/(1 − g + 2gu))²]/(2g), or 2u − 1 when g = 0.
+        cos Θ = s + g (1 − s²)(3 + 2gs − g²) / (2 (1 + gs)²), with s = 2u − 1,
+        1 − s² = 4u(1 − u) and 1 + gs = (1 − g) + 2gu (docs/walk.md §3): the classic
+        [1 + g² − ((1 − g²)/(1 − g + 2gu))²]/(2g) rewritten without its cancellation at small
+        |g| (it is s at g = 0), clamped to [−1, 1].
     """
-    if g == 0.0:
-        return 2.0 * u - 1.0
-    ratio = (1.0 - g * g) / (1.0 - g + 2.0 * g * u)
-    return (1.0 + g * g - ratio * ratio) / (2.0 * g)
+    s = 2.0 * u - 1.0
+    q = 4.0 * u * (1.0 - u)
+    d = (1.0 - g) + 2.0 * g * u
+    c = s + g * q * ((3.0 - g * g) + 2.0 * g * s) / (2.0 * d * d)
+    return min(1.0, max(-1.0, c))
 
 
 def rotate_direction(ux: float, uy: float, uz: float, cos_theta: float, psi: float):
@@ -217,10 +225,12 @@ class _WalkConstants:
     thickness: float      # h, m
     extinction: float     # E, 1/m (0: infinite free flight)
     omega: float          # single-scattering albedo
+    omega_words: int      # absorbed iff the collision's word x1 >= omega_words (walk.md §2)
     g: float              # Henyey–Greenstein asymmetry
     n: float              # effective index (real part)
     k: float              # effective index (imaginary part)
     albedo: float         # Lambertian albedo A of the floor
+    albedo_words: int     # analog floor absorbs iff its word x >= albedo_words
     path_cap: float       # L_max, m
     max_flights: int      # safety cap on free flights
     entry_reflectance: float  # R0, walk.md §3.2
@@ -236,8 +246,10 @@ class _WalkConstants:
                    fresnel_bottom=is_slab and params.bottom_interface == "fresnel",
                    thickness=float(params.thickness),
                    extinction=float(params.flight_extinction),
-                   omega=float(params.omega), g=float(params.g), n=float(params.n),
+                   omega=float(params.omega), omega_words=params.omega_words,
+                   g=float(params.g), n=float(params.n),
                    k=float(params.k), albedo=float(params.albedo),
+                   albedo_words=params.albedo_words,
                    path_cap=float(params.path_cap), max_flights=int(params.max_flights),
                    entry_reflectance=normal_incidence_reflectance(float(params.n),
                                                                   float(params.k)),
@@ -291,7 +303,8 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
     """
     h = walk.thickness
     extinction = walk.extinction
-    omega = walk.omega
+    omega_words = walk.omega_words
+    albedo_words = walk.albedo_words
     g = walk.g
     n = walk.n
     k = walk.k
@@ -324,11 +337,12 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
         return True
 
     def floor_reflects(u):
-        """The floor's toll (walk.md §3.1, §6): analog, reflected iff u <= A; weighted, the
+        """The floor's toll (walk.md §3.1, §6): analog, reflected iff the event's word is
+        below albedo_words (U <= A, decided exactly on the word, walk.md §2); weighted, the
         weight times A (A = 0 ends the ray), then the roulette on u."""
         nonlocal weight
         if not weighted:
-            return u <= albedo
+            return int(u * TWO_POW_32) < albedo_words
         if albedo == 0.0:
             return False
         weight *= albedo
@@ -375,7 +389,9 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
                 weight *= math.exp(-mu_a * step)
                 if not survives_roulette(u1):
                     return ended(FATE_ABSORBED_MEDIUM)
-            elif u1 > omega:
+            elif int(u1 * TWO_POW_32) >= omega_words:
+                # U1 > omega decided on the word x1 (walk.md §2): the double uniform is
+                # (x1 + 1/2) 2^-32 exactly, so int(u1 2^32) is x1 itself.
                 return ended(FATE_ABSORBED_MEDIUM)
             n_scat += 1
             cos_theta = henyey_greenstein_cosine(g, u2)
@@ -496,6 +512,11 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     -------
     Counts
         All tallies of walk.md §4; ``n_time = len(time_edges) − 1``.
+
+    Raises
+    ------
+    WeightError
+        Weighted mode: some exiting ray's weight was NaN, negative or >= 2**21 (walk.md §6).
     """
     edges_array = _check_params(params)
     edges = edges_array.tolist()
@@ -513,6 +534,8 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     angular = [[0] * N_EMERGENCE for _ in COMPONENTS]
     time_any = [[0] * n_time for _ in COMPONENTS]
     time_in_fov = [[0] * n_time for _ in COMPONENTS]
+    early = [0] * len(COMPONENTS)
+    lost = 0  # weighted exits whose weight the exact sums cannot hold
     scattering_events = 0
     mixed_history = 0
     rows = {name: [] for name in RECORD_FIELDS} if records else None
@@ -548,13 +571,14 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                 # Emergence bin: min(floor(θ_e in degrees), 89).
                 theta_degrees = math.degrees(math.acos(min(ray.cos_exit, 1.0)))
                 emergence_bin = min(int(math.floor(theta_degrees)), N_EMERGENCE - 1)
-                # Time bin i with edges[i] <= t < edges[i+1]; before edges[0]: bin 0;
-                # at or after edges[-1]: no bin (same as searchsorted(side="right") - 1).
+                # Time bin i with edges[i] <= t < edges[i+1] (searchsorted(side="right") - 1);
+                # before edges[0]: an early exit, counted apart and never in a bin; at or
+                # after edges[-1]: no bin (walk.md §4).
                 time_bin = bisect.bisect_right(edges, time_ns) - 1
                 if time_bin < 0:
-                    time_bin = 0
+                    time_bin = TIME_BIN_EARLY
                 elif time_bin >= n_time:
-                    time_bin = -1
+                    time_bin = TIME_BIN_LATE
                 in_fov = ray.cos_exit >= cos_fov[component]
                 total[component] += 1
                 angular[component][emergence_bin] += 1
@@ -562,12 +586,18 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                     time_any[component][time_bin] += 1
                     if in_fov:
                         time_in_fov[component][time_bin] += 1
-                if weighted:
+                elif time_bin == TIME_BIN_EARLY:
+                    early[component] += 1
+                if weighted and lost_weight(ray.weight):
+                    lost += 1          # the exact sums cannot hold it: refused below
+                elif weighted:
                     # walk.md §6: exact fixed-point sums of w and w^2
                     w1, w2 = fixed_point(ray.weight), fixed_point(ray.weight * ray.weight)
                     counts.w_total[component] += w1
                     counts.w2_total[component] += w2
                     counts.w_angular[component, emergence_bin] += w1
+                    if time_bin == TIME_BIN_EARLY:
+                        counts.w_early[component] += w1
                     if time_bin >= 0:
                         counts.w_time_any[component, time_bin] += w1
                         if in_fov:
@@ -589,8 +619,11 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
         if progress is not None:
             progress(done)
 
+    if lost:
+        raise WeightError(lost)
     counts.fates[:] = fates
     counts.total[:] = total
+    counts.early[:] = early
     counts.angular[:] = angular
     counts.time_any[:] = time_any
     counts.time_in_fov[:] = time_in_fov

@@ -7,8 +7,11 @@ published Random123 known-answer vectors (``tests/test_rng.py``).
 
 How the walk uses it (docs/walk.md §2):
 
-* key = (seed, scenario), two uint32 words;
-* counter = (block, photon_lo, photon_hi, 0) for photon p = photon_hi * 2**32 + photon_lo;
+* the scenario key is 64 bits (:func:`warpe_cl.api.scenario_key`): key_lo = scenario mod 2**32,
+  key_hi = scenario >> 32;
+* key = (seed, key_lo), two uint32 words;
+* counter = (block, photon_lo, photon_hi, key_hi) for photon p = photon_hi * 2**32 + photon_lo
+  (key_hi = 0 for scenario keys below 2**32, the layout before 64-bit keys);
 * draw j of photon p is word ``j % 4`` of block ``j // 4``; the walk takes one block per
   event (:meth:`PhotonStream.block`), so its k-th event uses block k;
 * a word x becomes the uniform U = (x + 0.5) * 2**-32, in (0, 1) in double precision; the
@@ -129,8 +132,8 @@ def uniform_from_uint32(x, precision: str = "double") -> np.ndarray:
     raise ValueError(f"precision must be one of {_PRECISIONS}, got {precision!r}")
 
 
-def _photon_counters(photon: int, blocks: np.ndarray) -> np.ndarray:
-    """Counters (block, photon_lo, photon_hi, 0) for one photon, shape (len(blocks), 4)."""
+def _photon_counters(photon: int, blocks: np.ndarray, key_hi: int = 0) -> np.ndarray:
+    """Counters (block, photon_lo, photon_hi, key_hi) for one photon, shape (len(blocks), 4)."""
     photon = int(photon)
     if not 0 <= photon < 2 ** 64:
         raise ValueError(f"photon index must be in 0 .. 2**64 - 1, got {photon}")
@@ -138,14 +141,21 @@ def _photon_counters(photon: int, blocks: np.ndarray) -> np.ndarray:
     counters[:, 0] = blocks
     counters[:, 1] = photon & 0xFFFFFFFF
     counters[:, 2] = photon >> 32
+    counters[:, 3] = key_hi
     return counters
 
 
 def _walk_key(seed: int, scenario: int) -> np.ndarray:
-    for name, value in (("seed", seed), ("scenario", scenario)):
-        if not 0 <= int(value) < 2 ** 32:
-            raise ValueError(f"{name} must be a uint32 (0 .. 2**32 - 1), got {value}")
-    return np.array([int(seed), int(scenario)], dtype=np.uint64)
+    """Philox key (seed, key_lo) of the walk; key_hi (:func:`_key_hi`) goes in the counter."""
+    if not 0 <= int(seed) < 2 ** 32:
+        raise ValueError(f"seed must be a uint32 (0 .. 2**32 - 1), got {seed}")
+    if not 0 <= int(scenario) < 2 ** 64:
+        raise ValueError(f"scenario must be a uint64 (0 .. 2**64 - 1), got {scenario}")
+    return np.array([int(seed), int(scenario) & 0xFFFFFFFF], dtype=np.uint64)
+
+
+def _key_hi(scenario: int) -> int:
+    return int(scenario) >> 32
 
 
 def photon_draws(seed: int, scenario: int, photon: int, n_draws: int,
@@ -154,8 +164,10 @@ def photon_draws(seed: int, scenario: int, photon: int, n_draws: int,
 
     Parameters
     ----------
-    seed, scenario : int
-        Key words (uint32 each).
+    seed : int
+        Key word (uint32).
+    scenario : int
+        Scenario key (uint64): low word in the key, high word in counter word 3.
     photon : int
         Photon index p (0 .. 2**64 - 1).
     n_draws : int
@@ -169,8 +181,9 @@ def photon_draws(seed: int, scenario: int, photon: int, n_draws: int,
         Draw j is word ``j % 4`` of block ``j // 4``.
     """
     n_blocks = -(-int(n_draws) // 4)
-    counters = _photon_counters(photon, np.arange(n_blocks, dtype=np.uint64))
-    words = philox4x32(counters, _walk_key(seed, scenario)).reshape(-1)[:n_draws]
+    key = _walk_key(seed, scenario)
+    counters = _photon_counters(photon, np.arange(n_blocks, dtype=np.uint64), _key_hi(scenario))
+    words = philox4x32(counters, key).reshape(-1)[:n_draws]
     return uniform_from_uint32(words, precision)
 
 
@@ -183,8 +196,10 @@ class PhotonStream:
 
     Parameters
     ----------
-    seed, scenario : int
-        Key words (uint32 each).
+    seed : int
+        Key word (uint32).
+    scenario : int
+        Scenario key (uint64).
     photon : int
         Photon index p.
     precision : {"double", "single"}
@@ -238,6 +253,7 @@ class PhotonStream:
         counters[:, :, 0] = np.arange(n_blocks, dtype=np.uint64)[None, :]
         counters[:, :, 1] = (photon_index & _MASK32)[:, None]
         counters[:, :, 2] = (photon_index >> _SHIFT32)[:, None]
+        counters[:, :, 3] = _key_hi(first.scenario)
         words = philox4x32(counters, first._key).reshape(photons, 4 * n_blocks)
         uniforms = uniform_from_uint32(words, precision).tolist()
         for stream, draws in zip(streams, uniforms):
@@ -251,7 +267,8 @@ class PhotonStream:
         if first_block + n_blocks > 2 ** 32:
             raise OverflowError("photon stream exhausted its 2**32 blocks")
         counters = _photon_counters(
-            self.photon, np.arange(first_block, first_block + n_blocks, dtype=np.uint64))
+            self.photon, np.arange(first_block, first_block + n_blocks, dtype=np.uint64),
+            _key_hi(self.scenario))
         words = philox4x32(counters, self._key).reshape(-1)
         self._draws.extend(uniform_from_uint32(words, self.precision).tolist())
 

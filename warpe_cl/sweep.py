@@ -3,9 +3,9 @@
 ``warpe-cl sweep PRESET.yaml --out DIR`` (interface.md §2) runs every point of the preset's
 ``sweep:`` block (the outer product, :func:`warpe_cl.config.load_grid`) and writes
 
-``DIR/s00003_1a2b3c4d.nc``
-    One NetCDF file per scenario: the grid index and the Philox scenario key
-    (:func:`warpe_cl.api.scenario_key`, in hex). Written atomically (a hidden temporary file
+``DIR/s00003_1a2b3c4d5e6f7081.nc``
+    One NetCDF file per scenario: the grid index and the 64-bit Philox scenario key
+    (:func:`warpe_cl.api.scenario_key`, 16 hex digits). Written atomically (a hidden temporary file
     renamed into place), so a file of that name is always a complete result.
 ``DIR/manifest.json`` (``DIR/manifest-shard-I-of-N.json`` for ``--shard I/N``)
     The preset, the swept keys, every point with its key, file, configuration hash and status
@@ -13,9 +13,10 @@
     wall time, device, versions; rewritten atomically as results come in. One manifest per
     shard, so that shards sharing a folder never write the same file.
 
-A scenario's random numbers are keyed by (seed, scenario key), and its key depends only on its
-own swept values: the same point gives the same bits whichever process, shard, worker or order
-computes it, and the same bits as ``warpe-cl run`` gives for that point.
+A scenario's random numbers are keyed by (seed, scenario key), and its key is a hash of its own
+resolved configuration (seed and photons apart): the same point gives the same bits whichever
+grid, process, shard, worker or order computes it, and the same bits as ``warpe-cl run`` gives
+for that point alone.
 
 Engines (:func:`run_sweep`): the points run in this process when there is one device
 (the usual case: no start-up cost, one device is kept busy by one scenario at a time); in one
@@ -223,7 +224,7 @@ class Scenario:
     index: int
     point: dict
     cfg: object                     # Config, or the ConfigError that rejects the point
-    key: int | None = None
+    key: str | None = None          # the 64-bit scenario key, 16 hex digits
     file: str | None = None
     config_sha256: str | None = None
 
@@ -235,14 +236,14 @@ class Scenario:
 def plan(grid) -> tuple:
     """Scenarios of a :class:`~warpe_cl.config.Grid` with keys, file names, and the grid's
     fingerprint (a hash of every point's resolved configuration)."""
-    from .api import scenario_key
+    from .api import format_key, scenario_key
     width = max(5, len(str(len(grid.points) - 1)))
     scenarios = []
     for index, (point, cfg) in enumerate(grid.points):
         sc = Scenario(index, point, cfg)
         if sc.valid:
-            sc.key = scenario_key(point, cfg)
-            sc.file = f"s{index:0{width}d}_{sc.key:08x}.nc"
+            sc.key = format_key(scenario_key(point, cfg))
+            sc.file = f"s{index:0{width}d}_{sc.key}.nc"
             sc.config_sha256 = _sha256(cfg.data)
         scenarios.append(sc)
     fingerprint = _sha256([[s.index, s.point, s.config_sha256] for s in scenarios])

@@ -55,8 +55,11 @@ def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "con
     dict
         ``reflectance`` and ``reflectance_stderr`` (4, n_time) ns⁻¹ sr⁻¹; ``ray_count`` (4, n_time);
         ``undersampled`` (4, n_time) bool; ``hemispherical_reflectance`` (4, n_time) ns⁻¹;
-        ``fraction`` (4,); ``fate_fraction`` (5,); ``angular_reflectance`` (4, 90) sr⁻¹;
-        ``omega_sr`` (4,), the solid angle each component is divided by.
+        ``fraction`` (4,); ``early_fraction`` (4,), the rays (weighted: the weight) of each
+        component leaving before the first time edge, per launched ray (in ``fraction`` and
+        ``angular_reflectance``, never in a time bin); ``fate_fraction`` (5,);
+        ``angular_reflectance`` (4, 90) sr⁻¹; ``omega_sr`` (4,), the solid angle each
+        component is divided by.
     """
     n = counts.photons
     if n <= 0:
@@ -87,11 +90,12 @@ def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "con
         # cells, which the kernel also counts in time_in_fov (their FOV is 90 deg)
         variance = np.maximum(w2_in / n - (w_bins / n) ** 2, 0.0) / n
         sums = {"bins": w_bins, "any": w_any, "total": fixed_to_float(counts.w_total),
-                "angular": fixed_to_float(counts.w_angular)}
+                "angular": fixed_to_float(counts.w_angular),
+                "early": fixed_to_float(counts.w_early)}
         stderr = np.sqrt(variance) * n * scale
     else:
         sums = {"bins": ray_count, "any": counts.time_any, "total": counts.total,
-                "angular": counts.angular}
+                "angular": counts.angular, "early": counts.early}
         stderr = np.sqrt(ray_count) * scale   # Poisson error of each bin's count
     return {
         "reflectance": sums["bins"] * scale,
@@ -100,6 +104,7 @@ def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "con
         "undersampled": undersampled,
         "hemispherical_reflectance": sums["any"] / (n * width[None, :]),
         "fraction": sums["total"] / n,
+        "early_fraction": sums["early"] / n,
         "fate_fraction": counts.fates / n,
         "angular_reflectance": sums["angular"] / (n * band[None, :]),
         "omega_sr": omega_sr,

@@ -58,6 +58,7 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
         instrument parameters as ``instrument_*`` attributes and provenance.
     """
     from .. import io
+    from ..api import parse_key
     from . import chain, output, surface
 
     params = instrument if isinstance(instrument, InstrumentParams) else \
@@ -71,9 +72,10 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
     results = []
     for i in indices:
         if sweep:
-            key = int(ds["scenario_key"].values[i]) if "scenario_key" in ds.variables else i
+            key = parse_key(ds["scenario_key"].values[i]) if "scenario_key" in ds.variables \
+                else i
         else:
-            key = int(ds.attrs.get("scenario_key", 0))
+            key = parse_key(ds.attrs.get("scenario_key", 0))
         results.append(chain.run_scenario(surface.response(ds, i), params, shots, int(seed), key))
     prov = {f"instrument_{k}": v for k, v in io.provenance().items()
             if k in ("warpe_cl_version", "created_utc", "command", "numpy_version", "host")}

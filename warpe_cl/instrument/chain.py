@@ -3,7 +3,7 @@ Dataset (interface.md §5: ``sample_time``, ``signal_mv``, ``expected_mv``).
 
 Time zero is WARPE's: the arrival of light reflected at the mean surface at the footprint
 centre. Each shot draws its noise from its own generator, ``Generator(Philox(key))`` with the
-128-bit key (seed, scenario key, shot), so the same seed gives the same shots whatever the
+128-bit key (seed, 64-bit scenario key) and the shot in the top word of its 256-bit counter, so the same seed gives the same shots whatever the
 number of shots or the order they are computed in.
 """
 from __future__ import annotations
@@ -23,9 +23,12 @@ PARTS = ("diffuse", "specular", "bf_direct")
 
 
 def shot_rng(seed: int, scenario_key: int, shot: int) -> np.random.Generator:
-    """The generator of one shot: Philox keyed by (seed, scenario key, shot)."""
-    key = (int(seed) % 2**64) << 64 | (int(scenario_key) % 2**32) << 32 | (int(shot) % 2**32)
-    return np.random.Generator(np.random.Philox(key=key))
+    """The generator of one shot: Philox4x64 with the 128-bit key (seed << 64) | scenario key
+    (both uint64) and the shot in the top word of the 256-bit counter, which the generator
+    advances from its bottom word: shots never share numbers (each would need 2**192 draws)."""
+    key = (int(seed) % 2**64) << 64 | (int(scenario_key) % 2**64)
+    counter = np.array([0, 0, 0, int(shot) % 2**64], dtype=np.uint64)
+    return np.random.Generator(np.random.Philox(key=key, counter=counter))
 
 
 def check_wavelength(surface: SurfaceResponse, params) -> None:

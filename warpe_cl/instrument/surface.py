@@ -89,9 +89,15 @@ def response(ds, scenario: int | None = None) -> SurfaceResponse:
     t1 = float(sc["first_bf_time_ns"]) if "first_bf_time_ns" in sc.variables else \
         float(sc.attrs.get("first_bf_time_ns", ds.attrs.get("first_bf_time_ns", math.nan)))
     returns = []
-    spec = np.asarray(sc["ray_count"].sel(component="specular").values, float)
-    if spec.sum() > 0:
-        returns.append(("specular", 0.0, spec.sum() / photons))
+    # the specular return leaves at t = 0, before the first edge of log bins (an early exit,
+    # in no time bin): its fraction is the component's whole fraction when the file has it
+    if "fraction" in sc.variables:
+        spec_fraction = float(sc["fraction"].sel(component="specular"))
+    else:
+        spec_fraction = float(np.asarray(sc["ray_count"].sel(component="specular").values,
+                                         float).sum()) / photons
+    if spec_fraction > 0:
+        returns.append(("specular", 0.0, spec_fraction))
     bf = np.asarray(sc["ray_count"].sel(component="bf_direct").values, float)
     merged: dict[float, float] = {}
     for j in np.nonzero(bf)[0]:
