@@ -13,7 +13,8 @@ reference (warpe_cl/reference.py), with the tolerances of tests/test_parity.py:
 * single precision: >= 99.5 % of the rays have identical histories, and their times agree to
   1e-4 t + 1e-7 ns (weights to 1e-4 relative);
 * and the production kernel (built without per-ray records) gives the reference's histograms:
-  identical in double, within 2 x 0.5 % of the rays (L1 over fates, components, time bins) in
+  identical in double, within 2 x 0.5 % of the rays (L1 over fates, components, early exits,
+  time bins) in
   single.
 
 The check runs in a child process (a driver that aborts or crashes kills the child, not
@@ -125,7 +126,7 @@ def _scenes(combo: Combo) -> dict:
 
 EXACT_FIELDS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
                 "emergence_bin")
-HIST_FIELDS = ("fates", "total", "time_any", "time_in_fov", "angular")
+HIST_FIELDS = ("fates", "total", "early", "time_any", "time_in_fov", "angular")
 
 
 def compare_records(ker, ref, precision: str, weighted: bool) -> str | None:
