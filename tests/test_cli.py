@@ -109,7 +109,7 @@ def test_run_writes_the_dataset_of_the_interface(tmp_path, capsys):
     assert int(ds.ray_count.sel(component="specular").sum()) == 0
     assert float(ds.early_fraction.sel(component="specular")) == float(
         ds.fraction.sel(component="specular")) > 0
-    assert not list(tmp_path.glob(".*.tmp"))   # atomic write left nothing behind
+    assert not list(tmp_path.glob(".*.tmp*"))  # atomic write left nothing behind
 
 
 def test_numpy_device_runs_without_opencl(tmp_path, capsys):
@@ -168,3 +168,88 @@ def test_sweep_file_keeps_units_and_the_whole_preset(tmp_path, capsys):
     assert ds["time_edges"].dims == ("time_edge",)
     assert "sweep:" in ds.attrs["config"] and ds["scenario_key"].sizes["scenario"] == 3
     assert ds["wall_time"].dims == ("scenario",)
+
+
+# --------------------------------------------------------------------------- limits, Ctrl-C
+
+@pytest.mark.parametrize("verb", ["run", "sweep"])
+@pytest.mark.parametrize("how", [["--photons", "1e30"], ["--photons", "nan"],
+                                 ["--photons", "1.5"], ["--photons", "-3"],
+                                 ["--set", "simulation.photons=9007199254740993"]])
+def test_absurd_photon_counts_exit_2_with_one_line(tmp_path, capsys, verb, how):
+    """`--photons 1e30` used to start a run that never ends."""
+    out = tmp_path / ("x.nc" if verb == "run" else "db")
+    rc = main([verb, str(PRESET), "--out", str(out), "--device", "numpy", *how])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert str(PRESET) in err and "simulation.photons" in err and "rays" in err, err
+    assert "2^53" in err, err
+    assert not list(tmp_path.iterdir())
+
+
+def test_error_while_writing_the_plot_leaves_no_file(tmp_path, capsys, monkeypatch):
+    """`run --out X.nc --plot X.png` writes both or neither: Ctrl-C (or an error) while the
+    figure is drawn used to leave X.nc without its figure, or a half-written PNG."""
+    import warpe_cl.plot
+
+    def interrupted(ds, path, title=None):
+        with open(path, "wb") as stream:
+            stream.write(b"\x89PNG half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(warpe_cl.plot, "plot_waveform", interrupted)
+    folder = tmp_path / "out"
+    folder.mkdir()
+    (folder / "x.png").write_bytes(b"an older figure")
+    rc = main(["run", str(PRESET), "--out", str(folder / "x.nc"), "--plot",
+               str(folder / "x.png"), "--photons", "200", "--device", "numpy", "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 130 and err == "warpe-cl: interrupted", err
+    assert sorted(p.name for p in folder.iterdir()) == ["x.png"]      # no X.nc, no temp file
+    assert (folder / "x.png").read_bytes() == b"an older figure"       # left as it was
+
+
+def test_ctrl_c_during_the_walk_exits_130_and_writes_nothing(tmp_path):
+    """A real `warpe-cl run` walking 1e12 rays (hours) gets SIGINT once it has printed the
+    derived parameters, the last lines before the walk: exit 130, one line, no file."""
+    import os
+    import queue
+    import signal
+    import threading
+    import time
+
+    folder = tmp_path / "out"
+    folder.mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # a real pipe
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "warpe_cl", "run", str(PRESET), "--photons", "1e12",
+         "--out", str(folder / "x.nc"), "--plot", str(folder / "x.png")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env)
+    lines = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True).start()
+    try:
+        seen = []
+        deadline = time.monotonic() + 30     # the lines must come as printed (flushed)
+        while not any("specular R0" in x for x in seen) and time.monotonic() < deadline:
+            try:
+                seen.append(lines.get(timeout=max(0.0, deadline - time.monotonic())))
+            except queue.Empty:
+                break
+        assert any("specular R0" in x for x in seen), "no derived parameters: " + "".join(seen)
+        time.sleep(0.5)                      # into the walk: it prints nothing more until done
+        assert proc.poll() is None, "the run ended before it was interrupted"
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)                # stdout is drained by the thread above
+        err = proc.stderr.read()
+        elapsed = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    said = [line for line in err.splitlines() if not line.startswith("warpe-cl: warning:")]
+    assert said == ["warpe-cl: interrupted"], err              # one line, no traceback
+    assert list(folder.iterdir()) == []                           # no .nc, .png or temp file
+    assert elapsed < 5                                            # stops within a launch

@@ -149,7 +149,7 @@ MALFORMED = {
     "photons zero": (
         'medium: {texture: slab, thickness: "1 m", radiative: {tau0: 1, omega: 0.5, n: 1.3}}\n'
         "simulation: {photons: 0}",
-        "simulation.photons", "an integer >= 1"),
+        "simulation.photons", "0 rays is not allowed; give a whole number of rays in [1, 2^53"),
     "photons not whole": (
         'medium: {texture: slab, thickness: "1 m", radiative: {tau0: 1, omega: 0.5, n: 1.3}}\n'
         "simulation: {photons: 2.5}",
@@ -659,3 +659,86 @@ def test_schema_markdown():
     assert "| `medium.thickness` | length (m) | required | a length > 0" in text
     assert "`1064 nm`" in text
     assert "one of slab, granular" in text
+
+
+# --------------------------------------------------------------------------- limits (issue 10)
+
+@pytest.mark.parametrize("value", [1e30, 2 ** 53 + 1, "1e30", 1.5, float("nan"), float("inf"),
+                                   -float("inf"), -5, 0, "many", True])
+def test_absurd_photon_counts_are_refused_in_one_line(value):
+    """simulation.photons: 1e30 used to be accepted (and run forever). Every bad count is a
+    ConfigError whose one line names the key, the value, the unit and the allowed range."""
+    raw = copy.deepcopy(RADIATIVE)
+    raw["simulation"] = {"photons": value}
+    with pytest.raises(ConfigError) as info:
+        load_preset(raw)
+    text = str(info.value)
+    assert "\n" not in text and text.startswith("<dict>: simulation.photons: ")
+    assert "rays" in text and "[1, 2^53 = 9007199254740992]" in text, text
+
+
+def test_photon_count_limit_is_2_to_the_53():
+    from warpe_cl.config import MAX_PHOTONS
+    assert MAX_PHOTONS == 2 ** 53 == FIELDS["simulation.photons"].high
+    for given in (2 ** 53, float(2 ** 53), "9.007199254740992e15"):
+        cfg = load_preset(RADIATIVE, overrides={"simulation.photons": given})
+        assert cfg.get("simulation.photons") == 2 ** 53
+    # the same limits through --set strings, the Python API and a sweep axis
+    for override in (["simulation.photons=1e30"], ["simulation.photons=.nan"],
+                     ["simulation.photons=1.5"], ["simulation.photons=-1"]):
+        with pytest.raises(ConfigError, match=r"simulation\.photons: .* rays|simulation\.photons: .*finite"):
+            load_preset(RADIATIVE, overrides=override)
+    with pytest.raises(ConfigError, match="simulation.photons"):
+        load_preset({**RADIATIVE, "sweep": {"simulation.photons": [100, 1e30]}})
+
+
+def test_simulate_refuses_absurd_photon_counts_before_any_device():
+    import warpe_cl
+    raw = {**copy.deepcopy(RADIATIVE), "simulation": {"photons": 1e30}}
+    with pytest.raises(ConfigError, match=r"simulation\.photons: 1e\+30 rays is not allowed"):
+        warpe_cl.simulate(raw, device="no-such-device-anywhere")
+
+
+@pytest.mark.parametrize("key, value", [
+    ("simulation.roulette_survival", 1e-4), ("simulation.roulette_survival", 0),
+    ("simulation.roulette_survival", -0.1), ("simulation.roulette_survival", 1.5),
+    ("simulation.roulette_survival", float("nan")),
+    ("simulation.roulette_weight", 1.5), ("simulation.roulette_weight", -1e-3),
+    ("simulation.roulette_weight", float("inf")),
+    ("simulation.max_flights", 2 ** 31),
+])
+def test_roulette_and_flight_limits(key, value):
+    """roulette_survival had no lower bound: 1e-30 let a surviving weight reach 1e26, beyond
+    the 2^42 the exact tallies hold (they drop such weights without a word)."""
+    raw = copy.deepcopy(RADIATIVE)
+    raw["simulation"] = {"mode": "weighted"}
+    with pytest.raises(ConfigError) as info:
+        load_preset(raw, overrides={key: value})
+    text = str(info.value)
+    assert "\n" not in text and f"{key}: " in text and "give " in text, text
+
+
+def test_roulette_limits_bound_every_weight():
+    """The schema's bounds keep the largest weight roulette can make, roulette_weight /
+    roulette_survival, at 1e3: its square stays far below the 2^42 of cl/tally.h."""
+    weight, survival = FIELDS["simulation.roulette_weight"], FIELDS["simulation.roulette_survival"]
+    assert weight.high == 1.0 and not weight.high_open and survival.low == 1e-3
+    assert (weight.high / survival.low) ** 2 < 2.0 ** 42
+    for w, s in ((0.0, 1e-3), (1.0, 1e-3), (1.0, 1.0)):
+        cfg = load_preset(RADIATIVE, overrides={"simulation.mode": "weighted",
+                                                "simulation.roulette_weight": w,
+                                                "simulation.roulette_survival": s})
+        assert cfg.get("simulation.roulette_survival") == s
+    assert "1e3" in survival.help and "2^42" in survival.help
+
+
+def test_docs_config_md_is_up_to_date():
+    """docs/config.md is generated (python tools/config_docs.py): a change to the schema
+    table without regenerating it fails here."""
+    from pathlib import Path
+
+    from warpe_cl.config import REFERENCE_PATH, reference_markdown
+    path = Path(__file__).resolve().parent.parent / REFERENCE_PATH
+    assert path.read_text(encoding="utf-8") == reference_markdown(), \
+        "docs/config.md is out of date: run python tools/config_docs.py"
+    assert "2^53" in path.read_text(encoding="utf-8")

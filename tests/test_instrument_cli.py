@@ -89,6 +89,12 @@ def test_instrument_verb_writes_the_outputs(tmp_path, surface_file, capsys):
     (["--instrument", "hubble"], "unknown instrument 'hubble'"),
     (["--instrument", "atlas"], "computed at 1064 nm but atlas works at 532 nm"),
     (["--instrument", "bela", "--shots", "0"], "--shots"),
+    (["--instrument", "bela", "--shots", "1e30"], "--shots: 1e30 is not allowed; give a value <= 1000000"),
+    (["--instrument", "bela", "--shots", "2000000"], "--shots: 2000000 is not allowed"),
+    (["--instrument", "bela", "--shots", "nan"], "--shots: nan is not finite; give a whole number in [1, 1000000]"),
+    (["--instrument", "bela", "--shots", "inf"], "--shots: inf is not finite"),
+    (["--instrument", "bela", "--shots", "1.5"], "--shots: 1.5 is not a whole number; give a whole number in [1, 1000000]"),
+    (["--instrument", "bela", "--seed", "1e30"], "--seed: 1e30 is not allowed"),
     (["--instrument", "bela", "--roughness", "0.1 mm"], "roughness"),
 ])
 def test_bad_instrument_input_exits_2_with_one_line(tmp_path, surface_file, capsys, extra, message):
@@ -121,3 +127,22 @@ def test_bad_instrument_block_fails_before_the_walk(tmp_path, capsys):
     rc = main(["run", str(preset), "--out", str(tmp_path / "x.nc"), "--device", "numpy"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "electronics.transimpedance" in err and str(preset) in err, err
+
+
+@pytest.mark.parametrize("shots", [0, 1e30, 2_000_000, float("nan"), float("inf"), 1.5, "many"])
+def test_apply_instrument_checks_shots(shots):
+    """The Python API has the instrument's limits too (shots in [1, 1e6]): a NaN used to raise
+    ValueError from int(), 1e30 to try to allocate 1e30 shots."""
+    from warpe_cl.errors import ConfigError
+    from warpe_cl.instrument import apply_instrument
+    with pytest.raises(ConfigError, match=r"^<dataset>: shots: .*(allowed|finite|whole|number)"):
+        apply_instrument(synthetic_surface(0.05), "bela", shots=shots)
+
+
+def test_nan_in_an_instrument_preset_is_a_config_error():
+    from warpe_cl.errors import ConfigError
+    from warpe_cl.instrument import load_instrument
+    for key, value in (("shots", float("nan")), ("seed", float("inf")),
+                       ("speckle.modes", float("nan"))):
+        with pytest.raises(ConfigError, match=f"instrument.{key}"):
+            load_instrument("bela", {key: value})

@@ -79,7 +79,8 @@ def cmd_run(args) -> int:
         radiative_parameters(pcfg)    # bad input fails (exit 2) before a device is sought
     instrument = _scenario_instrument(cfg)   # a bad instrument block fails before the walk too
     api.get_engine(args.device)       # no usable device fails (exit 3) before any output
-    say = (lambda *a: None) if args.quiet else print
+    # flushed: a wrapper reading the lines (a GUI, a test sending Ctrl-C) sees them as printed
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     say(f"warpe-cl run: {cfg.get('name')} ({cfg.source}), {len(points)} scenario(s), "
         f"{int(cfg.get('simulation.photons')):,} rays each, seed {cfg.get('simulation.seed')}")
     t0 = time.perf_counter()
@@ -96,11 +97,15 @@ def cmd_run(args) -> int:
         from .instrument import apply_instrument
         ds = apply_instrument(ds, instrument, source=str(cfg.source))
         _print_instrument(ds, say)
-    io.write_netcdf(ds, out)
+    # The file and the figure are written all or nothing: Ctrl-C or an error while writing
+    # either leaves neither (nor a temporary file), and the destinations as they were.
+    with io.Outputs() as outputs:
+        ds.to_netcdf(outputs.stage(out), engine="h5netcdf", invalid_netcdf=False)
+        if args.plot:
+            from .plot import plot_waveform
+            plot_waveform(ds, outputs.stage(args.plot))
     say(f"wrote {out} ({time.perf_counter() - t0:.2f} s in all)")
     if args.plot:
-        from .plot import plot_waveform
-        plot_waveform(ds, args.plot)
         say(f"wrote {args.plot}")
     return EXIT_OK
 
@@ -158,18 +163,6 @@ def _print_instrument(ds, say):
             f"width {float(np.nanmean(sc['pulse_width'])) if sc['detected'].any() else float('nan'):.3g} ns")
 
 
-def _positive_int(text, what):
-    try:
-        value = float(text)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{text!r} is not a number", key=what) from None
-    if value != value or value in (float("inf"), float("-inf")) or value != int(value) \
-            or value < (1 if what == "--shots" else 0):
-        raise ConfigError(f"{text!r} is not allowed; give a whole number "
-                          f"{'>= 1' if what == '--shots' else '>= 0'}", key=what)
-    return int(value)
-
-
 def _load_result(path: Path):
     import xarray as xr
     if not path.is_file():
@@ -182,15 +175,16 @@ def _load_result(path: Path):
 
 def cmd_instrument(args) -> int:
     from . import io
-    from .instrument import apply_instrument, load_instrument
+    from .instrument import apply_instrument, check_parameter, load_instrument
     overrides = {}
     if args.altitude is not None:
         overrides["geometry.altitude"] = args.altitude
     if args.roughness is not None:
         overrides["geometry.roughness"] = args.roughness
     params = load_instrument(args.instrument, overrides, override_source="command line")
-    shots = _positive_int(args.shots, "--shots") if args.shots is not None else None
-    seed = _positive_int(args.seed, "--seed") if args.seed is not None else None
+    # the instrument's own limits (shots in [1, 1e6], seed in [0, 2^63 - 1]), before reading
+    shots = None if args.shots is None else check_parameter("shots", args.shots, where="--shots")
+    seed = None if args.seed is None else check_parameter("seed", args.seed, where="--seed")
     path = Path(args.file)
     ds = _load_result(path)
     out = Path(args.out)
@@ -200,11 +194,13 @@ def cmd_instrument(args) -> int:
     say = (lambda *a: None) if args.quiet else print
     ds = apply_instrument(ds, params, shots=shots, seed=seed, source=str(path))
     _print_instrument(ds, say)
-    io.write_netcdf(ds, out)
+    with io.Outputs() as outputs:           # all or nothing, as for run
+        ds.to_netcdf(outputs.stage(out), engine="h5netcdf", invalid_netcdf=False)
+        if args.plot:
+            from .instrument.plot import plot_instrument
+            plot_instrument(ds, outputs.stage(args.plot))
     say(f"wrote {out}")
     if args.plot:
-        from .instrument.plot import plot_instrument
-        plot_instrument(ds, args.plot)
         say(f"wrote {args.plot}")
     return EXIT_OK
 
@@ -311,14 +307,18 @@ def cmd_plot(args) -> int:
                               "`warpe-cl instrument`", key=str(path))
         _check_writable(Path(args.out), "--out")
         from .instrument.plot import plot_instrument
-        plot_instrument(ds, args.out)
+        from .io import Outputs
+        with Outputs() as outputs:
+            plot_instrument(ds, outputs.stage(args.out))
         print(f"wrote {args.out}")
         return EXIT_OK
     if "reflectance" not in ds:
         raise ConfigError("has no reflectance variable; give a file written by `warpe-cl run`",
                           key=str(path))
     _check_writable(Path(args.out), "--out")
-    (plot_angular if kind == "angular" else plot_waveform)(ds, args.out)
+    from .io import Outputs
+    with Outputs() as outputs:
+        (plot_angular if kind == "angular" else plot_waveform)(ds, outputs.stage(args.out))
     print(f"wrote {args.out}")
     return EXIT_OK
 

@@ -36,7 +36,7 @@ from .errors import ConfigError
 from .units import UnitError, format_quantity, parse_quantity, unit_list
 
 __all__ = ["Field", "SCHEMA", "FIELDS", "Config", "load_preset", "time_edges",
-           "schema_markdown", "Grid", "load_grid"]
+           "schema_markdown", "reference_markdown", "Grid", "load_grid", "MAX_PHOTONS"]
 
 
 # --------------------------------------------------------------------------- the table
@@ -68,6 +68,9 @@ class Field:
         The allowed values of a ``"choice"``.
     help : str
         User-facing description (shown by :func:`schema_markdown`).
+    unit : str or None
+        What a plain number counts (``"rays"``), named in messages and in the reference
+        table; None for quantities (their unit is written with the value) and pure numbers.
     """
 
     key: str
@@ -80,6 +83,7 @@ class Field:
     high_open: bool = False
     choices: tuple | None = None
     help: str = ""
+    unit: str | None = None
 
 
 QUANTITY_KINDS = ("length", "time", "angle")
@@ -87,6 +91,15 @@ SCALAR_KINDS = QUANTITY_KINDS + ("float", "int", "str", "choice", "bool")
 _CANONICAL_UNIT = {"length": "m", "time": "ns", "angle": "deg"}
 _EXAMPLE = {"length": "100 mm", "time": "12.5 ns", "angle": "12 deg"}
 MAX_TIME_BINS = 1_000_000
+#: Most rays a scenario may launch: 2^53, the largest count a YAML number (a float64) holds
+#: exactly. The kernel's photon index (the Philox counter) is 64-bit and the host tallies are
+#: int64 or exact integers, so every count up to here is walked and tallied exactly.
+MAX_PHOTONS = 2 ** 53
+#: Lowest ``simulation.roulette_survival``: a surviving weight stays below
+#: roulette_weight / roulette_survival <= 1 / 1e-3 = 1e3 (see the help text).
+MIN_ROULETTE_SURVIVAL = 1e-3
+#: Largest ``simulation.max_flights``: the kernel holds the flight count in 31 bits.
+MAX_FLIGHTS = 2 ** 31 - 1
 _F = Field
 
 SCHEMA: list[Field] = [
@@ -172,11 +185,20 @@ SCHEMA: list[Field] = [
             "a relative path is read from the preset's folder. Not combined with n, k."),
 
     _F("simulation", "section", {}, help="How the Monte Carlo walk is run and tallied."),
-    _F("simulation.photons", "int", 1_000_000, low=1,
-       help="Number of rays launched (1e6 and 1.0e6 are accepted)."),
+    _F("simulation.photons", "int", 1_000_000, low=1, high=MAX_PHOTONS, unit="rays",
+       help="Number of rays launched per scenario (1e6 and 1.0e6 are accepted). At most "
+            "2^53 = 9.007e15: the largest count a YAML number (a 64-bit float) holds "
+            "exactly; the photon index in the Philox counter is 64-bit and the host "
+            "tallies are 64-bit or exact, so every ray up to it is walked and counted. The "
+            "bound is one of representation, not of patience: at 1e8 rays/s (a few CPU "
+            "cores) 2^53 rays take about 3 years, at 1e10 rays/s (a large GPU) about 10 "
+            "days (1e9 rays: about 10 s at 1e8 rays/s). Ctrl-C stops a run (exit 130) "
+            "without leaving a partial file."),
     _F("simulation.seed", "int", 1, low=0, high=2**32 - 1,
-       help="Random seed: with the scenario index, the key of the counter-based Philox "
-            "generator. The same seed gives the same rays on any device."),
+       help="Random seed: with the 64-bit scenario key (a hash of the resolved medium, "
+            "materials, wavelength and simulation blocks, seed and photons left out), the key "
+            "of the counter-based Philox generator. The same seed gives the same rays on any "
+            "device."),
     _F("simulation.time_bins", "time_bins", {},
        help="Time-bin edges: log-spaced {start, stop, per_decade} or linear "
             "{start, stop, width}; never both per_decade and width."),
@@ -193,9 +215,11 @@ SCHEMA: list[Field] = [
     _F("simulation.max_time", "time", low=0.0, low_open=True,
        help="Rays still inside the medium after this time are stopped and counted as "
             "terminated. Default: the last time-bin edge."),
-    _F("simulation.max_flights", "int", 10_000_000, low=1,
+    _F("simulation.max_flights", "int", 10_000_000, low=1, high=MAX_FLIGHTS,
+       unit="flights",
        help="Safety cap on free flights per ray; a ray reaching it is counted as "
-            "terminated."),
+            "terminated. At most 2^31 - 1, the largest cap the walk kernel takes (a larger "
+            "value used to be cut to it without a word)."),
     _F("simulation.fov", "section", {},
        help="Numerical fields of view of the diffuse components (physics.md §6.2): half "
             "angles from the zenith, in vacuum."),
@@ -226,12 +250,21 @@ SCHEMA: list[Field] = [
             "absorption applied as exp(-(1 - omega) E L) along the path and A at the floor, "
             "Russian roulette below simulation.roulette_weight; reaches deep tails, "
             "docs/walk.md §6)."),
-    _F("simulation.roulette_weight", "float", 1e-4, low=0.0, high=1.0, high_open=True,
+    _F("simulation.roulette_weight", "float", 1e-4, low=0.0, high=1.0,
        help="Weighted mode: a ray whose weight falls below this at a scattering or a floor "
-            "reflection plays Russian roulette (0: never)."),
-    _F("simulation.roulette_survival", "float", 0.1, low=0.0, high=1.0, low_open=True,
+            "reflection plays Russian roulette (0: never). At most 1, the weight a ray starts "
+            "with, so that with roulette_survival >= 1e-3 no weight ever exceeds "
+            "roulette_weight / roulette_survival <= 1e3 (see roulette_survival)."),
+    _F("simulation.roulette_survival", "float", 0.1, low=MIN_ROULETTE_SURVIVAL, high=1.0,
        help="Weighted mode: probability that a ray survives the roulette (its weight is then "
-            "divided by it)."),
+            "divided by it). At least 1e-3, so that weights stay bounded: a ray's weight "
+            "starts at 1, only shrinks along its path, and grows only at a roulette it "
+            "survives, from below roulette_weight to below roulette_weight / "
+            "roulette_survival <= 1e3. The exact weighted tallies (cl/tally.h fixed_add) "
+            "hold each weight (and its square, <= 1e6) only below 2^42 = 4.4e12 and drop "
+            "larger ones; a launch of at most 2^31 rays then sums an expected weight "
+            "squared of at most 2^31 x 1e3 = 2.1e12 per cell, below the same 2^42. A lower "
+            "survival would only add variance: the roulette is unbiased at any value."),
 
     _F("sweep", "sweep", {},
        help="Optional grid: dotted keys mapped to lists of values, e.g. medium.thickness: "
@@ -307,19 +340,31 @@ def _show(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _limit_text(x) -> str:
+    """A limit of the table as written in messages; large powers of two also as 2^k."""
+    if isinstance(x, int) and x >= 2 ** 20 and x & (x - 1) == 0:
+        return f"2^{x.bit_length() - 1} = {x}"
+    return _number_text(x)
+
+
 def _range_text(field: Field) -> str:
     low, high = field.low, field.high
     unit = ""
     if field.kind in QUANTITY_KINDS and any(b not in (None, 0) for b in (low, high)):
         unit = " " + _CANONICAL_UNIT[field.kind]
     if low is not None and high is not None:
-        return (f"in {'(' if field.low_open else '['}{_number_text(low)}, "
-                f"{_number_text(high)}{')' if field.high_open else ']'}{unit}")
+        return (f"in {'(' if field.low_open else '['}{_limit_text(low)}, "
+                f"{_limit_text(high)}{')' if field.high_open else ']'}{unit}")
     if low is not None:
-        return f"{'>' if field.low_open else '>='} {_number_text(low)}{unit}"
+        return f"{'>' if field.low_open else '>='} {_limit_text(low)}{unit}"
     if high is not None:
-        return f"{'<' if field.high_open else '<='} {_number_text(high)}{unit}"
+        return f"{'<' if field.high_open else '<='} {_limit_text(high)}{unit}"
     return ""
+
+
+def _with_unit(field: Field, value) -> str:
+    """``value`` as the user wrote it, followed by what it counts (``1e+30 rays``)."""
+    return _show(value) + (f" {field.unit}" if field.unit else "")
 
 
 def _allowed(field: Field) -> str:
@@ -333,7 +378,7 @@ def _allowed(field: Field) -> str:
     if field.kind == "float":
         return f"a number{rng}"
     if field.kind == "int":
-        return f"an integer{rng}"
+        return f"a whole number of {field.unit}{rng}" if field.unit else f"an integer{rng}"
     if field.kind == "choice":
         return "one of " + ", ".join(field.choices)
     if field.kind == "bool":
@@ -557,8 +602,8 @@ def _integer(field: Field, value, where: str) -> int:
         return int(value)
     x = _number(field, value, where)
     if not float(x).is_integer():
-        raise ConfigError(f"{_show(value)} is not a whole number; give {_allowed(field)}",
-                          where)
+        raise ConfigError(f"{_with_unit(field, value)} is not a whole number; give "
+                          f"{_allowed(field)}", where)
     return int(x)
 
 
@@ -603,7 +648,8 @@ def _scalar(field: Field, value, where: str):
     else:  # pragma: no cover - table error
         raise TypeError(f"{field.key}: {kind} is not a scalar kind")
     if not _in_range(field, x):
-        raise ConfigError(f"{_show(value)} is not allowed; give {_allowed(field)}", where)
+        raise ConfigError(f"{_with_unit(field, value)} is not allowed; give {_allowed(field)}",
+                          where)
     return x
 
 
@@ -1235,6 +1281,23 @@ def schema_markdown() -> str:
                 allowed = allowed.split(" with a unit")[0] + f" ({unit_list(f.kind)})"
         else:
             allowed = ""
-        cells = [f"`{f.key}`", kind_text[f.kind], default, allowed, f.help]
+        kind = kind_text[f.kind] + (f" ({f.unit})" if f.unit else "")
+        cells = [f"`{f.key}`", kind, default, allowed, f.help]
         lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+REFERENCE_PATH = "docs/config.md"
+
+
+def reference_markdown() -> str:
+    """The whole of docs/config.md: a title, how it is made, and :func:`schema_markdown`.
+
+    ``python tools/config_docs.py`` writes it; tests/test_config.py fails when the file in
+    the repository differs from it (the table was changed and the file not regenerated).
+    """
+    return ("# Preset reference\n\n"
+            "Generated from the schema table in `warpe_cl/config.py` by "
+            "`python tools/config_docs.py` (do not edit by hand; a test fails when this file "
+            "is out of date). Lengths are stored in metres, times in nanoseconds, angles in "
+            "degrees.\n\n" + schema_markdown())

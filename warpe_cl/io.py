@@ -1,12 +1,20 @@
-"""Assembling the output Dataset (interface.md §5), provenance, and atomic NetCDF writing."""
+"""Assembling the output Dataset (interface.md §5), provenance, and atomic output writing.
+
+Every file the command line writes goes through a hidden temporary file in the destination
+folder, renamed over the destination only once complete (:func:`write_netcdf`,
+:class:`Outputs`): an error, a crash or Ctrl-C never leaves a partial file, and the
+temporary file is removed on the way out.
+"""
 from __future__ import annotations
 
 import datetime as _dt
 import json
 import os
 import platform as _platform
+import signal
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -167,16 +175,81 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
 
 def write_netcdf(ds, path) -> Path:
     """Write ``ds`` as NetCDF-4 (h5netcdf) atomically: a temporary file in the same folder,
-    renamed over ``path`` only once complete, so a crash never leaves a partial file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    renamed over ``path`` only once complete, so a crash or Ctrl-C never leaves a partial
+    file (nor the temporary one)."""
+    with Outputs() as outputs:
+        ds.to_netcdf(outputs.stage(path), engine="h5netcdf", invalid_netcdf=False)
+    return Path(path)
+
+
+def _temporary_name(path: Path) -> Path:
+    """A new hidden file ``.NAME.XXXXXXXX.tmp.EXT`` next to ``path`` (the extension kept, so
+    that writers choosing a format by it, such as matplotlib, still do)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix,
+                               dir=path.parent)
     os.close(fd)
-    try:
-        ds.to_netcdf(tmp, engine="h5netcdf", invalid_netcdf=False)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return Path(tmp)
+
+
+class Outputs:
+    """Several output files written all or nothing (``warpe-cl run --out X.nc --plot X.png``).
+
+    :meth:`stage` gives a hidden temporary path next to each destination; leaving the
+    ``with`` block normally renames every staged file onto its destination, with SIGINT held
+    back during the renames, so that Ctrl-C finds either none of the files or all of them.
+    Leaving it by an exception (KeyboardInterrupt included) removes the staged files and
+    leaves the destinations as they were.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> with Outputs() as out:
+    ...     _ = out.stage(folder / "a.txt").write_text("complete")
+    >>> sorted(p.name for p in folder.iterdir())
+    ['a.txt']
+    """
+
+    def __init__(self):
+        self._staged: list = []           # (temporary, destination)
+
+    def __enter__(self) -> "Outputs":
+        return self
+
+    def stage(self, path) -> Path:
+        """A temporary path to write ``path``'s content to; its folder is created."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._staged.append((None, path))  # remembered before it exists: Ctrl-C in mkstemp
+        tmp = _temporary_name(path)
+        self._staged[-1] = (tmp, path)
+        return tmp
+
+    def __exit__(self, kind, value, tb) -> bool:
+        try:
+            if kind is None:
+                with _sigint_held():
+                    for tmp, path in self._staged:
+                        os.replace(tmp, path)
+        finally:
+            for tmp, _ in self._staged:
+                if tmp is not None and tmp.exists():
+                    tmp.unlink()
+            self._staged = []
+        return False
+
+
+class _sigint_held:
+    """Hold SIGINT back (delivered on exit) in the main thread; a no-op elsewhere."""
+
+    def __enter__(self):
+        self._held = (hasattr(signal, "pthread_sigmask")
+                      and threading.current_thread() is threading.main_thread())
+        if self._held:
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        return self
+
+    def __exit__(self, *exc):
+        if self._held:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        return False

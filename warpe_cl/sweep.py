@@ -265,9 +265,10 @@ def _manifests(folder: Path) -> list:
 
 
 def _remove_partial(folder: Path, name: str) -> int:
-    """Delete temporary files a killed writer of ``name`` left behind."""
+    """Delete temporary files a killed writer of ``name`` left behind (``.NAME.X.tmp`` and
+    ``.NAME.X.tmp.EXT``, warpe_cl.io)."""
     removed = 0
-    for tmp in folder.glob(f".{name}.*.tmp"):
+    for tmp in folder.glob(f".{name}.*.tmp*"):
         try:
             tmp.unlink()
             removed += 1

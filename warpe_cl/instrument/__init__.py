@@ -24,7 +24,7 @@ module              stage
 """
 from __future__ import annotations
 
-from .params import BUILTIN, InstrumentParams, load_instrument
+from .params import BUILTIN, InstrumentParams, check_parameter, load_instrument
 
 __all__ = ["apply_instrument", "load_instrument", "InstrumentParams", "BUILTIN"]
 
@@ -46,7 +46,8 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
         ``{"geometry.altitude": "400 km", "geometry.roughness": "0.01 deg"}``.
     shots, seed : int, optional
         Default: the instrument's ``shots``; the instrument's ``seed``, else the surface
-        result's seed, else 1.
+        result's seed, else 1. Checked against the instrument's limits (shots in
+        [1, 1e6]); a bad value raises :class:`~warpe_cl.errors.ConfigError`.
     source : str
         Name of the input, for error messages.
 
@@ -64,7 +65,10 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
     params = instrument if isinstance(instrument, InstrumentParams) else \
         load_instrument(instrument, overrides)
     surface.check_variables(ds, source)
-    shots = int(shots if shots is not None else params["shots"])
+    shots = int(params["shots"] if shots is None else
+                check_parameter("shots", shots, source, "shots"))
+    if seed is not None:
+        seed = check_parameter("seed", seed, source, "seed")
     if seed is None:
         seed = params["seed"] if params["seed"] is not None else int(ds.attrs.get("seed", 1))
     sweep = "scenario" in ds.dims

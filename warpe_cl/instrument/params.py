@@ -242,13 +242,16 @@ def _flatten(mapping: dict, prefix: str = "") -> dict:
     return out
 
 
-def _check(key: str, value, source: str):
+def _check(key: str, value, source: str | None, where: str | None = None):
+    """``value`` of parameter ``key`` validated and in the canonical unit; a ConfigError
+    naming ``source`` and ``where`` (default ``instrument.KEY``) otherwise."""
     p = PARAMS[key]
-    where = f"instrument.{key}"
+    where = where or f"instrument.{key}"
 
     def bad(msg):
         raise ConfigError(msg, key=where, source=source)
 
+    given = value
     if value is None:
         if p.required:
             bad("is required")
@@ -268,7 +271,8 @@ def _check(key: str, value, source: str):
     if p.kind == "modes":
         if value == "auto":
             return value
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+        if (isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0
+                or not math.isfinite(value)):
             bad(f"{value!r}: give auto or a number >= 0 (0: no speckle)")
         return float(value)
     if p.kind in ("number", "int"):
@@ -277,29 +281,52 @@ def _check(key: str, value, source: str):
                 value = float(value)
             except ValueError:
                 pass
+        allowed = _allowed_number(p)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            bad(f"{value!r} is not a number")
+            bad(f"{value!r} is not a number; give {allowed}")
+        if isinstance(value, float) and not math.isfinite(value):   # int(nan) would raise
+            bad(f"{_typed(given)} is not finite; give {allowed}")
         if p.kind == "int":
             if float(value) != int(value):
-                bad(f"{value!r} is not a whole number")
+                bad(f"{_typed(given)} is not a whole number; give {allowed}")
             value = int(value)
         else:
             value = float(value)
-        if not math.isfinite(value):
-            bad(f"{value!r} is not finite")
     else:
         try:
             value = parse_value(value, p.kind)
         except (ValueError, UnitError) as err:
             bad(str(err))
     shown = value if p.kind in ("number", "int") else format_value(value, p.kind)
+    if p.kind == "int" and isinstance(given, str):
+        shown = given.strip()               # "1e30" as typed, not its 31 digits
+    limit = (lambda x: f"{int(x)}") if p.kind == "int" else (lambda x: f"{x:g}")
     if p.low is not None and (value < p.low or (p.low_open and value <= p.low)):
-        bad(f"{shown} is not allowed; give a value {'>' if p.low_open else '>='} {p.low:g}"
+        bad(f"{shown} is not allowed; give a value {'>' if p.low_open else '>='} {limit(p.low)}"
             + ("" if p.kind in ("number", "int") else f" {_canonical_unit(p.kind)}"))
     if p.high is not None and value > p.high:
-        bad(f"{shown} is not allowed; give a value <= {p.high:g}"
+        bad(f"{shown} is not allowed; give a value <= {limit(p.high)}"
             + ("" if p.kind in ("number", "int") else f" {_canonical_unit(p.kind)}"))
     return value
+
+
+def _typed(value) -> str:
+    """A value as typed: text as it is (``1.5`` from the command line), others as repr."""
+    return value.strip() if isinstance(value, str) else repr(value)
+
+
+def _allowed_number(p: Param) -> str:
+    """What a valid value of a number or int parameter looks like: 'a whole number in
+    [1, 1000000]'."""
+    what = "a whole number" if p.kind == "int" else "a number"
+    limit = (lambda x: f"{int(x)}") if p.kind == "int" else (lambda x: f"{x:g}")
+    if p.low is not None and p.high is not None:
+        return f"{what} in {'(' if p.low_open else '['}{limit(p.low)}, {limit(p.high)}]"
+    if p.low is not None:
+        return f"{what} {'>' if p.low_open else '>='} {limit(p.low)}"
+    if p.high is not None:
+        return f"{what} <= {limit(p.high)}"
+    return what
 
 
 def _canonical_unit(kind: str) -> str:
@@ -345,6 +372,33 @@ def resolve_instrument(spec) -> tuple[dict, str]:
     if not isinstance(raw, dict):
         raise ConfigError("an instrument preset must be a mapping of sections", source=str(path))
     return raw, str(path)
+
+
+def check_parameter(key: str, value, source: str | None = None, where: str | None = None):
+    """Validate one instrument parameter given apart from a preset (``--shots``, the
+    ``shots`` argument of :func:`~warpe_cl.instrument.apply_instrument`).
+
+    Parameters
+    ----------
+    key : str
+        The parameter (``"shots"``, ``"seed"``).
+    value : object
+        As a user wrote it: ``100``, ``1e3``, ``"1e3"``.
+    source, where : str, optional
+        Named by the error: where the value came from and under which name
+        (default ``instrument.KEY``).
+
+    Returns
+    -------
+    object
+        The value in its canonical form (an int for ``shots``).
+
+    Raises
+    ------
+    ConfigError
+        One line with the value and what is allowed (e.g. shots in [1, 1000000]).
+    """
+    return _check(key, value, source, where)
 
 
 def load_instrument(spec, overrides: dict | None = None,
