@@ -100,7 +100,7 @@ def cmd_run(args) -> int:
     # The file and the figure are written all or nothing: Ctrl-C or an error while writing
     # either leaves neither (nor a temporary file), and the destinations as they were.
     with io.Outputs() as outputs:
-        ds.to_netcdf(outputs.stage(out), engine="h5netcdf", invalid_netcdf=False)
+        outputs.netcdf(ds, out)
         if args.plot:
             from .plot import plot_waveform
             plot_waveform(ds, outputs.stage(args.plot))
@@ -195,7 +195,7 @@ def cmd_instrument(args) -> int:
     ds = apply_instrument(ds, params, shots=shots, seed=seed, source=str(path))
     _print_instrument(ds, say)
     with io.Outputs() as outputs:           # all or nothing, as for run
-        ds.to_netcdf(outputs.stage(out), engine="h5netcdf", invalid_netcdf=False)
+        outputs.netcdf(ds, out)
         if args.plot:
             from .instrument.plot import plot_instrument
             plot_instrument(ds, outputs.stage(args.plot))

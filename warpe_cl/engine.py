@@ -95,17 +95,19 @@ class Engine:
         self._lanes = {}
 
     def lanes_for(self, texture: str, precision: str, weighted: bool,
-                  lanes: int | None = None) -> int:
+                  lanes: int | None = None, check: bool = True) -> int:
         """The lane width to walk this kernel with, qualified on this device (docs/devices.md).
 
         ``lanes`` (or ``$WARPE_CL_LANES``) asks for one width: it is used if it qualifies,
         otherwise :class:`~warpe_cl.errors.DeviceError` says why. Without a request, the widest
         width that qualifies, from 16 (8 in double; 1 on GPUs) down through 8, 4 and 1; a
-        fallback is said in one warning line.
+        fallback is said in one warning line. ``check=False`` (the known-answer walk itself),
+        or an engine made with ``qualify=False``: the width asked for, else
+        :func:`default_lanes`, unchecked.
         """
         if lanes is None:
             lanes = requested_lanes()
-        if self.qualifier is None:
+        if not check or self.qualifier is None:
             return int(lanes or default_lanes(self.info.kind, precision))
         from .qualify import Combo, describe_short
         combo = Combo(texture, precision, bool(weighted))
@@ -215,10 +217,7 @@ class Engine:
 
         real = np.float64 if precision == "double" else np.float32
         weighted = params.weighted
-        if qualified:
-            lanes = int(lanes or default_lanes(self.info.kind, precision))
-        else:
-            lanes = self.lanes_for(params.texture, precision, weighted, lanes)
+        lanes = self.lanes_for(params.texture, precision, weighted, lanes, check=not qualified)
         kern = self.kernel(params.texture, precision, records, lanes, weighted)
         edges = np.asarray(params.time_edges, dtype=real)
         n_time = len(edges) - 1

@@ -72,11 +72,5 @@ class WeightError(WarpeError):
             f"medium (omega in [0, 1]) and the roulette keys (roulette_survival not tiny)")
 
 
-def lost_weight(weight: float) -> bool:
-    """True for a weight the exact sums would drop (the kernel's ``weight_lost``, cl/tally.h):
-    NaN, negative, or >= 2**21."""
-    return not (0.0 <= weight < 2.0 ** 21)
-
-
 class WarpeWarning(UserWarning):
     """A physically doubtful input: the run goes on, and the command line prints one line."""

@@ -178,7 +178,7 @@ def write_netcdf(ds, path) -> Path:
     renamed over ``path`` only once complete, so a crash or Ctrl-C never leaves a partial
     file (nor the temporary one)."""
     with Outputs() as outputs:
-        ds.to_netcdf(outputs.stage(path), engine="h5netcdf", invalid_netcdf=False)
+        outputs.netcdf(ds, path)
     return Path(path)
 
 
@@ -224,6 +224,10 @@ class Outputs:
         tmp = _temporary_name(path)
         self._staged[-1] = (tmp, path)
         return tmp
+
+    def netcdf(self, ds, path) -> None:
+        """Stage ``path`` and write ``ds`` to it as NetCDF-4 (h5netcdf)."""
+        ds.to_netcdf(self.stage(path), engine="h5netcdf", invalid_netcdf=False)
 
     def __exit__(self, kind, value, tb) -> bool:
         try:

@@ -32,6 +32,12 @@ COUNT_TALLIES = ("time_in_fov", "time_any", "angular", "total", "early", "fates"
 MAX_WEIGHT = 2.0 ** 21
 
 
+def lost_weight(weight: float) -> bool:
+    """True for a weight the exact sums would drop (the kernel's ``weight_lost``, cl/tally.h):
+    NaN, negative, or >= :data:`MAX_WEIGHT`."""
+    return not (0.0 <= weight < MAX_WEIGHT)
+
+
 def word_threshold(probability: float) -> int:
     """T = floor(P 2**32 + 1/2), exactly: the words x with x < T are the x whose uniform
     U = (x + 1/2) 2**-32 satisfies U <= P (docs/walk.md §2).

@@ -4,8 +4,8 @@
 scattering as solid lines, BF diffuse dashed, specular (drawn at 1e-6 ns) and BF-direct peaks
 as markers (the specular leaves at t = 0, before log bins start: its marker is its fraction as if
 spread over the first bin, the seed's convention; no other component's early exits are drawn:
-they are in no bin, ``early_fraction``); under each curve a shaded domain where a bin would hold fewer than ``min_rays``
-rays (the Monte Carlo limit the seed shades), and the first back-and-forth time 2 h n_eff / c
+they are in no bin, ``early_fraction``); under each curve a shaded domain where a bin would
+hold fewer than ``min_rays`` rays (the Monte Carlo limit the seed shades), and the first back-and-forth time 2 h n_eff / c
 as a dashed vertical line.
 
 ``plot_angular``: the seed's FOV figure: time-integrated angular reflectance of the

@@ -43,9 +43,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import WeightError, lost_weight
+from .errors import WeightError
 from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, N_EMERGENCE, RULES,
-                     TEXTURES, Counts, WalkParams, fixed_point)
+                     TEXTURES, Counts, WalkParams, fixed_point, lost_weight)
 from .rng import PhotonStream
 
 __all__ = ["simulate_reference", "walk_ray", "RayOutcome", "normal_incidence_reflectance",
