@@ -29,3 +29,12 @@ def test_wheel_contains_kernels_and_presets(tmp_path):
 def test_installed_kernel_folder_is_found():
     from warpe_cl.device import kernel_dir
     assert (kernel_dir() / "walk.cl").is_file()
+
+
+def test_kernel_folder_belongs_to_the_imported_package():
+    """The kernels are read beside the package that is imported (``warpe_cl/cl`` installed,
+    ``cl/`` in a checkout), never from another checkout that an editable install points at."""
+    import warpe_cl
+    from warpe_cl.device import kernel_dir
+    here = Path(warpe_cl.__file__).resolve().parent
+    assert kernel_dir() in (here / "cl", here.parent / "cl")

@@ -33,7 +33,15 @@ INSTALL_HINT = (
 
 
 def kernel_dir() -> Path:
-    """Folder holding the OpenCL sources (installed package data, or ``cl/`` of a checkout)."""
+    """Folder holding the OpenCL sources of this very package: ``warpe_cl/cl/`` when installed
+    (package data), ``cl/`` beside ``warpe_cl/`` in a checkout. The package's own location
+    comes first, so that a checkout imported through ``PYTHONPATH`` reads its own kernels even
+    where another checkout is installed in development mode; the import system is the last
+    resort (a zipped install)."""
+    here = Path(__file__).resolve().parent
+    for folder in (here / "cl", here.parent / "cl"):
+        if (folder / "walk.cl").is_file():
+            return folder
     try:
         from importlib.resources import files
         path = Path(str(files("warpe_cl.cl")))
@@ -41,7 +49,7 @@ def kernel_dir() -> Path:
             return path
     except (ImportError, ModuleNotFoundError, TypeError):
         pass
-    return Path(__file__).resolve().parent.parent / "cl"
+    raise DeviceError(f"the OpenCL sources (walk.cl) are missing beside {here}")
 
 
 def assemble_source(names) -> str:
