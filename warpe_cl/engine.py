@@ -86,7 +86,6 @@ class Engine:
         self.context, self.queue = devmod.context_and_queue(self.device)
         self.target_launch_s = target_launch_s
         self.kernel_hash = None
-        self.extra_options = ()
         self._kernels = {}
         self.qualifier = None
         if qualify:
@@ -163,11 +162,10 @@ class Engine:
             raise devmod.DeviceError(f"{self.info.device} has no 64-bit atomics "
                                      "(cl_khr_int64_base_atomics), which the weighted mode's "
                                      "exact tallies need; use simulation.mode: analog")
-        options = (build_options(texture, precision, records, lanes, weighted)
-                   + self.extra_options)
+        options = build_options(texture, precision, records, lanes, weighted)
         program, digest = devmod.build_program(self.device, WALK_FILES, options)
         self.kernel_hash = digest
-        key = (texture, precision, records, lanes, weighted, self.extra_options)
+        key = (texture, precision, records, lanes, weighted)
         if key not in self._kernels:
             import pyopencl as cl
             self._kernels[key] = cl.Kernel(program, "walk")

@@ -19,7 +19,6 @@ N_EMERGENCE = 90  # 1-degree emergence bins, 0..90 deg
 TEXTURES = ("slab", "granular")
 BOTTOM_INTERFACES = ("fresnel", "none")
 RULES = ("history", "time_window")
-MODES = ("analog", "weighted")
 
 #: Weighted tallies are exact sums of floor(w * 2**FIXED_SHIFT) (docs/walk.md §6).
 FIXED_SHIFT = 150
