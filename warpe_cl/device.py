@@ -2,8 +2,9 @@
 
 The kernels live in ``cl/`` (installed as the package data ``warpe_cl.cl``). A program is
 the concatenation of its files in a fixed order, each preceded by a ``#line 1 "file"``
-directive so that compiler messages name the real file and line (the sasmodels way), and
-the hash of that text identifies the kernel in every output file.
+directive so that compiler messages name the real file and line (the sasmodels way); the hash
+of the files' contents and the build options (:func:`source_hash`, not of that text, which
+carries the install path) identifies the kernel in every output file.
 
 A device is *usable* only once it has compiled our self-test program and passed the
 known-answer walk of :mod:`warpe_cl.qualify` (ray by ray against the NumPy reference, in a
@@ -52,9 +53,10 @@ def kernel_dir() -> Path:
     raise DeviceError(f"the OpenCL sources (walk.cl) are missing beside {here}")
 
 
-def assemble_source(names) -> str:
-    """Join the named files of :func:`kernel_dir` with ``#line`` directives."""
-    folder = kernel_dir()
+def assemble_source(names, folder: Path | None = None) -> str:
+    """Join the named files of ``folder`` (default :func:`kernel_dir`) with ``#line``
+    directives, which name each file by its absolute path for the compiler's messages."""
+    folder = Path(folder) if folder is not None else kernel_dir()
     parts = []
     for name in names:
         path = folder / name
@@ -62,9 +64,38 @@ def assemble_source(names) -> str:
     return "".join(parts)
 
 
-def source_hash(source: str) -> str:
-    """SHA-256 of a program's text (recorded as provenance)."""
-    return hashlib.sha256(source.encode()).hexdigest()
+def source_hash(names, options=(), folder: Path | None = None) -> str:
+    """SHA-256 of a program: its files' names and contents, in order, then its build options.
+
+    This is the ``kernel_sha256`` of every output file. It identifies what the device
+    compiled -- the sources and the ``-D`` switches and layouts that select the machine code
+    (warpe_cl/engine.py build_options) -- and nothing else: not the folder the sources were
+    read from (the ``#line`` paths of :func:`assemble_source`), so the same kernel has the
+    same hash in every checkout and installation.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The program's files, in the order they are joined.
+    options : sequence of str
+        Its build options (``()``: the sources alone).
+    folder : Path, optional
+        Where the files are (default :func:`kernel_dir`).
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+    """
+    folder = Path(folder) if folder is not None else kernel_dir()
+    h = hashlib.sha256()
+    for name in names:
+        data = (folder / name).read_bytes()
+        h.update(f"file {name} {len(data)}\n".encode())
+        h.update(data)
+    for option in options:
+        h.update(f"option {len(option)}\n{option}".encode())
+    return h.hexdigest()
 
 
 @dataclass(frozen=True)
@@ -134,14 +165,13 @@ def context_and_queue(device):
 def build_program(device, names: tuple, options: tuple):
     """Build (and keep) the program made of ``names`` with ``-D`` options for ``device``.
 
-    Returns ``(program, source_hash)``. pyopencl and PoCL also cache binaries on disk, so a
-    second process rebuilds nothing.
+    Returns ``(program, source_hash(names, options))``. pyopencl and PoCL also cache binaries
+    on disk (keyed by the source text and the options), so a second process rebuilds nothing.
     """
     cl = _cl()
     ctx, _ = context_and_queue(device)
-    source = assemble_source(names)
-    program = cl.Program(ctx, source).build(options=list(options))
-    return program, source_hash(source)
+    program = cl.Program(ctx, assemble_source(names)).build(options=list(options))
+    return program, source_hash(names, options)
 
 
 def _explain_build_failure(err: Exception) -> str:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import time
+from functools import lru_cache
 
 import numpy as np
 
@@ -37,6 +38,15 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
     if weighted:
         opts.append("-DWARPE_WEIGHTED")
     return tuple(opts)
+
+
+@lru_cache(maxsize=1)
+def walk_source_hash() -> str:
+    """``kernel_sha256`` of the output files: SHA-256 of the walk kernel's files, their names
+    and contents (:func:`warpe_cl.device.source_hash`). The same for every texture, precision,
+    mode and lane width (the files record the first three; the lane width never changes a
+    result) and wherever the sources are installed; it changes when the kernel does."""
+    return devmod.source_hash(WALK_FILES)
 
 
 def requested_lanes() -> int | None:
@@ -163,8 +173,8 @@ class Engine:
                                      "(cl_khr_int64_base_atomics), which the weighted mode's "
                                      "exact tallies need; use simulation.mode: analog")
         options = build_options(texture, precision, records, lanes, weighted)
-        program, digest = devmod.build_program(self.device, WALK_FILES, options)
-        self.kernel_hash = digest
+        program, _ = devmod.build_program(self.device, WALK_FILES, options)
+        self.kernel_hash = walk_source_hash()
         key = (texture, precision, records, lanes, weighted)
         if key not in self._kernels:
             import pyopencl as cl

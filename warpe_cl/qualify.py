@@ -242,11 +242,12 @@ def check(engine, lanes: int, combo: Combo, measure: bool = True, corrupt: bool 
 
 @lru_cache(maxsize=None)
 def _source_digest() -> str:
-    """Hash of everything that decides a verdict besides the device: kernel sources, the
-    reference walk, its random numbers, and this check (read once per process)."""
+    """Hash of everything that decides a verdict besides the device and the build options:
+    kernel sources (their contents, wherever they are installed), the reference walk, its
+    random numbers, and this check (read once per process)."""
     from . import device as devmod
     from .engine import WALK_FILES
-    h = hashlib.sha256(devmod.assemble_source(WALK_FILES).encode())
+    h = hashlib.sha256(devmod.source_hash(WALK_FILES).encode())
     here = Path(__file__).resolve().parent
     for name in ("reference.py", "rng.py", "params.py", "qualify.py"):
         h.update((here / name).read_bytes())
