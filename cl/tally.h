@@ -6,22 +6,19 @@
 #ifndef WARPE_TALLY_H
 #define WARPE_TALLY_H
 
-#define N_COMPONENTS 4
-#define N_EMERGENCE 90
-#define COMPONENT_SPECULAR 0
-#define COMPONENT_BF_DIRECT 1
-#define COMPONENT_BF_DIFFUSE 2
-#define COMPONENT_SCATTERING 3
-
-#define FATE_SPECULAR 0
-#define FATE_ESCAPED 1
-#define FATE_ABSORBED_MEDIUM 2
-#define FATE_ABSORBED_FLOOR 3
-#define FATE_TERMINATED 4
-#define N_FATES 5
-
-#define TIME_BIN_LATE (-1)
-#define TIME_BIN_EARLY (-2)
+/* The layouts the host reads back are defined once, in warpe_cl/params.py (kernel_layout), and
+ * given to every build as -D macros (warpe_cl/engine.py build_options):
+ *   N_COMPONENTS, COMPONENT_SPECULAR .. COMPONENT_SCATTERING   component indices (walk.md §4)
+ *   N_FATES, FATE_SPECULAR .. FATE_TERMINATED                  fate indices (walk.md §4)
+ *   N_EMERGENCE                                                1-degree emergence bins
+ *   TIME_BIN_LATE, TIME_BIN_EARLY                              time_bin of a late, an early exit
+ *   N_ITEM_STATS, STAT_*                                       slots of item_stats (walk.cl)
+ *   N_RECORD_INT, N_RECORD_REAL, RECORD_*                      columns of the per-photon records
+ *   FIXED_SHIFT, FIXED_WORDS, MAX_WEIGHT                       the weighted sums (below) */
+#if !defined(N_COMPONENTS) || !defined(N_FATES) || !defined(N_ITEM_STATS) \
+    || !defined(N_RECORD_INT) || !defined(FIXED_SHIFT)
+#error "build the walk with the layout macros of warpe_cl/params.py (warpe_cl/engine.py)"
+#endif
 
 /* Index i with edges[i] <= t < edges[i+1]; TIME_BIN_EARLY (-2) if t < edges[0] (an early exit,
  * counted apart, never in a bin: walk.md §4); TIME_BIN_LATE (-1) if t >= edges[n_edges-1]. */
@@ -51,17 +48,20 @@ inline int emergence_bin(REAL cos_exit)
 
 #ifdef WARPE_WEIGHTED
 #pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
+#if FIXED_WORDS != 3
+#error "fixed_add keeps FIXED_WORDS = 3 words per sum"
+#endif
 /* Weighted tallies (docs/walk.md §6) are sums of weights in 192-bit fixed point, in units of
- * 2^-150: acc[0], acc[1], acc[2] are the low, middle and high 64-bit words. Integer addition is
+ * 2^-FIXED_SHIFT (2^-150): acc[0], acc[1], acc[2] are the low, middle and high 64-bit words. Integer addition is
  * exact and commutative, so the sums are the same bits whatever the order in which lanes,
  * work-items and launches add them (no float atomics); a weight of 1e-20 keeps 83 bits.
- * fixed_add adds floor(w 2^150) for 0 <= w < 2^42; a carry out of a word is seen by the one
+ * fixed_add adds floor(w 2^FIXED_SHIFT) for 0 <= w < 2^(192 - FIXED_SHIFT); a carry out of a word is seen by the one
  * atomic add that made it wrap, which passes it on to the next word. */
-/* True for a weight that the exact sums would drop: NaN, negative, or w >= 2^21, whose square
- * (the w^2 sums) reaches 2^42 (walk.md §6). */
+/* True for a weight that the exact sums would drop: NaN, negative, or w >= MAX_WEIGHT (2^21),
+ * whose square (the w^2 sums) reaches 2^42 (walk.md §6). */
 inline int weight_lost(REAL w)
 {
-    return !(w >= (REAL)0 && w < (REAL)0x1p21);
+    return !(w >= (REAL)0 && w < (REAL)MAX_WEIGHT);
 }
 
 inline void fixed_add(__global ulong *acc, REAL w)
@@ -72,10 +72,10 @@ inline void fixed_add(__global ulong *acc, REAL w)
     REAL f = frexp(w, &e);                 /* w = f 2^e, f in [1/2, 1) */
 #ifdef WARPE_DOUBLE
     ulong m = (ulong)(f * 0x1p53);         /* exact: 53-bit integer, w 2^150 = m 2^s */
-    int s = e - 53 + 150;
+    int s = e - 53 + FIXED_SHIFT;
 #else
     ulong m = (ulong)(f * 0x1p24f);
-    int s = e - 24 + 150;
+    int s = e - 24 + FIXED_SHIFT;
 #endif
     ulong lo = 0, mid = 0, hi = 0;
     if (s < 0) {

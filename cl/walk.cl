@@ -64,28 +64,28 @@ __kernel void walk(const uint seed, const ulong scenario,
                    const REAL cos_fov_specular, const REAL cos_fov_bf_direct,
                    const REAL cos_fov_bf_diffuse, const REAL cos_fov_scattering,
                    __global uint *next_photon,   /* [1] photons handed out so far (starts at 0) */
-                   __global uint *time_in_fov,   /* [4][n_edges - 1] */
-                   __global uint *time_any,      /* [4][n_edges - 1] */
-                   __global uint *angular,       /* [4][90] */
-                   __global uint *total,         /* [4] */
-                   __global uint *early,         /* [4] exits before time_edges[0] */
-                   __global ulong *item_stats    /* [global size][8] */
-#ifdef WARPE_WEIGHTED
-                   , __global ulong *w_time_in_fov  /* [4][n_edges - 1][3] sums of weights */
-                   , __global ulong *w_time_any     /* [4][n_edges - 1][3] */
-                   , __global ulong *w_angular      /* [4][90][3] */
-                   , __global ulong *w_total        /* [4][3] */
-                   , __global ulong *w_early        /* [4][3] */
-                   , __global ulong *w2_time_in_fov /* [4][n_edges - 1][3] sums of squares */
-                   , __global ulong *w2_total       /* [4][3] */
+                   __global uint *time_in_fov,   /* [N_COMPONENTS][n_edges - 1] */
+                   __global uint *time_any,      /* [N_COMPONENTS][n_edges - 1] */
+                   __global uint *angular,       /* [N_COMPONENTS][N_EMERGENCE] */
+                   __global uint *total,         /* [N_COMPONENTS] */
+                   __global uint *early,         /* [N_COMPONENTS] exits before time_edges[0] */
+                   __global ulong *item_stats    /* [global size][N_ITEM_STATS] */
+#ifdef WARPE_WEIGHTED   /* sums of weights (w_) and of their squares (w2_), FIXED_WORDS each */
+                   , __global ulong *w_time_in_fov  /* [N_COMPONENTS][n_edges - 1][FIXED_WORDS] */
+                   , __global ulong *w_time_any     /* [N_COMPONENTS][n_edges - 1][FIXED_WORDS] */
+                   , __global ulong *w_angular      /* [N_COMPONENTS][N_EMERGENCE][FIXED_WORDS] */
+                   , __global ulong *w_total        /* [N_COMPONENTS][FIXED_WORDS] */
+                   , __global ulong *w_early        /* [N_COMPONENTS][FIXED_WORDS] */
+                   , __global ulong *w2_time_in_fov /* [N_COMPONENTS][n_edges - 1][FIXED_WORDS] */
+                   , __global ulong *w2_total       /* [N_COMPONENTS][FIXED_WORDS] */
 #endif
 #ifdef WARPE_RECORD
-                   , __global int *rec_int       /* [n_photons][8] */
-                   , __global REAL *rec_real     /* [n_photons][3] */
+                   , __global int *rec_int       /* [n_photons][N_RECORD_INT] */
+                   , __global REAL *rec_real     /* [n_photons][N_RECORD_REAL] */
 #endif
                    )
 {
-    const REAL cos_fov[4] = {cos_fov_specular, cos_fov_bf_direct, cos_fov_bf_diffuse,
+    const REAL cos_fov[N_COMPONENTS] = {cos_fov_specular, cos_fov_bf_direct, cos_fov_bf_diffuse,
                              cos_fov_scattering};
     const int n_time = n_edges - 1;
     const uint base_lo = (uint)first_photon, base_hi = (uint)(first_photon >> 32);
@@ -99,7 +99,7 @@ __kernel void walk(const uint seed, const ulong scenario,
 #else
     const IREAL phase_start = PHASE_FLIGHT;
 #endif
-    ulong fates[N_FATES] = {0, 0, 0, 0, 0};
+    ulong fates[N_FATES] = {0};
     ulong scattering_events = 0, mixed = 0, lost = 0;
 
     /* the lanes' rays (walk.md §3): position, direction, path, counters, stream */
@@ -356,32 +356,37 @@ __kernel void walk(const uint seed, const ulong scenario,
                      * counted, and the host refuses the result (walk.md §6) */
                     lost += weight_lost(wj) ? 1 : 0;
                     if (tb == TIME_BIN_EARLY)
-                        fixed_add(w_early + 3 * component, wj);
-                    fixed_add(w_total + 3 * component, wj);
-                    fixed_add(w2_total + 3 * component, wj * wj);
-                    fixed_add(w_angular + 3 * (component * N_EMERGENCE + eb), wj);
+                        fixed_add(w_early + FIXED_WORDS * component, wj);
+                    fixed_add(w_total + FIXED_WORDS * component, wj);
+                    fixed_add(w2_total + FIXED_WORDS * component, wj * wj);
+                    fixed_add(w_angular + FIXED_WORDS * (component * N_EMERGENCE + eb), wj);
                     if (tb >= 0) {
-                        fixed_add(w_time_any + 3 * (component * n_time + tb), wj);
+                        fixed_add(w_time_any + FIXED_WORDS * (component * n_time + tb), wj);
                         if (in_fov) {
-                            fixed_add(w_time_in_fov + 3 * (component * n_time + tb), wj);
-                            fixed_add(w2_time_in_fov + 3 * (component * n_time + tb), wj * wj);
+                            fixed_add(w_time_in_fov + FIXED_WORDS * (component * n_time + tb), wj);
+                            fixed_add(w2_time_in_fov + FIXED_WORDS * (component * n_time + tb), wj * wj);
                         }
                     }
 #endif
                 }
 #ifdef WARPE_RECORD
                 const size_t i = (size_t)p[j];
-                __global int *ri = rec_int + 8 * i;
-                ri[0] = fj; ri[1] = component;
-                ri[2] = (int)n_s; ri[3] = (int)n_l;
-                ri[4] = (int)nb[j]; ri[5] = (int)nt[j];
-                ri[6] = tb; ri[7] = eb;
-                rec_real[3 * i] = tj;
-                rec_real[3 * i + 1] = ce[j];
+                __global int *ri = rec_int + N_RECORD_INT * i;
+                __global REAL *rr = rec_real + N_RECORD_REAL * i;
+                ri[RECORD_FATE] = fj;
+                ri[RECORD_COMPONENT] = component;
+                ri[RECORD_N_SCAT] = (int)n_s;
+                ri[RECORD_N_LAMB] = (int)n_l;
+                ri[RECORD_N_BSPEC] = (int)nb[j];
+                ri[RECORD_N_TOP] = (int)nt[j];
+                ri[RECORD_TIME_BIN] = tb;
+                ri[RECORD_EMERGENCE_BIN] = eb;
+                rr[RECORD_TIME_NS] = tj;
+                rr[RECORD_COS_EXIT] = ce[j];
 #ifdef WARPE_WEIGHTED
-                rec_real[3 * i + 2] = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
+                rr[RECORD_WEIGHT] = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
 #else
-                rec_real[3 * i + 2] = (REAL)1;
+                rr[RECORD_WEIGHT] = (REAL)1;
 #endif
 #endif
             }
@@ -389,10 +394,13 @@ __kernel void walk(const uint seed, const ulong scenario,
         }
     }
 
-    __global ulong *st = item_stats + 8 * get_global_id(0);
-    for (int f = 0; f < N_FATES; ++f)
-        st[f] = fates[f];
-    st[5] = scattering_events;
-    st[6] = mixed;
-    st[7] = lost;   /* weights dropped by the exact sums (weighted mode) */
+    __global ulong *st = item_stats + N_ITEM_STATS * get_global_id(0);
+    st[STAT_FATE_SPECULAR] = fates[FATE_SPECULAR];
+    st[STAT_FATE_ESCAPED] = fates[FATE_ESCAPED];
+    st[STAT_FATE_ABSORBED_MEDIUM] = fates[FATE_ABSORBED_MEDIUM];
+    st[STAT_FATE_ABSORBED_FLOOR] = fates[FATE_ABSORBED_FLOOR];
+    st[STAT_FATE_TERMINATED] = fates[FATE_TERMINATED];
+    st[STAT_SCATTERING_EVENTS] = scattering_events;
+    st[STAT_MIXED_HISTORY] = mixed;
+    st[STAT_LOST_WEIGHTS] = lost;   /* weights dropped by the exact sums (weighted mode) */
 }

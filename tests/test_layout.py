@@ -1,26 +1,149 @@
-"""The host and the kernel agree on what they share: a kernel hash that depends on the
-sources' contents only, not on where they are installed."""
+"""The host and the kernel agree on their shared layouts, named once in warpe_cl/params.py:
+the walk kernel's parameters (engine.WALK_ARGS against cl/walk.cl), the layout macros
+(params.kernel_layout against their uses in cl/), the tally shapes, and a kernel hash that
+depends on the sources' contents only, not on where they are installed."""
 from __future__ import annotations
 
 import re
 import shutil
 
+import numpy as np
+import pytest
+
+from warpe_cl import params as P
 from warpe_cl.device import assemble_source, kernel_dir, source_hash
-from warpe_cl.engine import WALK_FILES, walk_source_hash
+from warpe_cl.engine import (WALK_ARGS, WALK_FILES, build_options, layout_options, walk_args,
+                             walk_source_hash)
+
+
+def _code(text: str) -> str:
+    """OpenCL C source without its comments."""
+    text = re.sub(r"/\*.*?\*/", " ", text, flags=re.S)
+    return re.sub(r"//[^\n]*", " ", text)
+
+
+def _kernel_parameters(source: str, defined: set) -> list:
+    """``(type, name)`` of each parameter of ``__kernel void walk(...)``, keeping the lines
+    of the ``#ifdef`` blocks whose macro is in ``defined``."""
+    code = _code(source)
+    start = code.index("__kernel void walk(") + len("__kernel void walk(")
+    end = re.compile(r"\)\s*\{").search(code, start).start()
+    kept, stack = [], []
+    for line in code[start:end].splitlines():
+        directive = line.strip()
+        if directive.startswith("#ifdef"):
+            stack.append(directive.split()[1] in defined)
+        elif directive.startswith("#ifndef"):
+            stack.append(directive.split()[1] not in defined)
+        elif directive.startswith("#endif"):
+            stack.pop()
+        elif all(stack):
+            kept.append(line)
+    assert not stack, "unbalanced #ifdef in the kernel's parameter list"
+    out = []
+    for decl in " ".join(kept).split(","):
+        if decl.strip():
+            ctype, name = re.fullmatch(r"\s*(.*?)\s*(\w+)\s*", decl).groups()
+            out.append((_normal_type(ctype), name))
+    return out
+
+
+def _normal_type(ctype: str) -> str:
+    """``const uint`` -> ``uint`` (a scalar's const is the kernel's business), spaces
+    normalised around ``*``."""
+    words = ctype.replace("*", " * ").split()
+    if words[0] == "const" and "__global" not in words:
+        words = words[1:]
+    return " ".join(words)
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+@pytest.mark.parametrize("records", [False, True])
+def test_walk_arguments_match_the_kernel(weighted, records):
+    """engine.WALK_ARGS is cl/walk.cl's parameter list, in order, with its types, in every
+    build (WARPE_WEIGHTED and WARPE_RECORD add parameters)."""
+    source = (kernel_dir() / "walk.cl").read_text()
+    defined = {m for m, on in (("WARPE_WEIGHTED", weighted), ("WARPE_RECORD", records)) if on}
+    kernel = _kernel_parameters(source, defined)
+    host = [(_normal_type(a.ctype), a.name) for a in walk_args(weighted, records)]
+    assert host == kernel
+
+
+def test_walk_arguments_are_typed_and_named_once():
+    names = [a.name for a in WALK_ARGS]
+    assert len(names) == len(set(names))
+    for a in WALK_ARGS:
+        assert a.is_buffer or a.ctype in ("uint", "ulong", "int", "REAL"), a
+        assert a.only in (None, "weighted", "records"), a
+        assert not (a.is_buffer and a.value is not None), f"{a.name}: buffers come per launch"
+    # the scenario's values exist for a real WalkParams
+    p = P.WalkParams(texture="slab", thickness=0.01, extinction=100.0, omega=0.9, g=0.8,
+                     n=1.3, k=0.0, albedo=0.5, time_edges=np.linspace(0, 1, 5))
+    for a in WALK_ARGS:
+        if a.value is not None:
+            assert np.isfinite(float(a.value(p))), a.name
+
+
+LAYOUT_NAME = re.compile(r"\b(N_COMPONENTS|N_FATES|N_EMERGENCE|N_ITEM_STATS|N_RECORD_INT|"
+                         r"N_RECORD_REAL|COMPONENT_\w+|FATE_\w+|STAT_\w+|RECORD_\w+|TIME_BIN_\w+|"
+                         r"FIXED_SHIFT|FIXED_WORDS|MAX_WEIGHT)\b")
+
+
+def test_layout_macros_come_from_params_only():
+    """Every layout name the kernel uses is one of params.kernel_layout's macros, none is
+    #defined in cl/ itself, and every one is used (every item_stats slot and record column
+    is written)."""
+    layout = P.kernel_layout()
+    code = "\n".join(_code((kernel_dir() / name).read_text()) for name in WALK_FILES)
+    used = set(LAYOUT_NAME.findall(code))
+    assert used <= set(layout), used - set(layout)
+    assert set(layout) <= used, set(layout) - used
+    for name in layout:
+        assert not re.search(rf"#\s*define\s+{name}\b", code), f"{name} is defined in cl/"
+    assert all(f"-D{k}={v}" in build_options("slab", "single", False) for k, v in layout.items())
+
+
+def test_layout_values():
+    layout = P.kernel_layout()
+    assert layout["N_COMPONENTS"] == str(len(P.COMPONENTS)) == "4"
+    assert [layout[f"COMPONENT_{c.upper()}"] for c in P.COMPONENTS] == ["0", "1", "2", "3"]
+    assert layout["N_ITEM_STATS"] == str(len(P.ITEM_STATS)) == "8"
+    assert layout["STAT_LOST_WEIGHTS"] == "7"
+    assert layout["TIME_BIN_EARLY"] == "(-2)" and layout["TIME_BIN_LATE"] == "(-1)"
+    assert float.fromhex(layout["MAX_WEIGHT"]) == P.MAX_WEIGHT
+    assert P.RECORD_FIELDS.keys() == set(P.RECORD_INT_COLUMNS + P.RECORD_REAL_COLUMNS)
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_counts_have_the_tally_shapes(weighted):
+    shapes = P.tally_shapes(7)
+    c = P.Counts(n_time=7, weighted=weighted)
+    for name, shape in shapes.items():
+        value = getattr(c, name)
+        if name in P.WEIGHT_TALLIES and not weighted:
+            assert value is None
+        else:
+            assert value.shape == shape, name
+    assert shapes["time_in_fov"] == (P.N_COMPONENTS, 7)
+    assert shapes["angular"] == (P.N_COMPONENTS, P.N_EMERGENCE)
+    assert shapes["fates"] == (P.N_FATES,)
 
 
 def test_kernel_hash_does_not_depend_on_where_the_sources_are(tmp_path):
-    """kernel_sha256 hashes the files' contents: two copies of cl/ in different folders have
-    the same hash (their assembled text differs by its #line paths); a changed file or
-    option changes it."""
+    """kernel_sha256 hashes the files' contents and the layout macros: two copies of cl/ in
+    different folders have the same hash (their assembled text differs by its #line paths);
+    a changed file or option changes it."""
     a, b = tmp_path / "one" / "cl", tmp_path / "elsewhere" / "deeper" / "cl"
     shutil.copytree(kernel_dir(), a)
     shutil.copytree(kernel_dir(), b)
     assert assemble_source(WALK_FILES, a) != assemble_source(WALK_FILES, b)
-    assert source_hash(WALK_FILES, (), a) == source_hash(WALK_FILES, (), b) == walk_source_hash()
-    assert source_hash(WALK_FILES, ("-DWARPE_DOUBLE",), a) != walk_source_hash()
+    options = layout_options()
+    assert source_hash(WALK_FILES, options, a) == source_hash(WALK_FILES, options, b)
+    assert source_hash(WALK_FILES, options, a) == walk_source_hash()
+    assert source_hash(WALK_FILES, options + ("-DWARPE_DOUBLE",), a) != walk_source_hash()
+    assert source_hash(WALK_FILES, (), a) != walk_source_hash()
     (b / "walk.cl").write_text((b / "walk.cl").read_text() + "\n")
-    assert source_hash(WALK_FILES, (), b) != walk_source_hash()
+    assert source_hash(WALK_FILES, options, b) != walk_source_hash()
 
 
 def test_engine_records_the_kernel_hash(engine):

@@ -11,22 +11,34 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from functools import lru_cache
+from typing import Callable
 
 import numpy as np
 
 from . import device as devmod
 from .errors import WeightError
-from .params import Counts, N_EMERGENCE, WalkParams
+from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, ITEM_STATS, RECORD_FIELDS,
+                     RECORD_INT_COLUMNS, RECORD_REAL_COLUMNS, Counts, WalkParams,
+                     kernel_layout, tally_shapes)
 
 WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "tally.h", "walk.cl")
 MAX_LAUNCH = 2 ** 31 - 1
 LANE_WIDTHS = (1, 2, 4, 8, 16)
 
 
+def layout_options() -> tuple:
+    """The ``-D`` macros of the layouts the host and the kernel share
+    (:func:`warpe_cl.params.kernel_layout`), the same in every build."""
+    return tuple(f"-D{name}={value}" for name, value in kernel_layout().items())
+
+
 def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
                   weighted: bool = False) -> tuple:
-    """The structural ``-D`` switches of the walk kernel (no physical value is compiled in)."""
+    """The ``-D`` switches of the walk kernel: its structure (texture, lane width, precision,
+    per-photon records, weighted mode), then the shared layouts of :func:`layout_options`.
+    No physical value is compiled in."""
     if lanes not in LANE_WIDTHS:
         raise ValueError(f"lanes must be one of {LANE_WIDTHS}, got {lanes}")
     opts = ["-DWARPE_TEXTURE_SLAB" if texture == "slab" else "-DWARPE_TEXTURE_GRANULAR",
@@ -37,16 +49,105 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
         opts.append("-DWARPE_RECORD")
     if weighted:
         opts.append("-DWARPE_WEIGHTED")
-    return tuple(opts)
+    return tuple(opts) + layout_options()
 
 
 @lru_cache(maxsize=1)
 def walk_source_hash() -> str:
-    """``kernel_sha256`` of the output files: SHA-256 of the walk kernel's files, their names
-    and contents (:func:`warpe_cl.device.source_hash`). The same for every texture, precision,
+    """``kernel_sha256`` of the output files: SHA-256 of the walk kernel's files (their names
+    and contents, :func:`warpe_cl.device.source_hash`) and of the layouts the host compiles
+    into every build of it (:func:`layout_options`). The same for every texture, precision,
     mode and lane width (the files record the first three; the lane width never changes a
     result) and wherever the sources are installed; it changes when the kernel does."""
-    return devmod.source_hash(WALK_FILES)
+    return devmod.source_hash(WALK_FILES, layout_options())
+
+
+@dataclass(frozen=True)
+class KernelArg:
+    """One parameter of the walk kernel (``__kernel void walk(...)`` in cl/walk.cl).
+
+    Attributes
+    ----------
+    name : str
+        The parameter's name in cl/walk.cl.
+    ctype : str
+        Its OpenCL C type: ``uint``, ``ulong``, ``int``, ``REAL`` (float or double, as the
+        build's precision), or a ``__global`` buffer (``__global uint *``, ...).
+    value : callable or None
+        Scalars fixed by the scenario: ``value(params)`` of a :class:`WalkParams`. ``None``:
+        the launch provides it, by name (photon range, buffers).
+    only : {None, "weighted", "records"}
+        Present only in the builds with ``WARPE_WEIGHTED`` or ``WARPE_RECORD``.
+    """
+
+    name: str
+    ctype: str
+    value: Callable | None = None
+    only: str | None = None
+
+    @property
+    def is_buffer(self) -> bool:
+        return self.ctype.startswith("__global")
+
+
+def _cos_fov(c: int) -> Callable:
+    return lambda p: p.cos_fov[c]
+
+
+#: The walk kernel's parameters, in order: the one table that :meth:`Engine.run` fills and
+#: tests/test_layout.py checks against the kernel's source.
+WALK_ARGS = (
+    KernelArg("seed", "uint", lambda p: p.seed),
+    KernelArg("scenario", "ulong", lambda p: p.scenario),
+    KernelArg("first_photon", "ulong"),
+    KernelArg("n_photons", "uint"),
+    KernelArg("h", "REAL", lambda p: p.thickness),
+    KernelArg("E", "REAL", lambda p: p.flight_extinction),
+    KernelArg("omega_words", "ulong", lambda p: p.omega_words),
+    KernelArg("g", "REAL", lambda p: p.g),
+    KernelArg("n", "REAL", lambda p: p.n),
+    KernelArg("k", "REAL", lambda p: p.k),
+    KernelArg("A", "REAL", lambda p: p.albedo),
+    KernelArg("albedo_words", "ulong", lambda p: p.albedo_words),
+    KernelArg("L_max", "REAL", lambda p: p.path_cap),
+    KernelArg("max_flights", "uint", lambda p: min(p.max_flights, 2 ** 31 - 1)),
+    KernelArg("bottom_fresnel", "int", lambda p: p.bottom_interface == "fresnel"),
+    KernelArg("mu_a", "REAL", lambda p: p.absorption),
+    KernelArg("roulette_weight", "REAL", lambda p: p.roulette_weight),
+    KernelArg("roulette_survival", "REAL", lambda p: p.roulette_survival),
+    KernelArg("rule_time_window", "int", lambda p: p.rule == "time_window"),
+    KernelArg("t1", "REAL", lambda p: p.first_bf_time),
+    KernelArg("time_edges", "__global const REAL *"),
+    KernelArg("n_edges", "int", lambda p: len(p.time_edges)),
+    *(KernelArg(f"cos_fov_{name}", "REAL", _cos_fov(c)) for c, name in enumerate(COMPONENTS)),
+    KernelArg("next_photon", "__global uint *"),
+    *(KernelArg(name, "__global uint *") for name in HISTOGRAMS),
+    KernelArg("item_stats", "__global ulong *"),
+    *(KernelArg(name, "__global ulong *", only="weighted")
+      for name in ("w_time_in_fov", "w_time_any", "w_angular", "w_total", "w_early",
+                   "w2_time_in_fov", "w2_total")),
+    KernelArg("rec_int", "__global int *", only="records"),
+    KernelArg("rec_real", "__global REAL *", only="records"),
+)
+
+_SCALAR_TYPES = {"uint": np.uint32, "ulong": np.uint64, "int": np.int32}
+
+
+def walk_args(weighted: bool, records: bool) -> tuple:
+    """The :data:`WALK_ARGS` of one build of the walk kernel, in order."""
+    present = {None: True, "weighted": weighted, "records": records}
+    return tuple(a for a in WALK_ARGS if present[a.only])
+
+
+def argument_values(args, params: WalkParams, launch: dict, real) -> list:
+    """The values of ``args`` for one launch, in order: the scenario's from ``params``, the
+    others from ``launch`` (by name); scalars as NumPy scalars of their OpenCL type (``real``:
+    the dtype of REAL)."""
+    out = []
+    for a in args:
+        value = a.value(params) if a.value is not None else launch[a.name]
+        out.append(value if a.is_buffer else _SCALAR_TYPES.get(a.ctype, real)(value))
+    return out
 
 
 def requested_lanes() -> int | None:
@@ -239,32 +340,22 @@ class Engine:
 
         mf = cl.mem_flags
         ctx, queue = self.context, self.queue
-        d_edges = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=edges)
-        hist_shapes = {"time_in_fov": (4, n_time), "time_any": (4, n_time),
-                       "angular": (4, N_EMERGENCE), "total": (4,), "early": (4,)}
-        d_hist = {k: cl.Buffer(ctx, mf.READ_WRITE, size=4 * int(np.prod(s)))
-                  for k, s in hist_shapes.items()}
-        d_stats = cl.Buffer(ctx, mf.READ_WRITE, size=8 * 8 * gsize)
-        d_next = cl.Buffer(ctx, mf.READ_WRITE, size=4)
-        # weighted sums: 192-bit fixed point, three uint64 words per cell (cl/tally.h)
-        weight_shapes = {"w_time_in_fov": (4, n_time), "w_time_any": (4, n_time),
-                         "w_angular": (4, N_EMERGENCE), "w_total": (4,),
-                         "w2_time_in_fov": (4, n_time), "w2_total": (4,),
-                         "w_early": (4,)} if weighted else {}
-        d_weight = {k: cl.Buffer(ctx, mf.READ_WRITE, size=8 * 3 * int(np.prod(s)))
-                    for k, s in weight_shapes.items()}
+        args = walk_args(weighted, records)
+        shapes = tally_shapes(n_time)
+        hist = [a.name for a in args if a.name in HISTOGRAMS]
+        weights = [a.name for a in args if a.only == "weighted"]
+        # the buffers, by kernel argument: uint32 histograms; weighted sums in FIXED_WORDS
+        # uint64 words per cell (cl/tally.h); the statistics of every work-item
+        buffers = {"time_edges": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=edges),
+                   "next_photon": cl.Buffer(ctx, mf.READ_WRITE, size=4),
+                   "item_stats": cl.Buffer(ctx, mf.READ_WRITE, size=8 * len(ITEM_STATS) * gsize),
+                   **{k: cl.Buffer(ctx, mf.READ_WRITE, size=4 * int(np.prod(shapes[k])))
+                      for k in hist},
+                   **{k: cl.Buffer(ctx, mf.READ_WRITE,
+                                   size=8 * FIXED_WORDS * int(np.prod(shapes[k])))
+                      for k in weights}}
+        zeroed = [buffers[k] for k in (*hist, *weights, "next_photon")]
 
-        cos_fov = params.cos_fov
-        scalar_args = [
-            real(params.thickness), real(params.flight_extinction),
-            np.uint64(params.omega_words), real(params.g), real(params.n), real(params.k),
-            real(params.albedo), np.uint64(params.albedo_words),
-            real(params.path_cap), np.uint32(min(params.max_flights, 2 ** 31 - 1)),
-            np.int32(params.bottom_interface == "fresnel"),
-            real(params.absorption), real(params.roulette_weight),
-            real(params.roulette_survival),
-            np.int32(params.rule == "time_window"), real(params.first_bf_time),
-        ]
         total = Counts(n_time=n_time, weighted=weighted)
         lost_weights = 0   # weighted exits whose weight the exact sums cannot hold
         rec_chunks = []
@@ -272,46 +363,41 @@ class Engine:
         size = int(batch) if batch else min(gsize * lanes * 4, photons) or 1
         while done < photons:
             n = min(size, photons - done, MAX_LAUNCH)
-            for buf in (*d_hist.values(), *d_weight.values(), d_next):
+            for buf in zeroed:
                 cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)
-            args = [np.uint32(params.seed), np.uint64(params.scenario),
-                    np.uint64(first_photon + done), np.uint32(n), *scalar_args,
-                    d_edges, np.int32(len(edges)), *(real(c) for c in cos_fov),
-                    d_next, d_hist["time_in_fov"], d_hist["time_any"], d_hist["angular"],
-                    d_hist["total"], d_hist["early"], d_stats,
-                    *(d_weight[k] for k in ("w_time_in_fov", "w_time_any", "w_angular",
-                                            "w_total", "w_early", "w2_time_in_fov",
-                                            "w2_total") if k in d_weight)]
+            launch = {**buffers, "first_photon": first_photon + done, "n_photons": n}
             launch_items = min(gsize, -(-n // lanes))
             if local_size:
                 launch_items = -(-launch_items // local_size) * local_size
             if records:
-                d_ri = cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * 8 * n)
-                d_rr = cl.Buffer(ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * 3 * n)
-                args += [d_ri, d_rr]
+                launch["rec_int"] = cl.Buffer(ctx, mf.WRITE_ONLY,
+                                              size=4 * len(RECORD_INT_COLUMNS) * n)
+                launch["rec_real"] = cl.Buffer(
+                    ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * len(RECORD_REAL_COLUMNS) * n)
             t0 = time.perf_counter()
-            kern(queue, (launch_items,), (local_size,) if local_size else None, *args)
+            kern(queue, (launch_items,), (local_size,) if local_size else None,
+                 *argument_values(args, params, launch, real))
             part = Counts(n_time=n_time, photons=n, weighted=weighted)
-            for name, shape in hist_shapes.items():
-                host = np.empty(shape, dtype=np.uint32)
-                cl.enqueue_copy(queue, host, d_hist[name])
+            for name in hist:
+                host = np.empty(shapes[name], dtype=np.uint32)
+                cl.enqueue_copy(queue, host, buffers[name])
                 getattr(part, name)[...] = host
-            for name, shape in weight_shapes.items():
-                words = np.empty((*shape, 3), dtype=np.uint64)
-                cl.enqueue_copy(queue, words, d_weight[name])
+            for name in weights:
+                words = np.empty((*shapes[name], FIXED_WORDS), dtype=np.uint64)
+                cl.enqueue_copy(queue, words, buffers[name])
                 setattr(part, name, _exact_sums(words))
-            stats = np.empty((gsize, 8), dtype=np.uint64)
-            cl.enqueue_copy(queue, stats, d_stats)
-            stats = stats[:launch_items].astype(np.int64).sum(axis=0)
-            part.fates[...] = stats[:5]
-            part.scattering_events = int(stats[5])
-            part.mixed_history = int(stats[6])
-            lost_weights += int(stats[7])
+            stats = np.empty((gsize, len(ITEM_STATS)), dtype=np.uint64)
+            cl.enqueue_copy(queue, stats, buffers["item_stats"])
+            stats = dict(zip(ITEM_STATS, stats[:launch_items].astype(np.int64).sum(axis=0)))
+            part.fates[...] = [stats[f"fate_{f}"] for f in FATES]
+            part.scattering_events = int(stats["scattering_events"])
+            part.mixed_history = int(stats["mixed_history"])
+            lost_weights += int(stats["lost_weights"])
             if records:
-                ri = np.empty((n, 8), dtype=np.int32)
-                rr = np.empty((n, 3), dtype=real)
-                cl.enqueue_copy(queue, ri, d_ri)
-                cl.enqueue_copy(queue, rr, d_rr)
+                ri = np.empty((n, len(RECORD_INT_COLUMNS)), dtype=np.int32)
+                rr = np.empty((n, len(RECORD_REAL_COLUMNS)), dtype=real)
+                cl.enqueue_copy(queue, ri, launch["rec_int"])
+                cl.enqueue_copy(queue, rr, launch["rec_real"])
                 rec_chunks.append((ri, rr))
             queue.finish()
             elapsed = time.perf_counter() - t0
@@ -330,21 +416,21 @@ class Engine:
 
 
 def _exact_sums(words: np.ndarray) -> np.ndarray:
-    """192-bit fixed-point words (low, middle, high) as exact Python ints (object array)."""
-    lo, mid, hi = (words[..., i].astype(object) for i in range(3))
-    return (hi << 128) + (mid << 64) + lo
+    """Fixed-point words (low first, :data:`~warpe_cl.params.FIXED_WORDS` of them) as exact
+    Python ints (object array)."""
+    return sum(words[..., i].astype(object) << (64 * i) for i in range(FIXED_WORDS))
 
 
 def _records_from_chunks(chunks) -> dict:
-    ri = np.concatenate([c[0] for c in chunks]) if chunks else np.empty((0, 8), np.int32)
-    rr = np.concatenate([c[1] for c in chunks]).astype(np.float64) if chunks else np.empty((0, 3))
-    exited = ri[:, 1] >= 0
-    return {
-        "fate": ri[:, 0].astype(np.int8), "component": ri[:, 1].astype(np.int8),
-        "n_scat": ri[:, 2].astype(np.int64), "n_lamb": ri[:, 3].astype(np.int64),
-        "n_bspec": ri[:, 4].astype(np.int64), "n_top": ri[:, 5].astype(np.int64),
-        "time_bin": ri[:, 6].astype(np.int64), "emergence_bin": ri[:, 7].astype(np.int64),
-        "time_ns": np.where(exited, rr[:, 0], np.nan),
-        "cos_exit": np.where(exited, rr[:, 1], np.nan),
-        "weight": rr[:, 2],
-    }
+    """The kernel's per-photon records (``rec_int``, ``rec_real`` of each launch) as
+    ``Counts.records``: one array per field of :data:`~warpe_cl.params.RECORD_FIELDS`, NaN
+    times and exit cosines for the rays that did not exit."""
+    n_int, n_real = len(RECORD_INT_COLUMNS), len(RECORD_REAL_COLUMNS)
+    ri = np.concatenate([c[0] for c in chunks]) if chunks else np.empty((0, n_int), np.int32)
+    rr = (np.concatenate([c[1] for c in chunks]).astype(np.float64) if chunks
+          else np.empty((0, n_real)))
+    exited = ri[:, RECORD_INT_COLUMNS.index("component")] >= 0
+    out = {name: ri[:, j].astype(RECORD_FIELDS[name]) for j, name in enumerate(RECORD_INT_COLUMNS)}
+    for j, name in enumerate(RECORD_REAL_COLUMNS):
+        out[name] = rr[:, j] if name == "weight" else np.where(exited, rr[:, j], np.nan)
+    return out

@@ -14,21 +14,110 @@ import numpy as np
 C_M_PER_NS = 0.299792458
 
 COMPONENTS = ("specular", "bf_direct", "bf_diffuse", "scattering")
+N_COMPONENTS = len(COMPONENTS)
 FATES = ("specular", "escaped", "absorbed_medium", "absorbed_floor", "terminated")
+N_FATES = len(FATES)
 N_EMERGENCE = 90  # 1-degree emergence bins, 0..90 deg
 TEXTURES = ("slab", "granular")
 BOTTOM_INTERFACES = ("fresnel", "none")
 RULES = ("history", "time_window")
+#: time_bin of an exit at or after the last edge (or of a ray that did not exit), and of an
+#: early exit, before the first edge (docs/walk.md §4)
+TIME_BIN_LATE, TIME_BIN_EARLY = -1, -2
 
-#: Weighted tallies are exact sums of floor(w * 2**FIXED_SHIFT) (docs/walk.md §6).
+#: Weighted tallies are exact sums of floor(w * 2**FIXED_SHIFT) (docs/walk.md §6), each held
+#: in FIXED_WORDS 64-bit words (low, middle, high: 192 bits, cl/tally.h fixed_add).
 FIXED_SHIFT = 150
-WEIGHT_TALLIES = ("w_time_in_fov", "w_time_any", "w_angular", "w_total", "w2_time_in_fov",
-                  "w2_total", "w_early")
-#: The analog tallies of :class:`Counts`, in the order the kernel fills them.
-COUNT_TALLIES = ("time_in_fov", "time_any", "angular", "total", "early", "fates")
+FIXED_WORDS = 3
+#: The histograms the kernel fills (uint32 per launch), each over the cells of
+#: :func:`tally_shapes`.
+HISTOGRAMS = ("time_in_fov", "time_any", "angular", "total", "early")
+#: The analog tallies of :class:`Counts`: the histograms, and the fates (from ``item_stats``).
+COUNT_TALLIES = HISTOGRAMS + ("fates",)
+#: The weighted sums (docs/walk.md §6), each over the cells of the histogram it names.
+WEIGHT_TALLIES = {"w_time_in_fov": "time_in_fov", "w_time_any": "time_any",
+                  "w_angular": "angular", "w_total": "total", "w2_time_in_fov": "time_in_fov",
+                  "w2_total": "total", "w_early": "early"}
 #: A weighted ray whose weight reaches this (or is NaN) cannot be tallied exactly: its square
 #: would pass 2**42, the top of the 192-bit sums (docs/walk.md §6).
 MAX_WEIGHT = 2.0 ** 21
+
+#: The slots of the kernel's per-work-item statistics (``item_stats[work-item][slot]``, uint64),
+#: in slot order: rays per fate, volume scatterings, mixed-history exits, and weighted exits
+#: whose weight the exact sums cannot hold (:func:`lost_weight`).
+ITEM_STATS = tuple(f"fate_{f}" for f in FATES) + ("scattering_events", "mixed_history",
+                                                    "lost_weights")
+#: The columns of a per-photon record (``Counts.records``, for the parity tests): the kernel
+#: writes ``rec_int[photon][RECORD_INT_COLUMNS]`` (int32) and
+#: ``rec_real[photon][RECORD_REAL_COLUMNS]`` (REAL).
+RECORD_INT_COLUMNS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
+                      "emergence_bin")
+RECORD_REAL_COLUMNS = ("time_ns", "cos_exit", "weight")
+#: Per-photon record fields and their dtypes (``Counts.records`` when asked for).
+RECORD_FIELDS = {
+    "fate": np.int8,            # index into FATES
+    "component": np.int8,       # index into COMPONENTS, -1 if the ray did not exit
+    "time_ns": np.float64,      # exit time, ns (0 for specular, NaN if not exited)
+    "cos_exit": np.float64,     # cos of the emergence angle in vacuum (NaN if not exited)
+    "weight": np.float64,       # the ray's weight at its end (1 in the analog walk)
+    "n_scat": np.int64,         # volume scatterings
+    "n_lamb": np.int64,         # floor (Lambertian) reflections
+    "n_bspec": np.int64,        # specular reflections at the bottom interface
+    "n_top": np.int64,          # internal reflections at the top
+    "time_bin": np.int64,       # TIME_BIN_LATE if t >= edges[-1] or not exited, TIME_BIN_EARLY
+                                # if t < edges[0]
+    "emergence_bin": np.int64,  # 1-degree bin, -1 if not exited
+}
+
+
+def tally_shapes(n_time: int) -> dict:
+    """The shape of every tally of :class:`Counts`: the histograms, ``fates``, and the
+    weighted sums (one cell of a weighted sum holds one exact integer; the kernel keeps it in
+    :data:`FIXED_WORDS` words).
+
+    Parameters
+    ----------
+    n_time : int
+        Number of time bins (``len(time_edges) - 1``).
+
+    Returns
+    -------
+    dict
+        Tally name -> shape.
+    """
+    cells = {"time_in_fov": (N_COMPONENTS, n_time), "time_any": (N_COMPONENTS, n_time),
+             "angular": (N_COMPONENTS, N_EMERGENCE), "total": (N_COMPONENTS,),
+             "early": (N_COMPONENTS,), "fates": (N_FATES,)}
+    return {**cells, **{w: cells[h] for w, h in WEIGHT_TALLIES.items()}}
+
+
+def kernel_layout() -> dict:
+    """The layouts the host and the kernel share, as the ``-D`` macros of the walk kernel
+    (warpe_cl/engine.py build_options): component, fate, statistics-slot and record-column
+    indices, table sizes, the time-bin sentinels and the fixed-point format. They are defined
+    here only; cl/tally.h and cl/walk.cl use the names.
+
+    Returns
+    -------
+    dict
+        Macro name -> its value, as OpenCL C source text.
+    """
+    out = {"N_COMPONENTS": N_COMPONENTS}
+    out.update({f"COMPONENT_{c.upper()}": i for i, c in enumerate(COMPONENTS)})
+    out["N_FATES"] = N_FATES
+    out.update({f"FATE_{f.upper()}": i for i, f in enumerate(FATES)})
+    out["N_EMERGENCE"] = N_EMERGENCE
+    out.update(TIME_BIN_LATE=TIME_BIN_LATE, TIME_BIN_EARLY=TIME_BIN_EARLY)
+    out["N_ITEM_STATS"] = len(ITEM_STATS)
+    out.update({f"STAT_{s.upper()}": i for i, s in enumerate(ITEM_STATS)})
+    out["N_RECORD_INT"] = len(RECORD_INT_COLUMNS)
+    out.update({f"RECORD_{c.upper()}": i for i, c in enumerate(RECORD_INT_COLUMNS)})
+    out["N_RECORD_REAL"] = len(RECORD_REAL_COLUMNS)
+    out.update({f"RECORD_{c.upper()}": i for i, c in enumerate(RECORD_REAL_COLUMNS)})
+    out.update(FIXED_SHIFT=FIXED_SHIFT, FIXED_WORDS=FIXED_WORDS)
+    text = {k: (f"({v})" if v < 0 else str(v)) for k, v in out.items()}
+    text["MAX_WEIGHT"] = float.hex(MAX_WEIGHT)     # exact: a C99 hexadecimal literal
+    return text
 
 
 def lost_weight(weight: float) -> bool:
@@ -254,25 +343,12 @@ class Counts:
     w_early: np.ndarray = field(default=None, repr=False)
 
     def __post_init__(self):
-        if self.weighted:
-            shapes = {"w_time_in_fov": (4, self.n_time), "w_time_any": (4, self.n_time),
-                      "w_angular": (4, N_EMERGENCE), "w_total": (4,),
-                      "w2_time_in_fov": (4, self.n_time), "w2_total": (4,), "w_early": (4,)}
-            for name, shape in shapes.items():
-                if getattr(self, name) is None:
+        for name, shape in tally_shapes(self.n_time).items():
+            if name in WEIGHT_TALLIES:
+                if self.weighted and getattr(self, name) is None:
                     setattr(self, name, _exact_zeros(*shape))
-        if self.time_in_fov is None:
-            self.time_in_fov = _zeros(4, self.n_time)
-        if self.time_any is None:
-            self.time_any = _zeros(4, self.n_time)
-        if self.angular is None:
-            self.angular = _zeros(4, N_EMERGENCE)
-        if self.total is None:
-            self.total = _zeros(4)
-        if self.early is None:
-            self.early = _zeros(4)
-        if self.fates is None:
-            self.fates = _zeros(len(FATES))
+            elif getattr(self, name) is None:
+                setattr(self, name, _zeros(*shape))
 
     def __iadd__(self, other: "Counts") -> "Counts":
         """Add another batch's counts (records are concatenated)."""

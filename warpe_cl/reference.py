@@ -44,8 +44,9 @@ from typing import NamedTuple
 import numpy as np
 
 from .errors import WeightError
-from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, N_EMERGENCE, RULES,
-                     TEXTURES, Counts, WalkParams, fixed_point, lost_weight)
+from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, N_EMERGENCE,
+                     RECORD_FIELDS, RULES, TEXTURES, TIME_BIN_EARLY, TIME_BIN_LATE, Counts,
+                     WalkParams, fixed_point, lost_weight)
 from .rng import PhotonStream
 
 __all__ = ["simulate_reference", "walk_ray", "RayOutcome", "normal_incidence_reflectance",
@@ -59,25 +60,8 @@ FATE_SPECULAR, FATE_ESCAPED, FATE_ABSORBED_MEDIUM, FATE_ABSORBED_FLOOR, FATE_TER
     FATES.index(name) for name in (
         "specular", "escaped", "absorbed_medium", "absorbed_floor", "terminated"))
 
-#: Per-photon record fields and their dtypes (``Counts.records`` when asked for).
-RECORD_FIELDS = {
-    "fate": np.int8,            # index into FATES
-    "component": np.int8,       # index into COMPONENTS, -1 if the ray did not exit
-    "time_ns": np.float64,      # exit time, ns (0 for specular, NaN if not exited)
-    "cos_exit": np.float64,     # cos of the emergence angle in vacuum (NaN if not exited)
-    "weight": np.float64,       # the ray's weight at its end (1 in the analog walk)
-    "n_scat": np.int64,         # volume scatterings
-    "n_lamb": np.int64,         # floor (Lambertian) reflections
-    "n_bspec": np.int64,        # specular reflections at the bottom interface
-    "n_top": np.int64,          # internal reflections at the top
-    "time_bin": np.int64,       # -1 if t >= edges[-1] or not exited, -2 if t < edges[0]
-    "emergence_bin": np.int64,  # 1-degree bin, -1 if not exited
-}
-
 TWO_PI = 2.0 * math.pi
 TWO_POW_32 = 4294967296.0
-#: time_bin of an exit after the last edge (or of a ray that did not exit), and before the first
-TIME_BIN_LATE, TIME_BIN_EARLY = -1, -2
 
 
 # --------------------------------------------------------------------------------------------

@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .params import COMPONENTS, Counts, N_EMERGENCE, WalkParams, fixed_to_float
+from .params import COMPONENTS, Counts, N_COMPONENTS, N_EMERGENCE, WalkParams, fixed_to_float
 
-SPECULAR_LIKE = (0, 1)   # specular, bf_direct: delta functions in angle, scaled by the lobe
-DIFFUSE = (2, 3)         # bf_diffuse, scattering: counted inside their numerical FOV
+#: specular, bf_direct: delta functions in angle, scaled by the lobe
+SPECULAR_LIKE = tuple(COMPONENTS.index(c) for c in ("specular", "bf_direct"))
+#: bf_diffuse, scattering: counted inside their numerical FOV
+DIFFUSE = tuple(COMPONENTS.index(c) for c in ("bf_diffuse", "scattering"))
 
 
 def fov_solid_angle(fov_deg: float, convention: str = "cone") -> float:
@@ -66,7 +68,7 @@ def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "con
         raise ValueError("no photons were launched")
     edges = np.asarray(params.time_edges, dtype=float)
     width = np.diff(edges)
-    omega_sr = np.empty(4)
+    omega_sr = np.empty(N_COMPONENTS)
     ray_count = np.empty_like(counts.time_any)
     for c in SPECULAR_LIKE:
         omega_sr[c] = lobe_solid_angle(specular_lobe)
@@ -76,7 +78,7 @@ def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "con
         ray_count[c] = counts.time_in_fov[c]
     scale = 1.0 / (n * omega_sr[:, None] * width[None, :])
     undersampled = ray_count < min_rays
-    undersampled[0] = False
+    undersampled[COMPONENTS.index("specular")] = False
     e = np.radians(np.arange(N_EMERGENCE + 1, dtype=float))
     band = np.pi * np.diff(np.sin(e) ** 2)      # ∫ cos e dΩ over each 1° ring
 
@@ -85,7 +87,7 @@ def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "con
         # unbiased, with standard error sqrt((<w^2> - <w>^2) / N).
         w_in, w_any = fixed_to_float(counts.w_time_in_fov), fixed_to_float(counts.w_time_any)
         w2_in = fixed_to_float(counts.w2_time_in_fov)
-        w_bins = np.where(np.isin(np.arange(4), SPECULAR_LIKE)[:, None], w_any, w_in)
+        w_bins = np.where(np.isin(np.arange(N_COMPONENTS), SPECULAR_LIKE)[:, None], w_any, w_in)
         # specular and bf_direct use any angle: their w^2 sums are those of the any-angle
         # cells, which the kernel also counts in time_in_fov (their FOV is 90 deg)
         variance = np.maximum(w2_in / n - (w_bins / n) ** 2, 0.0) / n
