@@ -52,11 +52,12 @@ inline int emergence_bin(REAL cos_exit)
 #error "fixed_add keeps FIXED_WORDS = 3 words per sum"
 #endif
 /* Weighted tallies (docs/walk.md §6) are sums of weights in 192-bit fixed point, in units of
- * 2^-FIXED_SHIFT (2^-150): acc[0], acc[1], acc[2] are the low, middle and high 64-bit words. Integer addition is
- * exact and commutative, so the sums are the same bits whatever the order in which lanes,
- * work-items and launches add them (no float atomics); a weight of 1e-20 keeps 83 bits.
- * fixed_add adds floor(w 2^FIXED_SHIFT) for 0 <= w < 2^(192 - FIXED_SHIFT); a carry out of a word is seen by the one
- * atomic add that made it wrap, which passes it on to the next word. */
+ * 2^-FIXED_SHIFT (2^-150): acc[0], acc[1], acc[2] are the low, middle and high 64-bit words.
+ * Integer addition is exact and commutative, so the sums are the same bits whatever the order
+ * in which lanes, work-items and launches add them (no float atomics); a weight of 1e-20 keeps
+ * 83 bits. fixed_add adds floor(w 2^FIXED_SHIFT) for 0 <= w < 2^(192 - FIXED_SHIFT); a carry
+ * out of a word is seen by the one atomic add that made it wrap, which passes it on to the
+ * next word. */
 /* True for a weight that the exact sums would drop: NaN, negative, or w >= MAX_WEIGHT (2^21),
  * whose square (the w^2 sums) reaches 2^42 (walk.md §6). */
 inline int weight_lost(REAL w)

@@ -1,19 +1,22 @@
 /* walk.cl: the random walk of rays through a slab or a granular layer, several rays at a
  * time (lanes.h), and the kernel that tallies their exits.
  *
- * The rules, event by event, are docs/walk.md; the physics is shared/docs/physics.md §5-§6.
+ * The rules, event by event, are docs/walk.md (cited "walk.md §N" below); the physics behind
+ * them is physics.md §5-§6, which walk.md cites rule by rule ("physics.md §N" below).
  * Structure switches (-D): WARPE_TEXTURE_SLAB or WARPE_TEXTURE_GRANULAR (exactly one),
  * WARPE_DOUBLE (precision), WARPE_LANES (photons per work-item), WARPE_WEIGHTED (survival
- * weighting, docs/walk.md §6), WARPE_RECORD (one record per photon, for the parity tests).
- * Every physical value is a kernel argument, so a new scenario never recompiles.
+ * weighting, walk.md §6), WARPE_RECORD (one record per photon, for the parity tests); the
+ * layouts the host reads back come as -D macros too (tally.h). Every physical value is a
+ * kernel argument, so a new scenario never recompiles.
  *
  * A ray is a small state machine: in each event it takes the next Philox block of its own
  * stream (four uniforms u0..u3, walk.md §2) and does one of
- *   ENTRY   (slab) u0: specular reflection at the top, or entry                 (walk.md §3.2)
+ *   ENTRY   (slab) u0: specular reflection at the top, or entry            (walk.md §3 step 2)
  *   FLIGHT  u0: free flight; then a collision (u1 absorption, u2 HG, u3 azimuth), or a boundary
- *           (u1 Fresnel, or at a contact floor u1 absorption, u2 mu, u3 azimuth) (walk.md §3.3)
+ *           (u1 Fresnel, or at a contact floor u1 absorption, u2 mu, u3 azimuth)
+ *                                                          (walk.md §3 step 3, §3.1, §3.2)
  *   GAP     (slab over a vacuum gap) one floor reflection: u0 absorption, u1 mu, u2 azimuth,
- *           u3 Fresnel of the slab's lower face                                  (walk.md §3.4)
+ *           u3 Fresnel of the slab's lower face                                (walk.md §3.1)
  * All lanes do their event at once; a lane whose ray ends is tallied and takes a new photon.
  */
 #if defined(WARPE_TEXTURE_SLAB) == defined(WARPE_TEXTURE_GRANULAR)
@@ -24,34 +27,464 @@
 #define PHASE_FLIGHT 1
 #define PHASE_GAP 2
 
-/* Lanes in `m` end with fate f (tally.h): they are tallied after this event. */
-#define FINISH(m, f) do { VMASK m_ = (m); done |= m_; fate = SEL(fate, (VMASK)(f), m_); } while (0)
+/* The steps of the walk below are functions to be read, not called: each is inlined into the
+ * kernel, so that the rays stay in registers. With a plain `inline`, PoCL 3.1 (LLVM 15) kept
+ * the larger ones out of line, and the rays in memory (about -1 % events/s on B1 and B3:
+ * docs/bench/2026-11-22_refactor_ab.txt). */
+#define WALK_STEP inline __attribute__((always_inline))
 
-/* The floor's toll on the lanes in mask variable m, on the event's word x and its uniform u
- * (walk.md §3.1, §6): analog, absorbed iff x >= albedo_words (U > A decided exactly on the
- * word, philox.h word_at_least); weighted, the weight times A (A = 0 ends the ray) and the
- * roulette on u. Afterwards m holds the lanes the floor reflects. */
-#ifndef WARPE_WEIGHTED
-#define FLOOR_TOLL(m, u, x) do {                                                             \
-        FINISH((m) & word_at_least((x), albedo_words), FATE_ABSORBED_FLOOR);                \
-        (m) &= !done;                                                                        \
-    } while (0)
-#else
-#define FLOOR_TOLL(m, u, x) do {                                                             \
-        if (A == (REAL)0) { FINISH((m), FATE_ABSORBED_FLOOR); (m) = 0; }                   \
-        w = SEL(w, w * A, (m));                                                              \
-        ROULETTE(m, u, FATE_ABSORBED_FLOOR);                                                 \
-    } while (0)
-/* Russian roulette (walk.md §6) of the lanes in mask variable m whose weight fell below
- * roulette_weight: they live on iff u <= roulette_survival, their weight divided by it; the
- * others end with fate f. Afterwards m holds the lanes that live on. */
-#define ROULETTE(m, u, f) do {                                                               \
-        VMASK low_ = (m) & (w < roulette_weight), dies_ = low_ & ((u) > roulette_survival);  \
-        FINISH(dies_, (f));                                                                  \
-        w = SEL(w, w / roulette_survival, low_ & !dies_);                                    \
-        (m) &= !dies_;                                                                       \
-    } while (0)
+/* The scenario's inputs (walk.md §1), the same for every ray of a launch. */
+typedef struct {
+    REAL h, E, g, n, k;          /* thickness (m), extinction (1/m), HG g, index n + ik */
+    REAL L_max;                  /* path-length cap, m (physics.md §5.8) */
+    uint max_flights;            /* flight cap (physics.md §5.8) */
+    int bottom_fresnel;          /* slab: a vacuum gap above the floor (else optical contact) */
+    ulong omega_words;           /* analog: absorbed in the medium iff x1 >= it (walk.md §2) */
+    ulong albedo_words;          /* analog: absorbed by the floor iff its word >= it */
+    REAL A;                      /* the floor's albedo (weighted: a factor of the weight) */
+    REAL mu_a;                   /* weighted: absorption along the path, 1/m (walk.md §6) */
+    REAL roulette_weight, roulette_survival;   /* weighted: the roulette (walk.md §6) */
+} scene_t;
+
+/* The rays of a work-item's lanes (walk.md §3), one per lane. */
+typedef struct {
+    VREAL z, ux, uy, uz;         /* depth (m, 0 at the top, downwards) and direction */
+    VREAL Ls, Lc;                /* path length L (m) and, in single precision, its Kahan carry */
+    VREAL cos_exit;              /* cos theta_e of an exit */
+    VMASK flights, n_scat, n_lamb, n_bspec, n_top;   /* the counters of walk.md §3 */
+    VMASK phase;                 /* PHASE_ENTRY, PHASE_FLIGHT or PHASE_GAP: the next event */
+    VMASK event;                 /* the next event's Philox block (walk.md §2) */
+    VMASK photon;                /* photon index within the launch */
+    VMASK alive;                 /* lanes with a ray */
+    VUINT p_lo, p_hi;            /* the photon's 64-bit index (first_photon + photon) */
+#ifdef WARPE_WEIGHTED
+    VREAL w;                     /* the weight (walk.md §6) */
 #endif
+} rays_t;
+
+/* A work-item's lanes before the first refill: no ray (every lane takes one then). */
+WALK_STEP rays_t no_rays(IREAL phase_start)
+{
+    rays_t r;
+    r.z = (VREAL)0;
+    r.ux = (VREAL)0;
+    r.uy = (VREAL)0;
+    r.uz = (VREAL)1;
+    r.Ls = (VREAL)0;
+    r.Lc = (VREAL)0;
+    r.cos_exit = (VREAL)1;
+    r.flights = (VMASK)0;
+    r.n_scat = (VMASK)0;
+    r.n_lamb = (VMASK)0;
+    r.n_bspec = (VMASK)0;
+    r.n_top = (VMASK)0;
+    r.phase = (VMASK)phase_start;
+    r.event = (VMASK)0;
+    r.photon = (VMASK)0;
+    r.alive = (VMASK)0;
+    r.p_lo = (VUINT)0;
+    r.p_hi = (VUINT)0;
+#ifdef WARPE_WEIGHTED
+    r.w = (VREAL)1;
+#endif
+    return r;
+}
+
+/* The lanes whose ray ends in this event, and their fate (FATE_*, tally.h). */
+typedef struct {
+    VMASK done, fate;
+} ends_t;
+
+/* Where exits are tallied, and the rules that place them (walk.md §4). */
+typedef struct {
+    __global uint *time_in_fov, *time_any, *angular, *total, *early;
+#ifdef WARPE_WEIGHTED
+    __global ulong *w_time_in_fov, *w_time_any, *w_angular, *w_total, *w_early;
+    __global ulong *w2_time_in_fov, *w2_total;
+#endif
+#ifdef WARPE_RECORD
+    __global int *rec_int;
+    __global REAL *rec_real;
+#endif
+    __global const REAL *time_edges;
+    int n_edges;
+    REAL cos_fov[N_COMPONENTS];  /* cos of each component's FOV; -1: any angle */
+    int rule_time_window;        /* component rule time_window (else history) */
+    REAL t1;                     /* first back-and-forth time 2 h n / c, ns (physics.md §5.7) */
+    REAL ns_per_m;               /* t = L n / c (physics.md §5.7, seed eq. 4) */
+} tallies_t;
+
+/* A work-item's statistics, written to item_stats at the end. */
+typedef struct {
+    ulong fates[N_FATES];        /* rays per fate */
+    ulong scattering_events;     /* volume scatterings of every ray */
+    ulong mixed;                 /* exits with both a scattering and a floor reflection */
+    ulong lost;                  /* weighted exits the exact sums cannot hold (walk.md §6) */
+} stats_t;
+
+/* The work-item's statistics into its row of item_stats (slots STAT_*, tally.h). */
+WALK_STEP void write_stats(__global ulong *item, const stats_t *st)
+{
+    item[STAT_FATE_SPECULAR] = st->fates[FATE_SPECULAR];
+    item[STAT_FATE_ESCAPED] = st->fates[FATE_ESCAPED];
+    item[STAT_FATE_ABSORBED_MEDIUM] = st->fates[FATE_ABSORBED_MEDIUM];
+    item[STAT_FATE_ABSORBED_FLOOR] = st->fates[FATE_ABSORBED_FLOOR];
+    item[STAT_FATE_TERMINATED] = st->fates[FATE_TERMINATED];
+    item[STAT_SCATTERING_EVENTS] = st->scattering_events;
+    item[STAT_MIXED_HISTORY] = st->mixed;
+    item[STAT_LOST_WEIGHTS] = st->lost;
+}
+
+/* The lanes in m end with fate f: they are tallied after this event. */
+WALK_STEP void finish(ends_t *e, VMASK m, int f)
+{
+    e->done |= m;
+    e->fate = SEL(e->fate, (VMASK)(f), m);
+}
+
+#ifdef WARPE_WEIGHTED
+/* Russian roulette (walk.md §6) of the lanes in m whose weight fell below roulette_weight:
+ * they live on iff u <= roulette_survival, their weight divided by it; the others end with
+ * fate f. Returns the lanes that live on. */
+WALK_STEP VMASK roulette(VMASK m, VREAL u, int f, const scene_t *sc, rays_t *r, ends_t *e)
+{
+    const VMASK low = m & (r->w < sc->roulette_weight);
+    const VMASK dies = low & (u > sc->roulette_survival);
+    finish(e, dies, f);
+    r->w = SEL(r->w, r->w / sc->roulette_survival, low & !dies);
+    return m & !dies;
+}
+#endif
+
+/* The medium's toll on the colliding lanes in m (walk.md §3 step 3.4, §6): analog, absorbed
+ * iff U1 > omega, decided exactly on the word, x1 >= omega_words (walk.md §2, philox.h
+ * word_at_least); weighted, every collision scatters and the roulette plays on u1. Returns the
+ * lanes that scatter. */
+WALK_STEP VMASK medium_toll(VMASK m, VREAL u1, VUINT x1, const scene_t *sc, rays_t *r, ends_t *e)
+{
+#ifndef WARPE_WEIGHTED
+    finish(e, m & word_at_least(x1, sc->omega_words), FATE_ABSORBED_MEDIUM);
+    return m & !e->done;
+#else
+    return roulette(m, u1, FATE_ABSORBED_MEDIUM, sc, r, e);
+#endif
+}
+
+/* The floor's toll on the lanes in m, with the event's word x and its uniform u (walk.md
+ * §3.1, §6): analog, absorbed iff x >= albedo_words (U > A, decided exactly on the word);
+ * weighted, the weight times A (A = 0 ends the ray) and the roulette on u. Returns the lanes
+ * the floor reflects. */
+WALK_STEP VMASK floor_toll(VMASK m, VREAL u, VUINT x, const scene_t *sc, rays_t *r, ends_t *e)
+{
+#ifndef WARPE_WEIGHTED
+    finish(e, m & word_at_least(x, sc->albedo_words), FATE_ABSORBED_FLOOR);
+    return m & !e->done;
+#else
+    if (sc->A == (REAL)0) {
+        finish(e, m, FATE_ABSORBED_FLOOR);
+        m = 0;
+    }
+    r->w = SEL(r->w, r->w * sc->A, m);
+    return roulette(m, u, FATE_ABSORBED_FLOOR, sc, r, e);
+#endif
+}
+
+/* Every lane without a ray takes the next photon of the launch from the counter next_photon
+ * (walk.md §5), launched at the top of the layer, straight down, with nothing done yet
+ * (walk.md §3 step 1, physics.md §5.1). Sets *exhausted once the launch has no photon left. */
+WALK_STEP void refill_lanes(rays_t *r, int *exhausted, __global uint *next_photon,
+                         uint n_photons, uint base_lo, uint base_hi, IREAL phase_start)
+{
+    IREAL a[WARPE_LANES], p[WARPE_LANES];
+    VSTORE(r->alive, a);
+    VSTORE(r->photon, p);
+    uint wanted = 0;
+    for (int j = 0; j < WARPE_LANES; ++j)
+        wanted += a[j] ? 0u : 1u;
+    uint next = atomic_add(next_photon, wanted);
+    for (int j = 0; j < WARPE_LANES; ++j) {
+        if (a[j])
+            continue;
+        if (next < n_photons) {
+            p[j] = (IREAL)next;
+            a[j] = (IREAL)-1;    /* "true" in both mask conventions (lanes.h) */
+            next += 1;
+        } else {
+            *exhausted = 1;
+        }
+    }
+    const VMASK fresh = VLOAD(a) & !r->alive;
+    r->photon = VLOAD(p);
+    r->alive |= fresh;
+    /* the photon's index first_photon + photon, carried into the high word (walk.md §2) */
+    const VUINT lo = (VUINT)base_lo + CONVERT_VUINT(r->photon);
+    r->p_lo = SEL(r->p_lo, lo, MASK32(fresh));
+    r->p_hi = SEL(r->p_hi, SEL((VUINT)base_hi, (VUINT)(base_hi + 1u), lo < base_lo),
+                  MASK32(fresh));
+    r->z = SEL(r->z, (VREAL)0, fresh);
+    r->ux = SEL(r->ux, (VREAL)0, fresh);
+    r->uy = SEL(r->uy, (VREAL)0, fresh);
+    r->uz = SEL(r->uz, (VREAL)1, fresh);
+    r->Ls = SEL(r->Ls, (VREAL)0, fresh);
+    r->Lc = SEL(r->Lc, (VREAL)0, fresh);
+    r->cos_exit = SEL(r->cos_exit, (VREAL)1, fresh);
+    r->flights = SEL(r->flights, (VMASK)0, fresh);
+    r->n_scat = SEL(r->n_scat, (VMASK)0, fresh);
+    r->n_lamb = SEL(r->n_lamb, (VMASK)0, fresh);
+    r->n_bspec = SEL(r->n_bspec, (VMASK)0, fresh);
+    r->n_top = SEL(r->n_top, (VMASK)0, fresh);
+    r->phase = SEL(r->phase, (VMASK)phase_start, fresh);
+    r->event = SEL(r->event, (VMASK)0, fresh);
+#ifdef WARPE_WEIGHTED
+    r->w = SEL(r->w, (VREAL)1, fresh);
+#endif
+}
+
+/* FLIGHT, the free flight of the lanes in fl (walk.md §3 steps 3.1-3.5, physics.md §5.3,
+ * §5.7-§5.8): the flight cap; the optical step -ln u0 and the physical step s = l/E (seed
+ * eq. 3); a collision if s is shorter than the way to the boundary, else the boundary; the path
+ * L += s and its cap L_max; weighted, exp(-mu_a s) on the weight of every flight (walk.md §6).
+ * Sets *coll and *bnd to the lanes that collide and that reach a boundary. */
+WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, ends_t *e,
+                        VMASK *coll, VMASK *bnd)
+{
+    finish(e, fl & (r->flights == (VMASK)sc->max_flights), FATE_TERMINATED);
+    fl &= !e->done;
+    r->flights += ONE(fl);
+    const VREAL s = sc->E > (REAL)0 ? -LOG(u0) / sc->E : (VREAL)INFINITY;
+    const VREAL s_b = SEL(SEL((VREAL)INFINITY, -r->z / r->uz, r->uz < (REAL)0),
+                          (sc->h - r->z) / r->uz, r->uz > (REAL)0);
+    VMASK c = fl & (s < s_b);
+    VMASK b = fl & !(s < s_b);
+    const VREAL len = SEL(s_b, s, c);
+    r->z = SEL(r->z, SEL(SEL((VREAL)0, (VREAL)sc->h, r->uz > (REAL)0), r->z + s * r->uz, c), fl);
+#ifdef WARPE_DOUBLE
+    r->Ls = SEL(r->Ls, r->Ls + len, fl);
+#else
+    {   /* compensated (Kahan) sum of the path: physics.md A15 */
+        const VREAL y = len - r->Lc, sum = r->Ls + y;
+        r->Lc = SEL(r->Lc, (sum - r->Ls) - y, fl);
+        r->Ls = SEL(r->Ls, sum, fl);
+    }
+#endif
+    const VMASK over = fl & (r->Ls > sc->L_max);                   /* physics.md §5.8 */
+    finish(e, over, FATE_TERMINATED);
+    c &= !over;
+    b &= !over;
+#ifdef WARPE_WEIGHTED
+    r->w = SEL(r->w, r->w * exp(-sc->mu_a * len), c | b);
+#endif
+    *coll = c;
+    *bnd = b;
+}
+
+/* The lanes in bnd at a boundary, with the words u1 (x1), u2 and the azimuth (cos psi,
+ * sin psi) = u3 of their block (walk.md §3.1-§3.2, physics.md §5.5-§5.6). Slab: at the top
+ * and, over a vacuum gap, at the bottom, total internal reflection or reflect iff
+ * u1 <= R_int(mu) (walk.md §3.3); out at the top with cos theta_e by Snell, down into the gap
+ * at the bottom. Granular: no interface, exit at cos theta_e = -uz. A floor in optical contact
+ * (slab without the gap, granular): the floor's toll on u1 (x1), then a Lambertian direction,
+ * mu = sqrt(u2). */
+WALK_STEP void reach_boundary(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos_psi,
+                           VREAL sin_psi, const scene_t *sc, rays_t *r, ends_t *e)
+{
+    const VMASK down = r->uz > (REAL)0;
+    VMASK bottom = bnd & down;
+    const VMASK top = bnd & !down;
+#ifdef WARPE_TEXTURE_SLAB
+    const REAL n = sc->n;
+    const VREAL mu = fabs(r->uz);
+    const VMASK reflect = (n * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= (REAL)1)
+                        | (u1 <= fresnel_internal(mu, n));
+    if (sc->bottom_fresnel) {
+        const VMASK back = bottom & reflect;
+        r->uz = SEL(r->uz, -r->uz, back);
+        r->n_bspec += ONE(back);
+        r->phase = SEL(r->phase, (VMASK)PHASE_GAP, bottom & !reflect);   /* into the gap */
+        bottom = 0;
+    }
+    const VMASK up = top & reflect;
+    r->uz = SEL(r->uz, -r->uz, up);
+    r->n_top += ONE(up);
+    const VMASK out = top & !reflect;
+    /* Snell: cos theta_e = sqrt(1 - n^2 (1 - mu^2)) (physics.md §3.5) */
+    r->cos_exit = SEL(r->cos_exit, sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0)),
+                      out);
+    finish(e, out, FATE_ESCAPED);
+#else
+    r->cos_exit = SEL(r->cos_exit, -r->uz, top);
+    finish(e, top, FATE_ESCAPED);
+#endif
+    if (ANY(bottom)) {
+        bottom = floor_toll(bottom, u1, x1, sc, r, e);
+        r->n_lamb += ONE(bottom);
+        VREAL vx, vy, vz;
+        lambert_direction(sqrt(u2), cos_psi, sin_psi, &vx, &vy, &vz);
+        r->ux = SEL(r->ux, vx, bottom);
+        r->uy = SEL(r->uy, vy, bottom);
+        r->uz = SEL(r->uz, vz, bottom);
+    }
+}
+
+#ifdef WARPE_TEXTURE_SLAB
+/* GAP, one reflection of the lanes in gap by the floor below the slab's lower face (walk.md
+ * §3.1, physics.md §5.5): the floor's toll on u0 (x0); a Lambertian direction in vacuum,
+ * mu_v = sqrt(u1), azimuth 2 pi u2; back to the floor iff u3 <= R_ext(mu_v; n, k), else
+ * refracted into the slab (Snell, real part: sin theta_s = sin theta_v / n) and flights
+ * resume. The gap adds no path length. */
+WALK_STEP void gap_event(VMASK gap, VREAL u0, VUINT x0, VREAL u1, VREAL u2, VREAL u3,
+                      const scene_t *sc, rays_t *r, ends_t *e)
+{
+    const REAL two_pi = (REAL)(2.0 * WARPE_PI);
+    gap = floor_toll(gap, u0, x0, sc, r, e);
+    r->n_lamb += ONE(gap);
+    const VREAL mu_v = sqrt(u1);
+    VREAL c2, s2;
+    SINCOS(two_pi * u2, s2, c2);
+    const VMASK enter = gap & (u3 > fresnel_external(mu_v, sc->n, sc->k));
+    const VREAL sin_s = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0)) / sc->n;
+    r->ux = SEL(r->ux, sin_s * c2, enter);
+    r->uy = SEL(r->uy, sin_s * s2, enter);
+    r->uz = SEL(r->uz, -sqrt((REAL)1 - sin_s * sin_s), enter);
+    r->phase = SEL(r->phase, (VMASK)PHASE_FLIGHT, enter);
+}
+#endif
+
+/* The component of an exit (walk.md §4, physics.md §6.1): specular; bf_direct without
+ * scattering or floor reflection; otherwise, by the history rule, bf_diffuse after a floor
+ * reflection and scattering without one, or by the time-window rule bf_diffuse iff t >= t1. */
+WALK_STEP int exit_component(int fate, uint n_s, uint n_l, REAL t, const tallies_t *tally)
+{
+    if (fate == FATE_SPECULAR)
+        return COMPONENT_SPECULAR;
+    if (n_s == 0 && n_l == 0)
+        return COMPONENT_BF_DIRECT;
+    if (tally->rule_time_window)
+        return t >= tally->t1 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
+    return n_l > 0 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
+}
+
+#ifdef WARPE_WEIGHTED
+/* An exit's weight w in the exact sums of its component's cells (walk.md §6), and w^2 in
+ * those of total and time_in_fov: the same cells as the counts of tally_exits. */
+WALK_STEP void add_weight(const tallies_t *tally, int component, int tb, int eb, int in_fov,
+                       REAL w)
+{
+    const int cell = component * (tally->n_edges - 1) + tb;
+    if (tb == TIME_BIN_EARLY)
+        fixed_add(tally->w_early + FIXED_WORDS * component, w);
+    fixed_add(tally->w_total + FIXED_WORDS * component, w);
+    fixed_add(tally->w2_total + FIXED_WORDS * component, w * w);
+    fixed_add(tally->w_angular + FIXED_WORDS * (component * N_EMERGENCE + eb), w);
+    if (tb >= 0) {
+        fixed_add(tally->w_time_any + FIXED_WORDS * cell, w);
+        if (in_fov) {
+            fixed_add(tally->w_time_in_fov + FIXED_WORDS * cell, w);
+            fixed_add(tally->w2_time_in_fov + FIXED_WORDS * cell, w * w);
+        }
+    }
+}
+#endif
+
+#ifdef WARPE_RECORD
+/* Photon i's record (columns RECORD_*, tally.h; warpe_cl/params.py RECORD_FIELDS), for the
+ * parity tests: fate, component (-1: no exit), counters, time and emergence bins, exit time
+ * (ns) and cosine, and the weight at its end. */
+WALK_STEP void write_record(const tallies_t *tally, size_t i, int fate, int component, uint n_s,
+                         uint n_l, int n_bspec, int n_top, int tb, int eb, REAL t,
+                         REAL cos_exit, REAL w)
+{
+    __global int *ri = tally->rec_int + N_RECORD_INT * i;
+    __global REAL *rr = tally->rec_real + N_RECORD_REAL * i;
+    ri[RECORD_FATE] = fate;
+    ri[RECORD_COMPONENT] = component;
+    ri[RECORD_N_SCAT] = (int)n_s;
+    ri[RECORD_N_LAMB] = (int)n_l;
+    ri[RECORD_N_BSPEC] = n_bspec;
+    ri[RECORD_N_TOP] = n_top;
+    ri[RECORD_TIME_BIN] = tb;
+    ri[RECORD_EMERGENCE_BIN] = eb;
+    rr[RECORD_TIME_NS] = t;
+    rr[RECORD_COS_EXIT] = cos_exit;
+    rr[RECORD_WEIGHT] = w;
+}
+#endif
+
+/* Tally the lanes whose ray ended in this event (walk.md §4): its fate and scatterings in the
+ * work-item's statistics; an exit (specular or escaped) in its component's total, angular,
+ * time_any, and time_in_fov within the component's FOV, or in early before the first edge
+ * (never in a bin); weighted, its weight (specular: 1) in the exact sums (walk.md §6).
+ * WARPE_RECORD: every ended ray's record. */
+WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *tally, stats_t *st)
+{
+    const int n_time = tally->n_edges - 1;
+    IREAL d[WARPE_LANES], f[WARPE_LANES], ns[WARPE_LANES], nl[WARPE_LANES];
+    IREAL p[WARPE_LANES];
+    REAL t[WARPE_LANES], ce[WARPE_LANES];
+    VSTORE(e->done, d);
+    VSTORE(e->fate, f);
+    VSTORE(r->n_scat, ns);
+    VSTORE(r->n_lamb, nl);
+    VSTORE(r->photon, p);
+    VSTORE(r->Ls * tally->ns_per_m, t);
+    VSTORE(r->cos_exit, ce);
+#ifdef WARPE_WEIGHTED
+    REAL wt[WARPE_LANES];
+    VSTORE(r->w, wt);
+#endif
+#ifdef WARPE_RECORD
+    IREAL nb[WARPE_LANES], nt[WARPE_LANES];
+    VSTORE(r->n_bspec, nb);
+    VSTORE(r->n_top, nt);
+#endif
+    for (int j = 0; j < WARPE_LANES; ++j) {
+        if (!d[j])
+            continue;
+        const int fj = (int)f[j];
+        const uint n_s = (uint)ns[j], n_l = (uint)nl[j];
+        REAL tj = t[j];
+        st->fates[fj] += 1;
+        st->scattering_events += n_s;
+        int component = -1, tb = -1, eb = -1;
+        if (fj == FATE_SPECULAR || fj == FATE_ESCAPED) {
+            if (fj == FATE_SPECULAR) {   /* at t = 0, theta_e = 0 (walk.md §3 step 2) */
+                tj = (REAL)0;
+                ce[j] = (REAL)1;
+            }
+            component = exit_component(fj, n_s, n_l, tj, tally);
+            if (n_s > 0 && n_l > 0)
+                st->mixed += 1;
+            eb = emergence_bin(ce[j]);
+            tb = time_bin(tj, tally->time_edges, tally->n_edges);
+            const int in_fov = ce[j] >= tally->cos_fov[component];
+            atomic_inc(&tally->total[component]);
+            atomic_inc(&tally->angular[component * N_EMERGENCE + eb]);
+            if (tb >= 0) {
+                atomic_inc(&tally->time_any[component * n_time + tb]);
+                if (in_fov)
+                    atomic_inc(&tally->time_in_fov[component * n_time + tb]);
+            } else if (tb == TIME_BIN_EARLY) {
+                atomic_inc(&tally->early[component]);   /* walk.md §4: never in a bin */
+            }
+#ifdef WARPE_WEIGHTED
+            const REAL wj = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
+            /* a weight the exact sums cannot hold (NaN, < 0, or w >= MAX_WEIGHT) is counted,
+             * and the host refuses the result (walk.md §6) */
+            st->lost += weight_lost(wj) ? 1 : 0;
+            add_weight(tally, component, tb, eb, in_fov, wj);
+#endif
+        }
+#ifdef WARPE_RECORD
+#ifdef WARPE_WEIGHTED
+        const REAL w_end = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
+#else
+        const REAL w_end = (REAL)1;
+#endif
+        write_record(tally, (size_t)p[j], fj, component, n_s, n_l, (int)nb[j], (int)nt[j], tb,
+                     eb, tj, ce[j], w_end);
+#endif
+    }
+}
 
 __kernel void walk(const uint seed, const ulong scenario,
                    const ulong first_photon, const uint n_photons,
@@ -85,322 +518,99 @@ __kernel void walk(const uint seed, const ulong scenario,
 #endif
                    )
 {
-    const REAL cos_fov[N_COMPONENTS] = {cos_fov_specular, cos_fov_bf_direct, cos_fov_bf_diffuse,
-                             cos_fov_scattering};
-    const int n_time = n_edges - 1;
+    const scene_t sc = {.h = h, .E = E, .g = g, .n = n, .k = k, .L_max = L_max,
+                        .max_flights = max_flights, .bottom_fresnel = bottom_fresnel,
+                        .omega_words = omega_words, .albedo_words = albedo_words, .A = A,
+                        .mu_a = mu_a, .roulette_weight = roulette_weight,
+                        .roulette_survival = roulette_survival};
+    const tallies_t tally = {
+        .time_in_fov = time_in_fov, .time_any = time_any, .angular = angular, .total = total,
+        .early = early,
+#ifdef WARPE_WEIGHTED
+        .w_time_in_fov = w_time_in_fov, .w_time_any = w_time_any, .w_angular = w_angular,
+        .w_total = w_total, .w_early = w_early, .w2_time_in_fov = w2_time_in_fov,
+        .w2_total = w2_total,
+#endif
+#ifdef WARPE_RECORD
+        .rec_int = rec_int, .rec_real = rec_real,
+#endif
+        .time_edges = time_edges, .n_edges = n_edges,
+        .cos_fov = {cos_fov_specular, cos_fov_bf_direct, cos_fov_bf_diffuse, cos_fov_scattering},
+        .rule_time_window = rule_time_window, .t1 = t1,
+        .ns_per_m = n / (REAL)WARPE_C_M_PER_NS};    /* seed eq. 4: t = L n_eff / c */
     const uint base_lo = (uint)first_photon, base_hi = (uint)(first_photon >> 32);
     /* the 64-bit scenario key: its low word keys Philox, its high word is counter word 3 */
     const uint key_lo = (uint)scenario, key_hi = (uint)(scenario >> 32);
-    const REAL ns_per_m = n / (REAL)WARPE_C_M_PER_NS;   /* seed eq. 4: t = L n_eff / c */
     const REAL two_pi = (REAL)(2.0 * WARPE_PI);
 #ifdef WARPE_TEXTURE_SLAB
-    const VREAL R0 = fresnel_external((VREAL)1, n, k);  /* §5.2, normal incidence */
+    const VREAL R0 = fresnel_external((VREAL)1, n, k);  /* physics.md §5.2, normal incidence */
     const IREAL phase_start = PHASE_ENTRY;
 #else
-    const IREAL phase_start = PHASE_FLIGHT;
+    const IREAL phase_start = PHASE_FLIGHT;           /* granular: no entry event */
 #endif
-    ulong fates[N_FATES] = {0};
-    ulong scattering_events = 0, mixed = 0, lost = 0;
-
-    /* the lanes' rays (walk.md §3): position, direction, path, counters, stream */
-    VREAL z = 0, ux = 0, uy = 0, uz = 1, Ls = 0, Lc = 0, cos_exit = 1;
-    VMASK flights = 0, n_scat = 0, n_lamb = 0, n_bspec = 0, n_top = 0;
-    VMASK phase = phase_start, event = 0, photon = 0, alive = 0;
-    VUINT p_lo = 0, p_hi = 0;
-#ifdef WARPE_WEIGHTED
-    VREAL w = 1;
-#endif
+    stats_t st = {{0}, 0, 0, 0};
+    rays_t r = no_rays(phase_start);
     int exhausted = 0;
 
     for (;;) {
-        /* ---- refill: every lane without a ray takes the next photon ---- */
-        if (!exhausted && !ALL(alive)) {
-            IREAL a[WARPE_LANES], p[WARPE_LANES];
-            VSTORE(alive, a);
-            VSTORE(photon, p);
-            uint wanted = 0;
-            for (int j = 0; j < WARPE_LANES; ++j)
-                wanted += a[j] ? 0u : 1u;
-            uint next = atomic_add(next_photon, wanted);
-            for (int j = 0; j < WARPE_LANES; ++j) {
-                if (a[j])
-                    continue;
-                if (next < n_photons) {
-                    p[j] = (IREAL)next;
-                    a[j] = (IREAL)-1;    /* "true" in both mask conventions (lanes.h) */
-                    next += 1;
-                } else {
-                    exhausted = 1;
-                }
-            }
-            VMASK fresh = VLOAD(a) & !alive;
-            photon = VLOAD(p);
-            alive |= fresh;
-            VUINT lo = (VUINT)base_lo + CONVERT_VUINT(photon);
-            p_lo = SEL(p_lo, lo, MASK32(fresh));
-            p_hi = SEL(p_hi, SEL((VUINT)base_hi, (VUINT)(base_hi + 1u), lo < base_lo),
-                       MASK32(fresh));
-            /* §5.1 launch: top of the layer, straight down, nothing done yet */
-            z = SEL(z, (VREAL)0, fresh);
-            ux = SEL(ux, (VREAL)0, fresh);
-            uy = SEL(uy, (VREAL)0, fresh);
-            uz = SEL(uz, (VREAL)1, fresh);
-            Ls = SEL(Ls, (VREAL)0, fresh);
-            Lc = SEL(Lc, (VREAL)0, fresh);
-            cos_exit = SEL(cos_exit, (VREAL)1, fresh);
-            flights = SEL(flights, (VMASK)0, fresh);
-            n_scat = SEL(n_scat, (VMASK)0, fresh);
-            n_lamb = SEL(n_lamb, (VMASK)0, fresh);
-            n_bspec = SEL(n_bspec, (VMASK)0, fresh);
-            n_top = SEL(n_top, (VMASK)0, fresh);
-            phase = SEL(phase, (VMASK)phase_start, fresh);
-            event = SEL(event, (VMASK)0, fresh);
-#ifdef WARPE_WEIGHTED
-            w = SEL(w, (VREAL)1, fresh);
-#endif
-        }
-        if (!ANY(alive))
+        if (!exhausted && !ALL(r.alive))
+            refill_lanes(&r, &exhausted, next_photon, n_photons, base_lo, base_hi, phase_start);
+        if (!ANY(r.alive))
             break;
 
-        /* ---- one event of every live lane, from block `event` of its stream (walk.md §2) ---- */
+        /* one event of every live lane, from block `event` of its stream (walk.md §2) */
         VUINT x0, x1, x2, x3;
-        philox_lanes(CONVERT_VUINT(event), p_lo, p_hi, key_hi, seed, key_lo, &x0, &x1, &x2, &x3);
+        philox_lanes(CONVERT_VUINT(r.event), r.p_lo, r.p_hi, key_hi, seed, key_lo,
+                     &x0, &x1, &x2, &x3);
         const VREAL u0 = uniform_lanes(x0), u1 = uniform_lanes(x1);
         const VREAL u2 = uniform_lanes(x2), u3 = uniform_lanes(x3);
-        event += (VMASK)1;
-        VMASK done = 0, fate = 0;
-        const VMASK in_flight = alive & (phase == (VMASK)PHASE_FLIGHT);
+        r.event += (VMASK)1;
+        ends_t e;
+        e.done = (VMASK)0;
+        e.fate = (VMASK)0;
+        const VMASK in_flight = r.alive & (r.phase == (VMASK)PHASE_FLIGHT);
 
 #ifdef WARPE_TEXTURE_SLAB
-        /* ENTRY, §5.2: specular iff u0 <= R0, recorded at t = 0, theta_e = 0; else enter */
+        /* ENTRY (walk.md §3 step 2, physics.md §5.2): specular iff u0 <= R0, recorded at
+         * t = 0, theta_e = 0; else the ray enters, and flies from its next event */
         {
-            VMASK entry = alive & (phase == (VMASK)PHASE_ENTRY);
-            FINISH(entry & (u0 <= R0), FATE_SPECULAR);
-            phase = SEL(phase, (VMASK)PHASE_FLIGHT, entry);
+            const VMASK entry = r.alive & (r.phase == (VMASK)PHASE_ENTRY);
+            finish(&e, entry & (u0 <= R0), FATE_SPECULAR);
+            r.phase = SEL(r.phase, (VMASK)PHASE_FLIGHT, entry);
         }
-        const VMASK in_gap = alive & (phase == (VMASK)PHASE_GAP);
+        const VMASK in_gap = r.alive & (r.phase == (VMASK)PHASE_GAP);
 #endif
 
-        /* FLIGHT, §5.3-§5.8 */
-        VMASK fl = in_flight;
-        FINISH(fl & (flights == (VMASK)max_flights), FATE_TERMINATED);   /* §5.8 flight cap */
-        fl &= !done;
-        flights += ONE(fl);
-        /* free flight: optical step -ln u0, physical step s = l/E (seed eq. 3) */
-        VREAL s = E > (REAL)0 ? -LOG(u0) / E : (VREAL)INFINITY;
-        VREAL s_b = SEL(SEL((VREAL)INFINITY, -z / uz, uz < (REAL)0), (h - z) / uz, uz > (REAL)0);
-        VMASK coll = fl & (s < s_b);
-        VMASK bnd = fl & !(s < s_b);
-        VREAL len = SEL(s_b, s, coll);
-        z = SEL(z, SEL(SEL((VREAL)0, (VREAL)h, uz > (REAL)0), z + s * uz, coll), fl);
-#ifdef WARPE_DOUBLE
-        Ls = SEL(Ls, Ls + len, fl);
-#else
-        {   /* compensated (Kahan) sum of the path: physics.md A15 */
-            VREAL y = len - Lc, sum = Ls + y;
-            Lc = SEL(Lc, (sum - Ls) - y, fl);
-            Ls = SEL(Ls, sum, fl);
-        }
-#endif
-        VMASK over = fl & (Ls > L_max);                                   /* §5.8 time cap */
-        FINISH(over, FATE_TERMINATED);
-        coll &= !over;
-        bnd &= !over;
-#ifdef WARPE_WEIGHTED
-        /* walk.md §6: absorption as exp(-mu_a s) along every flight */
-        w = SEL(w, w * exp(-mu_a * len), coll | bnd);
-#endif
+        VMASK coll, bnd;
+        free_flight(in_flight, u0, &sc, &r, &e, &coll, &bnd);
         /* the azimuth of a scattering or of a floor reflection: psi = 2 pi u3 */
         VREAL cos_psi, sin_psi;
         SINCOS(two_pi * u3, sin_psi, cos_psi);
 
-        /* collision, §5.4: absorbed iff U1 > omega, decided exactly on the word: x1 >=
-         * omega_words (walk.md §2); else HG deflection (u2) and azimuth (u3) */
-#ifndef WARPE_WEIGHTED
-        FINISH(coll & word_at_least(x1, omega_words), FATE_ABSORBED_MEDIUM);
-        coll &= !done;
-#else
-        ROULETTE(coll, u1, FATE_ABSORBED_MEDIUM);    /* weighted: every collision scatters */
-#endif
-        n_scat += ONE(coll);
+        /* collision (walk.md §3 step 3.4, physics.md §5.4): the medium's toll, then the HG
+         * deflection (u2) and the azimuth (u3) */
+        coll = medium_toll(coll, u1, x1, &sc, &r, &e);
+        r.n_scat += ONE(coll);
         if (ANY(coll)) {
-            VREAL vx = ux, vy = uy, vz = uz;
-            rotate_direction(&vx, &vy, &vz, hg_cos_theta(g, u2), cos_psi, sin_psi);
-            ux = SEL(ux, vx, coll);
-            uy = SEL(uy, vy, coll);
-            uz = SEL(uz, vz, coll);
+            VREAL vx = r.ux, vy = r.uy, vz = r.uz;
+            rotate_direction(&vx, &vy, &vz, hg_cos_theta(sc.g, u2), cos_psi, sin_psi);
+            r.ux = SEL(r.ux, vx, coll);
+            r.uy = SEL(r.uy, vy, coll);
+            r.uz = SEL(r.uz, vz, coll);
         }
 
-        if (ANY(bnd)) {
-            const VMASK down = uz > (REAL)0;
-            VMASK bottom = bnd & down;
-            const VMASK top = bnd & !down;
+        if (ANY(bnd))
+            reach_boundary(bnd, u1, x1, u2, cos_psi, sin_psi, &sc, &r, &e);
 #ifdef WARPE_TEXTURE_SLAB
-            /* §5.5/§5.6 interfaces of the slab: total internal reflection, else reflect iff
-             * u1 <= R_int(mu) (walk.md §3.3) */
-            const VREAL mu = fabs(uz);
-            const VMASK reflect = (n * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= (REAL)1)
-                                | (u1 <= fresnel_internal(mu, n));
-            if (bottom_fresnel) {
-                VMASK back = bottom & reflect;
-                uz = SEL(uz, -uz, back);
-                n_bspec += ONE(back);
-                phase = SEL(phase, (VMASK)PHASE_GAP, bottom & !reflect);   /* into the gap */
-                bottom = 0;
-            }
-            VMASK up = top & reflect;
-            uz = SEL(uz, -uz, up);
-            n_top += ONE(up);
-            VMASK out = top & !reflect;
-            /* Snell: cos theta_e = sqrt(1 - n^2 (1 - mu^2)) */
-            cos_exit = SEL(cos_exit, sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0)), out);
-            FINISH(out, FATE_ESCAPED);
-#else
-            /* granular: no interface, the ray leaves at cos theta_e = -uz */
-            cos_exit = SEL(cos_exit, -uz, top);
-            FINISH(top, FATE_ESCAPED);
-#endif
-            if (ANY(bottom)) {
-                /* §5.5 Lambertian floor in optical contact: absorbed iff U1 > A, else
-                 * mu = sqrt(u2) and the azimuth u3 */
-                FLOOR_TOLL(bottom, u1, x1);
-                n_lamb += ONE(bottom);
-                VREAL vx, vy, vz;
-                lambert_direction(sqrt(u2), cos_psi, sin_psi, &vx, &vy, &vz);
-                ux = SEL(ux, vx, bottom);
-                uy = SEL(uy, vy, bottom);
-                uz = SEL(uz, vz, bottom);
-            }
-        }
-
-#ifdef WARPE_TEXTURE_SLAB
-        /* GAP, §5.5: one reflection by the floor below the slab's lower face */
-        if (ANY(in_gap)) {
-            VMASK gap = in_gap;
-            FLOOR_TOLL(gap, u0, x0);                            /* absorbed iff U0 > A */
-            n_lamb += ONE(gap);
-            VREAL mu_v = sqrt(u1);                                  /* Lambertian, in vacuum */
-            VREAL c2, s2;
-            SINCOS(two_pi * u2, s2, c2);
-            /* u3 <= R_ext(mu_v; n, k): the slab's lower face sends it back to the floor */
-            VMASK enter = gap & (u3 > fresnel_external(mu_v, n, k));
-            /* refraction in (Snell, real part): sin theta_s = sin theta_v / n */
-            VREAL sin_s = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0)) / n;
-            ux = SEL(ux, sin_s * c2, enter);
-            uy = SEL(uy, sin_s * s2, enter);
-            uz = SEL(uz, -sqrt((REAL)1 - sin_s * sin_s), enter);
-            phase = SEL(phase, (VMASK)PHASE_FLIGHT, enter);
-        }
+        if (ANY(in_gap))
+            gap_event(in_gap, u0, x0, u1, u2, u3, &sc, &r, &e);
 #endif
 
-        /* ---- tally the lanes whose ray ended (walk.md §4) ---- */
-        if (ANY(done)) {
-            IREAL d[WARPE_LANES], f[WARPE_LANES], ns[WARPE_LANES], nl[WARPE_LANES];
-            IREAL p[WARPE_LANES];
-            REAL t[WARPE_LANES], ce[WARPE_LANES];
-            VSTORE(done, d);
-            VSTORE(fate, f);
-            VSTORE(n_scat, ns);
-            VSTORE(n_lamb, nl);
-            VSTORE(photon, p);
-            VSTORE(Ls * ns_per_m, t);
-            VSTORE(cos_exit, ce);
-#ifdef WARPE_WEIGHTED
-            REAL wt[WARPE_LANES];
-            VSTORE(w, wt);
-#endif
-#ifdef WARPE_RECORD
-            IREAL nb[WARPE_LANES], nt[WARPE_LANES];
-            VSTORE(n_bspec, nb);
-            VSTORE(n_top, nt);
-#endif
-            for (int j = 0; j < WARPE_LANES; ++j) {
-                if (!d[j])
-                    continue;
-                const int fj = (int)f[j];
-                const uint n_s = (uint)ns[j], n_l = (uint)nl[j];
-                REAL tj = t[j];
-                fates[fj] += 1;
-                scattering_events += n_s;
-                int component = -1, tb = -1, eb = -1;
-                if (fj == FATE_SPECULAR || fj == FATE_ESCAPED) {
-                    /* §6.1 components */
-                    if (fj == FATE_SPECULAR) {
-                        component = COMPONENT_SPECULAR;
-                        tj = (REAL)0;
-                        ce[j] = (REAL)1;
-                    } else if (n_s == 0 && n_l == 0) {
-                        component = COMPONENT_BF_DIRECT;
-                    } else if (rule_time_window) {
-                        component = tj >= t1 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
-                    } else {
-                        component = n_l > 0 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
-                    }
-                    if (n_s > 0 && n_l > 0)
-                        mixed += 1;
-                    eb = emergence_bin(ce[j]);
-                    tb = time_bin(tj, time_edges, n_edges);
-                    const int in_fov = ce[j] >= cos_fov[component];
-                    atomic_inc(&total[component]);
-                    atomic_inc(&angular[component * N_EMERGENCE + eb]);
-                    if (tb >= 0) {
-                        atomic_inc(&time_any[component * n_time + tb]);
-                        if (in_fov)
-                            atomic_inc(&time_in_fov[component * n_time + tb]);
-                    } else if (tb == TIME_BIN_EARLY) {
-                        atomic_inc(&early[component]);   /* walk.md §4: never in a bin */
-                    }
-#ifdef WARPE_WEIGHTED
-                    const REAL wj = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
-                    /* a weight the exact sums cannot hold (NaN, < 0, or w^2 >= 2^42) is
-                     * counted, and the host refuses the result (walk.md §6) */
-                    lost += weight_lost(wj) ? 1 : 0;
-                    if (tb == TIME_BIN_EARLY)
-                        fixed_add(w_early + FIXED_WORDS * component, wj);
-                    fixed_add(w_total + FIXED_WORDS * component, wj);
-                    fixed_add(w2_total + FIXED_WORDS * component, wj * wj);
-                    fixed_add(w_angular + FIXED_WORDS * (component * N_EMERGENCE + eb), wj);
-                    if (tb >= 0) {
-                        fixed_add(w_time_any + FIXED_WORDS * (component * n_time + tb), wj);
-                        if (in_fov) {
-                            fixed_add(w_time_in_fov + FIXED_WORDS * (component * n_time + tb), wj);
-                            fixed_add(w2_time_in_fov + FIXED_WORDS * (component * n_time + tb), wj * wj);
-                        }
-                    }
-#endif
-                }
-#ifdef WARPE_RECORD
-                const size_t i = (size_t)p[j];
-                __global int *ri = rec_int + N_RECORD_INT * i;
-                __global REAL *rr = rec_real + N_RECORD_REAL * i;
-                ri[RECORD_FATE] = fj;
-                ri[RECORD_COMPONENT] = component;
-                ri[RECORD_N_SCAT] = (int)n_s;
-                ri[RECORD_N_LAMB] = (int)n_l;
-                ri[RECORD_N_BSPEC] = (int)nb[j];
-                ri[RECORD_N_TOP] = (int)nt[j];
-                ri[RECORD_TIME_BIN] = tb;
-                ri[RECORD_EMERGENCE_BIN] = eb;
-                rr[RECORD_TIME_NS] = tj;
-                rr[RECORD_COS_EXIT] = ce[j];
-#ifdef WARPE_WEIGHTED
-                rr[RECORD_WEIGHT] = fj == FATE_SPECULAR ? (REAL)1 : wt[j];
-#else
-                rr[RECORD_WEIGHT] = (REAL)1;
-#endif
-#endif
-            }
-            alive &= !done;
+        if (ANY(e.done)) {
+            tally_exits(&r, &e, &tally, &st);
+            r.alive &= !e.done;
         }
     }
 
-    __global ulong *st = item_stats + N_ITEM_STATS * get_global_id(0);
-    st[STAT_FATE_SPECULAR] = fates[FATE_SPECULAR];
-    st[STAT_FATE_ESCAPED] = fates[FATE_ESCAPED];
-    st[STAT_FATE_ABSORBED_MEDIUM] = fates[FATE_ABSORBED_MEDIUM];
-    st[STAT_FATE_ABSORBED_FLOOR] = fates[FATE_ABSORBED_FLOOR];
-    st[STAT_FATE_TERMINATED] = fates[FATE_TERMINATED];
-    st[STAT_SCATTERING_EVENTS] = scattering_events;
-    st[STAT_MIXED_HISTORY] = mixed;
-    st[STAT_LOST_WEIGHTS] = lost;   /* weights dropped by the exact sums (weighted mode) */
+    write_stats(item_stats + N_ITEM_STATS * get_global_id(0), &st);
 }
