@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     else:
         chosen = []
         for spec in args.devices.split(","):
-            chosen += [m[0] for m in devmod._candidates(spec, listed)[:1]]
+            chosen += [m[0] for m in devmod.candidates(spec, listed)[:1]]
     rows = {}
     for info in chosen:
         t0 = time.perf_counter()

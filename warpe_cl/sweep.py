@@ -464,10 +464,10 @@ class _Engine:
             info = getattr(engine, "info", None)
             return cls("in-process", f"in-process, {info.device if info else engine.name}",
                        devices)
-        from .device import _candidates, list_devices
+        from .device import candidates, list_devices
         listed = list_devices()
         for spec in devices:
-            if spec != "numpy" and not _candidates(spec, listed):
+            if spec != "numpy" and not candidates(spec, listed):
                 raise DeviceError(f"--device {spec}: no OpenCL device matches")
         return cls("pool", f"{len(devices)} worker processes ({', '.join(devices)})", devices)
 
