@@ -7,7 +7,7 @@ so the command line can turn it into one readable line and an exit code
 """
 from __future__ import annotations
 
-__all__ = ["WarpeError", "ConfigError", "DeviceError", "WeightError", "WarpeWarning"]
+__all__ = ["WarpeError", "ConfigError", "DeviceError", "WeightError", "WarpeWarning", "one_line"]
 
 
 class WarpeError(Exception):
@@ -74,3 +74,11 @@ class WeightError(WarpeError):
 
 class WarpeWarning(UserWarning):
     """A physically doubtful input: the run goes on, and the command line prints one line."""
+
+
+def one_line(err: BaseException) -> str:
+    """An exception as one line, white space folded: the message of a :class:`WarpeError`,
+    ``"Type: message"`` for any other (the sweep records each failed scenario's this way)."""
+    if isinstance(err, WarpeError):
+        return " ".join(str(err).split())
+    return " ".join(f"{type(err).__name__}: {err}".split())
