@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sys
 import time
 
 from . import io, tally
 from .config import Config, load_preset, time_edges
 from .params import WalkParams
+from .progress import Progress
 from .radiative import radiative_parameters
 
 _engines: dict = {}
@@ -141,21 +141,6 @@ def get_engine(device: str | None = None):
     return _engines[spec]
 
 
-def _progress(total: int, enabled):
-    """A tqdm bar on stderr that appears only for runs of more than 2 s, on a terminal."""
-    if enabled is False:
-        return None, lambda: None
-    from tqdm.auto import tqdm
-    bar = tqdm(total=total, unit="ray", unit_scale=True, delay=2.0, leave=False,
-               disable=None if enabled is None else not enabled, file=sys.stderr)
-    state = {"done": 0}
-
-    def update(done):
-        bar.update(done - state["done"])
-        state["done"] = done
-    return update, bar.close
-
-
 def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):
     """Run one scenario (a configuration without sweep) and return its Dataset."""
     point = point or {}
@@ -164,11 +149,13 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
     engine = get_engine(device)
     photons = int(cfg.get("simulation.photons"))
     precision = cfg.get("simulation.precision")
-    update, close = _progress(photons, progress)
+    # on a terminal, once the run has taken 2 s; removed when it ends
+    bar = Progress(photons, progress, unit="ray", unit_scale=True, delay=2.0, leave=False)
     try:
-        counts = engine.run(params, photons, precision=precision, progress=update)
+        counts = engine.run(params, photons, precision=precision,
+                            progress=None if progress is False else bar.update_to)
     finally:
-        close()
+        bar.close()
     arrays = tally.reduce_counts(counts, params, solid_angle=cfg.get("simulation.solid_angle"),
                                  specular_lobe=cfg.get("simulation.specular_lobe"),
                                  min_rays=int(cfg.get("simulation.min_rays")))
