@@ -140,7 +140,7 @@ def test_local_sweep_equals_run(reference):
 def test_fast_scenario_reader_matches_xarray(reference):
     """open_database reads scenario files with h5py into a template's layout: the same
     values, types and attributes as xarray.load_dataset gives."""
-    from warpe_cl.sweep import _read_scenario
+    from warpe_cl.database import _read_scenario
     tmp = reference[0]
     files = sorted((tmp / "local").glob("s*.nc"))
     template = xr.load_dataset(files[0], engine="h5netcdf")
