@@ -22,7 +22,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench import SCENES, loadavg  # noqa: E402
+from _common import loadavg  # noqa: E402
+from bench import SCENES  # noqa: E402
 from warpe_cl.config import load_preset  # noqa: E402
 from warpe_cl.api import walk_params  # noqa: E402
 
