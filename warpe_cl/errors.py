@@ -78,7 +78,7 @@ class WarpeWarning(UserWarning):
 
 def one_line(err: BaseException) -> str:
     """An exception as one line, white space folded: the message of a :class:`WarpeError`,
-    ``"Type: message"`` for any other (the sweep records each failed scenario's this way)."""
+    ``"Type: message"`` for any other (how the sweep manifest records a failed scenario)."""
     if isinstance(err, WarpeError):
         return " ".join(str(err).split())
     return " ".join(f"{type(err).__name__}: {err}".split())

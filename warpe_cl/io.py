@@ -1,9 +1,10 @@
-"""Assembling the output Dataset (interface.md §5), provenance, and atomic output writing.
+"""Assembling the output Dataset (interface.md §5), provenance and versions, and atomic output
+writing.
 
-Every file the command line writes goes through a hidden temporary file in the destination
-folder, renamed over the destination only once complete (:func:`write_netcdf`,
-:class:`Outputs`): an error, a crash or Ctrl-C never leaves a partial file, and the
-temporary file is removed on the way out.
+Every file warpe-cl writes (results, figures, the sweep manifest, the verdict cache) goes
+through a hidden temporary file in the destination folder, renamed over the destination only
+once complete (:func:`write_netcdf`, :func:`write_text`, :class:`Outputs`): an error, a crash or
+Ctrl-C never leaves a partial file, and the temporary file is removed on the way out.
 """
 from __future__ import annotations
 
