@@ -387,7 +387,7 @@ def test_missing_variables_and_bad_parameters_are_refused():
         load_instrument("belaa")
     with pytest.raises(ConfigError, match="did you mean electronics.transimpedance"):
         load_instrument("bela", {"electronics.transimpedence": "1 kohm"})
-    with pytest.raises(ConfigError, match="has no unit"):
+    with pytest.raises(ConfigError, match="50 is a bare number with no unit; give an energy"):
         load_instrument("bela", {"transmitter.pulse_energy": 50})
 
 
