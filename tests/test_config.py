@@ -650,8 +650,11 @@ def test_docstring_examples():
     import doctest
 
     import warpe_cl.config
+    import warpe_cl.config.bins
+    import warpe_cl.instrument.params
     import warpe_cl.units
-    for module in (warpe_cl.units, warpe_cl.config):
+    for module in (warpe_cl.units, warpe_cl.config, warpe_cl.config.bins,
+                   warpe_cl.instrument.params):
         result = doctest.testmod(module)
         assert result.attempted > 0 and result.failed == 0, module.__name__
 

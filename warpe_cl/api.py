@@ -157,7 +157,14 @@ def _progress(total: int, enabled):
 
 
 def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):
-    """Run one scenario (a configuration without sweep) and return its Dataset."""
+    """Run one scenario (a configuration without sweep) and return its Dataset.
+
+    The one function every path computes a scenario with (:func:`simulate`, hence
+    ``warpe-cl run``, and each scenario of ``warpe-cl sweep``): the walk, the tallies and,
+    when the preset has an ``instrument:`` block, the instrument chain on this scenario's
+    result (:func:`warpe_cl.instrument.scenario.apply_scenario_instrument`), so a point gives
+    the same bits, instrument variables included, whichever way it is computed.
+    """
     point = point or {}
     t0 = time.perf_counter()
     params, derived = walk_params(cfg, scenario_key(point, cfg))
@@ -190,7 +197,8 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
     ds = io.build_dataset(arrays, counts, params, derived, attrs)
     ds["wall_time"] = ((), time.perf_counter() - t0, {"units": "s",
                                                       "long_name": "time spent in simulate"})
-    return ds
+    from .instrument.scenario import apply_scenario_instrument
+    return apply_scenario_instrument(ds, cfg)
 
 
 def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
@@ -215,7 +223,14 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
     -------
     xarray.Dataset
         The variables of interface.md §5; with a sweep, a leading ``scenario`` dimension whose
-        swept values are coordinates.
+        swept values are coordinates. With an ``instrument:`` block, also the instrument's
+        variables (docs/instrument.md), computed scenario by scenario.
+
+    Raises
+    ------
+    ConfigError
+        Bad input, before any walk: the preset, its sweep points and its instrument block
+        are validated when loaded.
     """
     if not isinstance(cfg, Config):
         cfg = load_preset(cfg, overrides=overrides)

@@ -77,7 +77,6 @@ def cmd_run(args) -> int:
     points = cfg.sweep_points()
     for _, pcfg in points:
         radiative_parameters(pcfg)    # bad input fails (exit 2) before a device is sought
-    instrument = _scenario_instrument(cfg)   # a bad instrument block fails before the walk too
     api.get_engine(args.device)       # no usable device fails (exit 3) before any output
     # flushed: a wrapper reading the lines (a GUI, a test sending Ctrl-C) sees them as printed
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
@@ -93,9 +92,7 @@ def cmd_run(args) -> int:
 
     ds = api.simulate(cfg, device=args.device, progress=None if not args.quiet else False,
                       before_point=before, after_point=lambda d: _print_summary(d, say))
-    if instrument is not None:
-        from .instrument import apply_instrument
-        ds = apply_instrument(ds, instrument, source=str(cfg.source))
+    if cfg.get("instrument.name"):   # applied by simulate, scenario by scenario
         _print_instrument(ds, say)
     # The file and the figure are written all or nothing: Ctrl-C or an error while writing
     # either leaves neither (nor a temporary file), and the destinations as they were.
@@ -122,23 +119,6 @@ def _print_summary(ds, say):
         f"{c} {v:.5f}" for c, v in zip(ds["component"].values, ds["fraction"].values)))
     say(f"  time              {wall:.2f} s   {photons / wall:,.0f} photons/s   "
         f"{events / wall:,.0f} scattering events/s")
-
-
-def _scenario_instrument(cfg):
-    """The validated instrument of a preset's ``instrument:`` block (interface.md §3), or None.
-
-    ``altitude`` and ``roughness`` map to ``geometry.altitude`` and ``geometry.roughness``;
-    the other keys (``shots``, ``seed``, sections such as ``electronics:``) override the
-    instrument preset as written."""
-    block = dict((cfg.raw or {}).get("instrument") or {})
-    name = block.pop("name", None)
-    if not name:
-        return None
-    from .instrument import load_instrument
-    overrides = {}
-    for key, value in block.items():
-        overrides[{"altitude": "geometry.altitude", "roughness": "geometry.roughness"}.get(key, key)] = value
-    return load_instrument(name, overrides, override_source=str(cfg.source))
 
 
 def _print_instrument(ds, say):
