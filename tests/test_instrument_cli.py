@@ -284,6 +284,12 @@ def test_instrument_block_defaults_are_the_instrument_presets():
         assert params["shots"] == 3
     assert scenario_instrument(load_preset({k: v for k, v in base.items()
                                             if k != "instrument"})) is None
+    # the block's limits are the instrument table's: a bad value names the preset's key
+    from warpe_cl.instrument.params import PARAMS
+    for key, target in (("altitude", "geometry.altitude"), ("roughness", "geometry.roughness")):
+        mine, theirs = FIELDS[f"instrument.{key}"], PARAMS[target]
+        assert (mine.kind, mine.low, mine.high, mine.low_open, mine.high_open) == \
+            (theirs.kind, theirs.low, theirs.high, theirs.low_open, theirs.high_open)
 
 
 def yaml_load(text: str) -> dict:

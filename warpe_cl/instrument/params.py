@@ -135,8 +135,9 @@ _LISTING = (f"the keys allowed are {', '.join(_TOP)} and the sections "
             f"{', '.join(SECTIONS)} (docs/instrument.md)")
 
 
+@functools.lru_cache(maxsize=1)
 def instruments_dir() -> Path:
-    """Folder of the bundled instrument presets."""
+    """Folder of the bundled instrument presets (looked up once per process)."""
     from ..catalog import presets_dir
     return presets_dir() / "instruments"
 
@@ -224,8 +225,15 @@ def resolve_instrument(spec, spec_key: str = "--instrument") -> tuple[dict, str]
         An unknown name, an unreadable file, invalid YAML (a key given twice included) or a
         document that is not a mapping.
     """
+    raw, source = _resolve(spec, spec_key)
+    return copy.deepcopy(raw), source
+
+
+def _resolve(spec, spec_key: str) -> tuple[dict, str]:
+    """:func:`resolve_instrument` without the copy: a file's document is shared by every
+    caller (the cache of :func:`_read`), to be read, never changed."""
     if isinstance(spec, dict):
-        return copy.deepcopy(spec), "<dict>"
+        return spec, "<dict>"
     text = str(spec)
     path = Path(text)
     if not path.is_file():
@@ -239,7 +247,7 @@ def resolve_instrument(spec, spec_key: str = "--instrument") -> tuple[dict, str]
     raw = _read(str(path), (stat.st_mtime_ns, stat.st_size))
     if not isinstance(raw, dict):
         raise ConfigError("an instrument preset must be a mapping of sections", source=str(path))
-    return copy.deepcopy(raw), str(path)
+    return raw, str(path)
 
 
 def check_parameter(key: str, value, source: str | None = None, where: str | None = None):
@@ -306,7 +314,7 @@ def load_instrument(spec, overrides: dict | None = None,
         One line naming the file (or ``override_source``), the key ``instrument.KEY``, the
         value and what is allowed.
     """
-    raw, source = resolve_instrument(spec, spec_key)
+    raw, source = _resolve(spec, spec_key)     # only read here
     over_source = override_source or source
     try:
         flat = _flatten(raw)
