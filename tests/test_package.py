@@ -22,6 +22,8 @@ def test_wheel_contains_kernels_and_presets(tmp_path):
     for instrument in ("bela", "gala", "atlas"):
         assert f"warpe_cl/presets/instruments/{instrument}.yaml" in names, instrument
     assert "warpe_cl/instrument/chain.py" in names
+    for module in ("__init__", "schema", "validate", "preset", "grid"):   # the config package
+        assert f"warpe_cl/config/{module}.py" in names, module
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "warpe-cl = warpe_cl.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
 
