@@ -281,7 +281,7 @@ SCHEMA: list[Field] = [
             "footprint width, the aperture's solid angle, hence the photons at the aperture "
             "and their timing. The surface simulation does not depend on it: its "
             "reflectances are per steradian (ns^-1 sr^-1), where the altitude cancels "
-            "(warpe_cl/tally.py)."),
+            "(docs/instrument.md)."),
     _F("instrument.roughness", "angle", low=0.0, high=30.0, example="0.1 deg",
        default_doc="the instrument preset's geometry.roughness (0.1 deg for BELA, GALA, "
                    "ATLAS)",
