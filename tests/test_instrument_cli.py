@@ -62,6 +62,7 @@ def test_lambertian_floor_run_with_instrument_block(tmp_path, capsys, engine):
     assert "instrument_created_utc" in ds.attrs and "config" in ds.attrs
 
 
+@pytest.mark.slow
 def test_instrument_verb_writes_the_outputs(tmp_path, surface_file, capsys):
     out = tmp_path / "bela.nc"
     png = tmp_path / "bela.png"

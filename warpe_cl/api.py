@@ -1,9 +1,17 @@
 """The Python entry points: :func:`simulate` and :func:`walk_params`.
 
+A bundled preset by name, a thousand rays, on the NumPy reference walk (any device spec of
+docs/interface.md works the same way, e.g. ``device="auto"``, the default):
+
     >>> import warpe_cl
-    >>> cfg = warpe_cl.load_preset("presets/radiative/slab_co2_1m.yaml",
-    ...                            overrides={"simulation.photons": 1e5})   # doctest: +SKIP
-    >>> ds = warpe_cl.simulate(cfg)                                          # doctest: +SKIP
+    >>> from warpe_cl.catalog import resolve_preset
+    >>> cfg = warpe_cl.load_preset(resolve_preset("radiative/slab_co2_1m"),
+    ...                            overrides={"simulation.photons": 1e3})
+    >>> ds = warpe_cl.simulate(cfg, device="numpy", progress=False)
+    >>> int(ds["photons"]), ds["reflectance"].dims
+    (1000, ('component', 'time'))
+    >>> ds["fraction"].sel(component="specular").item() > 0.02     # R0 = 0.028 for CO2 ice
+    True
 """
 from __future__ import annotations
 
