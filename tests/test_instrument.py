@@ -16,9 +16,9 @@ from warpe_cl.instrument import adc, apply_instrument, detection, detector, elec
     footprint, load_instrument, photon_counting, pulse, radiometry, specular, speckle
 from warpe_cl.instrument.chain import shot_rng
 from warpe_cl.instrument.grid import convolve, deposit, make_grid, rebin_density
+from warpe_cl.params import COMPONENTS
 
-COMPONENTS = ["specular", "bf_direct", "bf_diffuse", "scattering"]
-LOG_EDGES = 1e-6 * 10 ** (np.arange(0, 221) / 20)     # 1e-6 .. 1e5 ns
+from conftest import LOG_EDGES
 
 
 def synthetic_surface(diffuse_integral=0.0, tau=5.0, f_spec=0.0, f_bf=0.0, t_bf=14.0357,
@@ -35,7 +35,7 @@ def synthetic_surface(diffuse_integral=0.0, tau=5.0, f_spec=0.0, f_bf=0.0, t_bf=
     ds = xr.Dataset(
         {"time_edges": ("time_edge", edges), "reflectance": (("component", "time"), refl),
          "ray_count": (("component", "time"), counts), "photons": ((), np.int64(photons))},
-        coords={"component": COMPONENTS, "time": np.sqrt(edges[:-1] * edges[1:])},
+        coords={"component": list(COMPONENTS), "time": np.sqrt(edges[:-1] * edges[1:])},
         attrs={"config": f"wavelength: {wavelength}\n", "seed": seed, "first_bf_time_ns": t_bf,
                "name": "synthetic"})
     if scenarios:
@@ -387,7 +387,7 @@ def test_missing_variables_and_bad_parameters_are_refused():
         load_instrument("belaa")
     with pytest.raises(ConfigError, match="did you mean electronics.transimpedance"):
         load_instrument("bela", {"electronics.transimpedence": "1 kohm"})
-    with pytest.raises(ConfigError, match="has no unit"):
+    with pytest.raises(ConfigError, match="50 is a bare number with no unit; give an energy"):
         load_instrument("bela", {"transmitter.pulse_energy": 50})
 
 

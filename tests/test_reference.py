@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
+from conftest import binomial_sigma
+
 from warpe_cl.params import C_M_PER_NS, FATES, WalkParams
 from warpe_cl.reference import (external_reflectance, henyey_greenstein_cosine,
                                 internal_reflectance, normal_incidence_reflectance,
@@ -23,9 +25,9 @@ ESCAPED = FATES.index("escaped")
 N_CO2 = 1.4026  # effective index of CO2 ice at 1064 nm (physics.md §3.1)
 
 
-def binomial_sigma(photons, probability):
-    """Standard deviation of a binomial count, sqrt(N p (1 - p))."""
-    return math.sqrt(photons * probability * (1.0 - probability))
+def count_sigma(photons, probability):
+    """Standard deviation of a binomial count, sqrt(N p (1 - p)) (p (1 - p) >= 1/N here)."""
+    return photons * binomial_sigma(probability, photons)
 
 
 def slab(**changes):
@@ -203,6 +205,7 @@ def test_fates_sum_and_tallies_match_records(name):
         assert np.any(time_bin == -1) and counts.total[SPECULAR] > 0
 
 
+@pytest.mark.slow
 def test_specular_fraction_is_r0():
     # Only the entry draw matters; a thick absorbing slab ends every entered ray quickly.
     photons = 100_000
@@ -211,12 +214,13 @@ def test_specular_fraction_is_r0():
     r0 = ((N_CO2 - 1) ** 2) / ((N_CO2 + 1) ** 2)  # k = 0
     # Specular count ~ Binomial(N, R0): 5 sigma = 5 sqrt(N R0 (1 - R0)) ≈ 260 of ≈ 2808.
     assert abs(counts.fates[FATES.index("specular")] - photons * r0) <= (
-        5 * binomial_sigma(photons, r0))
+        5 * count_sigma(photons, r0))
     assert counts.total[SPECULAR] == counts.fates[FATES.index("specular")]
     assert counts.angular[SPECULAR, 0] == counts.total[SPECULAR]  # θ_e = 0 exactly
     assert counts.time_any[SPECULAR, 0] == counts.total[SPECULAR]  # t = 0
 
 
+@pytest.mark.slow
 def test_pure_absorbing_slab_bf_direct_series_and_times():
     # physics.md §8 check 2 and §6.1: omega = 0, A = 0; the only exits are BF direct, after k
     # bottom reflections, with fraction (1 - R0)² Σ_k R0^(2k-1) e^(-2kτ0) and times 2k h n / c.
@@ -233,11 +237,11 @@ def test_pure_absorbing_slab_bf_direct_series_and_times():
     assert counts.total[BF_DIFFUSE] == 0 and counts.total[SCATTERING] == 0
     assert counts.scattering_events == 0 and counts.fates[ESCAPED] == counts.total[BF_DIRECT]
     # BF direct count ~ Binomial(N, series), series ≈ 0.0247: 5 sigma ≈ 245 of ≈ 2470.
-    assert abs(counts.total[BF_DIRECT] - photons * series) <= 5 * binomial_sigma(photons, series)
+    assert abs(counts.total[BF_DIRECT] - photons * series) <= 5 * count_sigma(photons, series)
     # First peak alone (exits after one bottom reflection), same binomial bound.
     direct = records["component"] == BF_DIRECT
     first = np.sum(direct & (records["n_bspec"] == 1))
-    assert abs(first - photons * peaks[0]) <= 5 * binomial_sigma(photons, peaks[0])
+    assert abs(first - photons * peaks[0]) <= 5 * count_sigma(photons, peaks[0])
 
     # Times: path = 2k h exactly in exact arithmetic (k = number of bottom reflections).
     k_reflections = records["n_bspec"][direct]
@@ -285,6 +289,7 @@ def test_conservative_granular_medium_lets_every_ray_escape():
     assert counts.scattering_events > 0
 
 
+@pytest.mark.slow
 def test_bare_lambertian_floor_is_lambertian():
     # Granular, no extinction, n = 1: the ray falls on the floor, which reflects it with
     # probability A into cos θ = sqrt(U); it then leaves with cos θ_e = cos θ. The fraction in
@@ -308,7 +313,7 @@ def test_bare_lambertian_floor_is_lambertian():
     assert np.all(np.abs(reflectance - albedo / math.pi)
                   <= 5 * sigma / (photons * math.pi * probability / albedo))
     # Escaped count ~ Binomial(N, A): 5 sigma.
-    assert abs(counts.fates[ESCAPED] - photons * albedo) <= 5 * binomial_sigma(photons, albedo)
+    assert abs(counts.fates[ESCAPED] - photons * albedo) <= 5 * count_sigma(photons, albedo)
     assert counts.total[BF_DIFFUSE] == counts.fates[ESCAPED]
     # Geometry, exactly: path h down, h / cos θ back up; t = L n / c with n = 1.
     escaped = records["fate"] == ESCAPED

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import medium
+from conftest import LAMBDA, SCATTERING, medium
 from warpe_cl import radiative
 from warpe_cl.params import C_M_PER_NS, fixed_point, fixed_to_float
 from warpe_cl.reference import simulate_reference
@@ -17,9 +17,6 @@ from warpe_cl.tally import reduce_counts
 
 CO2 = dict(n=1.4026, k=8.47e-10)
 H2O = dict(n=1.30042, k=1.272e-6)
-LAMBDA = 1064e-9
-SCATTERING = dict(texture="slab", extinction=300.0, omega=0.98, g=0.8, n=1.31, k=1e-5,
-                  albedo=0.4)
 EXACT_FIELDS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
                 "emergence_bin")
 
@@ -103,6 +100,7 @@ def _first_bf_peak(engine, material, photons, mode):
     return energy, stderr, c
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("material, seed_value", [(H2O, 1.4728e-15), (CO2, 0.025999)])
 def test_seed_pure_slab_values_to_one_percent(engine, material, seed_value):
     """physics.md §8: the seed's "analytical solution", (1 - R0)^2 R0 exp(-2 tau0): 1.47e-15
@@ -118,6 +116,7 @@ def test_seed_pure_slab_values_to_one_percent(engine, material, seed_value):
     assert abs(energy - analytic) < 5 * stderr
 
 
+@pytest.mark.slow
 def test_analog_mode_sees_nothing_of_the_water_ice_peak(engine):
     """Where the weighted walk measures 1.47e-15, the analog one has not a single ray."""
     energy, _, c = _first_bf_peak(engine, H2O, 1_000_000, "analog")

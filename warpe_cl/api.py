@@ -1,9 +1,17 @@
 """The Python entry points: :func:`simulate` and :func:`walk_params`.
 
+A bundled preset by name, a thousand rays, on the NumPy reference walk (any device spec of
+docs/interface.md works the same way, e.g. ``device="auto"``, the default):
+
     >>> import warpe_cl
-    >>> cfg = warpe_cl.load_preset("presets/radiative/slab_co2_1m.yaml",
-    ...                            overrides={"simulation.photons": 1e5})   # doctest: +SKIP
-    >>> ds = warpe_cl.simulate(cfg)                                          # doctest: +SKIP
+    >>> from warpe_cl.catalog import resolve_preset
+    >>> cfg = warpe_cl.load_preset(resolve_preset("radiative/slab_co2_1m"),
+    ...                            overrides={"simulation.photons": 1e3})
+    >>> ds = warpe_cl.simulate(cfg, device="numpy", progress=False)
+    >>> int(ds["photons"]), ds["reflectance"].dims
+    (1000, ('component', 'time'))
+    >>> ds["fraction"].sel(component="specular").item() > 0.02     # R0 = 0.028 for CO2 ice
+    True
 """
 from __future__ import annotations
 
@@ -142,7 +150,14 @@ def get_engine(device: str | None = None):
 
 
 def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):
-    """Run one scenario (a configuration without sweep) and return its Dataset."""
+    """Run one scenario (a configuration without sweep) and return its Dataset.
+
+    The one function every path computes a scenario with (:func:`simulate`, hence
+    ``warpe-cl run``, and each scenario of ``warpe-cl sweep``): the walk, the tallies and,
+    when the preset has an ``instrument:`` block, the instrument chain on this scenario's
+    result (:func:`warpe_cl.instrument.scenario.apply_scenario_instrument`), so a point gives
+    the same bits, instrument variables included, whichever way it is computed.
+    """
     point = point or {}
     t0 = time.perf_counter()
     params, derived = walk_params(cfg, scenario_key(point, cfg))
@@ -177,7 +192,8 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
     ds = io.build_dataset(arrays, counts, params, derived, attrs)
     ds["wall_time"] = ((), time.perf_counter() - t0, {"units": "s",
                                                       "long_name": "time spent in simulate"})
-    return ds
+    from .instrument.scenario import apply_scenario_instrument
+    return apply_scenario_instrument(ds, cfg)
 
 
 def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
@@ -202,7 +218,14 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
     -------
     xarray.Dataset
         The variables of interface.md §5; with a sweep, a leading ``scenario`` dimension whose
-        swept values are coordinates.
+        swept values are coordinates. With an ``instrument:`` block, also the instrument's
+        variables (docs/instrument.md), computed scenario by scenario.
+
+    Raises
+    ------
+    ConfigError
+        Bad input, before any walk: the preset, its sweep points and its instrument block
+        are validated when loaded.
     """
     if not isinstance(cfg, Config):
         cfg = load_preset(cfg, overrides=overrides)

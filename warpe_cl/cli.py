@@ -95,7 +95,6 @@ def cmd_run(args) -> int:
     points = cfg.sweep_points()
     for _, pcfg in points:
         radiative_parameters(pcfg)    # bad input fails (exit 2) before a device is sought
-    instrument = _scenario_instrument(cfg)   # a bad instrument block fails before the walk too
     api.get_engine(args.device)       # no usable device fails (exit 3) before any output
     say = _say(args)
     say(report.run_header(cfg, len(points)))
@@ -113,30 +112,11 @@ def cmd_run(args) -> int:
 
     ds = api.simulate(cfg, device=args.device, progress=None if not args.quiet else False,
                       before_point=before, after_point=after)
-    if instrument is not None:
-        from .instrument import apply_instrument
-        ds = apply_instrument(ds, instrument, source=str(cfg.source))
+    if cfg.get("instrument.name"):   # applied by simulate, scenario by scenario
         for line in report.instrument_lines(ds):
             say(line)
     _write_outputs(ds, out, args.plot, plot_waveform, say, started=t0)
     return EXIT_OK
-
-
-def _scenario_instrument(cfg):
-    """The validated instrument of a preset's ``instrument:`` block (interface.md §3), or None.
-
-    ``altitude`` and ``roughness`` map to ``geometry.altitude`` and ``geometry.roughness``;
-    the other keys (``shots``, ``seed``, sections such as ``electronics:``) override the
-    instrument preset as written."""
-    block = dict((cfg.raw or {}).get("instrument") or {})
-    name = block.pop("name", None)
-    if not name:
-        return None
-    from .instrument import load_instrument
-    overrides = {}
-    for key, value in block.items():
-        overrides[{"altitude": "geometry.altitude", "roughness": "geometry.roughness"}.get(key, key)] = value
-    return load_instrument(name, overrides, override_source=str(cfg.source))
 
 
 def _load_result(path: Path):

@@ -170,15 +170,32 @@ def _same_attr(a, b) -> bool:
     return a == b
 
 
+def _pad(ds, longest: dict):
+    """``ds`` with each dimension of ``longest`` it has padded at its end, with NaN, to that
+    length (``ds`` itself when none is shorter)."""
+    widths = {d: (0, n - ds.sizes[d]) for d, n in longest.items()
+              if d in ds.sizes and ds.sizes[d] < n}
+    return ds.pad(widths, constant_values=np.nan) if widths else ds
+
+
 def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     """Stack scenario Datasets along ``scenario``.
 
     The swept values become coordinates, the per-scenario derived parameters (tau0, omega, ...)
     and Philox scenario keys become variables, attributes shared by every scenario stay
     attributes, and ``attrs`` (e.g. the whole preset with its sweep block) is added last.
+    A dimension without coordinate whose length differs between scenarios (``photon``, the
+    time tags of a photon-counting instrument) is padded at its end to the longest with NaN,
+    as :func:`warpe_cl.instrument.output.build` pads it.
     """
     import xarray as xr
 
+    longest = {}
+    for ds in datasets:
+        for dim, size in ds.sizes.items():
+            if dim not in ds.indexes:
+                longest[dim] = max(longest.get(dim, 0), size)
+    datasets = [_pad(ds, longest) for ds in datasets]
     first = datasets[0].attrs            # an attribute varies if any scenario differs from
     varying = {k for k in {k for ds in datasets for k in ds.attrs}   # the first: O(N), not N^2
                if any(not _same_attr(ds.attrs.get(k), first.get(k)) for ds in datasets)}
