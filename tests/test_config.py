@@ -750,3 +750,13 @@ def test_docs_config_md_is_up_to_date():
     assert path.read_text(encoding="utf-8") == reference_markdown(), \
         "docs/config.md is out of date: run python tools/config_docs.py"
     assert "2^53" in path.read_text(encoding="utf-8")
+
+
+def test_a_bundled_preset_loads_by_name_as_on_the_command_line():
+    from warpe_cl.catalog import presets_dir
+    by_name = load_preset("radiative/slab_co2_1m")
+    by_path = load_preset(presets_dir() / "radiative" / "slab_co2_1m.yaml")
+    assert by_name.data == by_path.data
+    assert load_preset("slab_co2_1m").data == by_path.data        # a unique stem
+    with pytest.raises(ConfigError, match="no_such_preset"):
+        load_preset("radiative/no_such_preset")

@@ -4,9 +4,7 @@ A bundled preset by name, a thousand rays, on the NumPy reference walk (any devi
 docs/interface.md works the same way, e.g. ``device="auto"``, the default):
 
     >>> import warpe_cl
-    >>> from warpe_cl.catalog import resolve_preset
-    >>> cfg = warpe_cl.load_preset(resolve_preset("radiative/slab_co2_1m"),
-    ...                            overrides={"simulation.photons": 1e3})
+    >>> cfg = warpe_cl.load_preset("radiative/slab_co2_1m", overrides={"simulation.photons": 1e3})
     >>> ds = warpe_cl.simulate(cfg, device="numpy", progress=False)
     >>> int(ds["photons"]), ds["reflectance"].dims
     (1000, ('component', 'time'))

@@ -36,8 +36,7 @@ def _overrides(args) -> list:
 
 def _load(args):
     from .config import load_preset
-    from .catalog import resolve_preset
-    return load_preset(resolve_preset(args.preset), overrides=_overrides(args))
+    return load_preset(args.preset, overrides=_overrides(args))   # a path or a bundled name
 
 
 def _check_writable(path: Path, what: str):

@@ -183,12 +183,14 @@ def _export(value, skey: str):
 
 
 def read_source(source) -> tuple:
-    """A preset given as a dict or a YAML path: (name, raw mapping, base folder for relative
-    paths or None, default preset name)."""
+    """A preset given as a dict, a YAML path or a bundled preset's name (``radiative/slab_co2_1m``,
+    as the command line takes it: catalog.resolve_preset): (name, raw mapping, base folder for
+    relative paths or None, default preset name)."""
     if isinstance(source, dict):
         return "<dict>", copy.deepcopy(source), None, "unnamed"
     if isinstance(source, (str, os.PathLike)):
-        name = os.fspath(source)
+        from ..catalog import resolve_preset
+        name = os.fspath(resolve_preset(os.fspath(source)))
         return (name, read_yaml(name, empty=NEEDS), os.path.dirname(os.path.abspath(name)),
                 os.path.splitext(os.path.basename(name))[0])
     raise ConfigError(f"a preset is a YAML file path or a dict, not {type(source).__name__}")
@@ -200,8 +202,9 @@ def load_preset(source, overrides=None) -> Config:
     Parameters
     ----------
     source : str, os.PathLike, dict or Config
-        Path to a YAML preset, or a dict of the same shape (``name`` then defaults to
-        ``"unnamed"``), or an existing Config (overrides are applied to its ``raw``).
+        Path to a YAML preset, a bundled preset's name (``"radiative/slab_co2_1m"``, as on the
+        command line), a dict of the same shape (``name`` then defaults to ``"unnamed"``), or
+        an existing Config (overrides are applied to its ``raw``).
     overrides : dict or list of str, optional
         ``{"simulation.photons": 1e5}`` or ``["simulation.photons=1e5",
         'medium.thickness="100 mm"']``; values of ``KEY=VALUE`` strings are read as YAML.
