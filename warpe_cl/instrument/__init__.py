@@ -1,4 +1,4 @@
-"""What an instrument records from a simulated surface (instruments.md §3).
+"""What an instrument records from a simulated surface (docs/instrument.md §3).
 
 One module per stage of the chain:
 

@@ -35,7 +35,7 @@ from ..units import format_attribute
 _P = Field
 
 
-#: Every parameter of the chain (instruments.md §3), canonical defaults.
+#: Every parameter of the chain (docs/instrument.md §3), canonical defaults.
 SCHEMA: list[Field] = [
     _P("name", "str", required=True, help="instrument name"),
     _P("description", "str", "", help="free text"),
@@ -74,7 +74,7 @@ SCHEMA: list[Field] = [
     _P("geometry.bf_lobe_factor", "float", 1.0, low=0.0,
        help="BF-direct lobe half-angle relative to the specular lobe"),
     _P("geometry.lobe_model", "choice", "uniform_cone", choices=("uniform_cone", "gaussian"),
-       help="uniform_cone (seed eqs. 7-11) or gaussian (instruments.md §3.4 option 2)"),
+       help="uniform_cone (seed eqs. 7-11) or gaussian (docs/instrument.md §3.4 option 2)"),
     _P("geometry.atmosphere_transmission", "float", 1.0, low=0.0, high=1.0,
        help="one-way T_atm"),
     # §3.5 background
