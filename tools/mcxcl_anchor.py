@@ -2,10 +2,13 @@
 """Run MCX-CL (pmcxcl) once and summarise it as JSON: the side of ``bench.py --compare mcxcl``
 that lives in MCX-CL's own virtual environment.
 
-This script imports only numpy, pmcxcl and ``tools/_common.py`` (standard library only); it is
-started by ``tools/mcxcl_compare.py`` with that venv's python and the environment workarounds of
-``shared/bench/mcxcl_anchor.sh`` (OCL_ICD_VENDORS pointing at the OpenCL platform to use,
-LD_PRELOAD of the system libstdc++).
+MCX-CL (pmcxcl, Qianqian Fang's Monte Carlo eXtreme for OpenCL) run on PoCL is the project's
+speed anchor (docs/performance.md, "MCX-CL anchor"), and this script is the anchor run. It imports
+only numpy, pmcxcl and ``tools/_common.py`` (standard library only); it is started by
+``tools/mcxcl_compare.py`` with that venv's python and the two environment workarounds pmcxcl
+needs on PoCL: OCL_ICD_VENDORS pointing its bundled ICD loader at the OpenCL platform to use, and
+LD_PRELOAD of the system libstdc++ (without it PoCL's build options are cut short inside pmcxcl
+and every kernel build fails).
 pmcxcl must never become a dependency of warpe-cl.
 
     python mcxcl_anchor.py devices RESULT.json
