@@ -1,4 +1,4 @@
-"""The command line: exit codes, one-line errors, the output file of interface.md §5."""
+"""The command line: exit codes, one-line errors, the output file of docs/interface.md §5."""
 from __future__ import annotations
 
 import subprocess

@@ -1,4 +1,6 @@
-"""The wheel carries the kernels and the presets (style.md item 1)."""
+"""The wheel carries the kernels and the presets: they are package data, found by path at run
+time (warpe_cl.cl and warpe_cl.presets in setup.cfg), so an installed warpe-cl needs no
+checkout."""
 from __future__ import annotations
 
 import subprocess

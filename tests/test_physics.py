@@ -1,4 +1,4 @@
-"""The checks of physics.md §8 on the OpenCL kernel (single precision, the default).
+"""The checks of docs/physics.md §8 on the OpenCL kernel (single precision, the default).
 
 Every Monte Carlo assertion carries its tolerance: 5 standard errors of the estimate (binomial
 for fractions), i.e. a false-alarm rate of about 6e-7 per assertion.
@@ -96,7 +96,7 @@ def test_co2_slab_seed_values(engine):
     BF diffuse of the first pass in the 3-degree FOV.
 
     The first pass (floor reached once through the slab; arrival in [t1, 1.5 t1)) reads
-    (A/pi)(1 - R0)^4 exp(-2 tau0) / (1 - A S_e) sr^-1: the 0.0418 of physics.md §6.1 times the
+    (A/pi)(1 - R0)^4 exp(-2 tau0) / (1 - A S_e) sr^-1: the 0.0418 of docs/physics.md §6.1 times the
     zero-delay floor/slab inter-reflections of the gap, 1/(1 - A S_e) = 1.0117 (S_e = 0.0772),
     which the walk of §5.5 contains. Projected solid angle (pi sin^2 theta), so that a
     Lambertian radiance factor is read exactly.
@@ -130,7 +130,7 @@ def test_co2_slab_seed_values(engine):
 @pytest.mark.slow
 def test_bright_floor_first_pass_includes_gap_interreflections(engine):
     """As above with A = 0.9, where the gap term 1/(1 - A S_e) = 1.075 is well above the
-    statistical error: the walk's floor loop (physics.md §5.5) is what the formula sums."""
+    statistical error: the walk's floor loop (docs/physics.md §5.5) is what the formula sums."""
     h, n = 1.0, 1.4026
     t1 = 2 * h * n / C_M_PER_NS
     N = 10_000_000

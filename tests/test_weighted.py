@@ -83,7 +83,7 @@ def test_weighted_sums_across_lane_widths(engine, precision, rtol):
 
 
 def _first_bf_peak(engine, material, photons, mode):
-    """The pure slab of 1 m over a floor A = 0.15 (physics.md §8): the BF-direct energy of the
+    """The pure slab of 1 m over a floor A = 0.15 (docs/physics.md §8): the BF-direct energy of the
     first pass (arrival in [0.99 t1, 1.5 t1)) and its standard error."""
     h = 1.0
     tau0 = 4 * np.pi * material["k"] * h / LAMBDA
@@ -103,7 +103,7 @@ def _first_bf_peak(engine, material, photons, mode):
 @pytest.mark.slow
 @pytest.mark.parametrize("material, seed_value", [(H2O, 1.4728e-15), (CO2, 0.025999)])
 def test_seed_pure_slab_values_to_one_percent(engine, material, seed_value):
-    """physics.md §8: the seed's "analytical solution", (1 - R0)^2 R0 exp(-2 tau0): 1.47e-15
+    """docs/physics.md §8: the seed's "analytical solution", (1 - R0)^2 R0 exp(-2 tau0): 1.47e-15
     for 1000 mm of water ice and 0.026 for CO2, reproduced to 1 % by the weighted walk. Its
     only randomness is the Fresnel draws, so 1.5e7 rays give a relative standard error of
     0.2 %: 5 sigma is inside 1 %."""

@@ -1,7 +1,7 @@
 """The Python entry points: :func:`simulate` and :func:`walk_params`.
 
 A bundled preset by name, a thousand rays, on the NumPy reference walk (any device spec of
-docs/interface.md works the same way, e.g. ``device="auto"``, the default):
+docs/interface.md §2.2 works the same way, e.g. ``device="auto"``, the default):
 
     >>> import warpe_cl
     >>> cfg = warpe_cl.load_preset("radiative/slab_co2_1m", overrides={"simulation.photons": 1e3})
@@ -203,7 +203,7 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
     cfg : Config, dict, str or path
         A loaded configuration, a dict of the YAML's shape, or a preset file.
     device : str, optional
-        Device spec (interface.md §2), or ``"numpy"`` for the reference walk.
+        Device spec (docs/interface.md §2), or ``"numpy"`` for the reference walk.
     progress : bool or None
         Progress bar: None shows one on a terminal for runs over 2 s; False never.
     overrides : dict, optional
@@ -215,7 +215,7 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
     Returns
     -------
     xarray.Dataset
-        The variables of interface.md §5; with a sweep, a leading ``scenario`` dimension whose
+        The variables of docs/interface.md §5; with a sweep, a leading ``scenario`` dimension whose
         swept values are coordinates. With an ``instrument:`` block, also the instrument's
         variables (docs/instrument.md), computed scenario by scenario.
 

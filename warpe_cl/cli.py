@@ -1,4 +1,4 @@
-"""The ``warpe-cl`` command line (interface.md §2).
+"""The ``warpe-cl`` command line (docs/interface.md §2).
 
 Exit codes: 0 success; 2 bad input (configuration, units, files); 3 no usable OpenCL
 device; 1 anything else. Errors are one readable line on stderr, never a traceback

@@ -145,7 +145,7 @@ def open_database(paths):
     Returns
     -------
     xarray.Dataset
-        The layout ``warpe-cl run`` writes for a sweep (interface.md §5): a leading
+        The layout ``warpe-cl run`` writes for a sweep (docs/interface.md §5): a leading
         ``scenario`` dimension whose coordinate is the grid index, the swept values as
         coordinates along it, the derived parameters and ``scenario_key`` as variables.
         Unfinished scenarios are absent; the attributes ``sweep_scenarios_total``,

@@ -2,7 +2,7 @@
 
 Every error a user can cause by what they type or write derives from :class:`WarpeError`,
 so the command line can turn it into one readable line and an exit code
-(interface.md §2): :class:`ConfigError` -> 2, :class:`DeviceError` -> 3, any other
+(docs/interface.md §2): :class:`ConfigError` -> 2, :class:`DeviceError` -> 3, any other
 :class:`WarpeError` (e.g. :class:`WeightError`) -> 1.
 """
 from __future__ import annotations

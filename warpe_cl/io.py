@@ -1,4 +1,4 @@
-"""Assembling the output Dataset (interface.md §5), provenance and versions, and atomic output
+"""Assembling the output Dataset (docs/interface.md §5), provenance and versions, and atomic output
 writing.
 
 Every file warpe-cl writes (results, figures, the sweep manifest, the verdict cache) goes

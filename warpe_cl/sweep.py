@@ -1,6 +1,6 @@
 """Sweeps as a resumable scenario database: the plan, the manifest, and :func:`run_sweep`.
 
-``warpe-cl sweep PRESET.yaml --out DIR`` (interface.md §2) runs every point of the preset's
+``warpe-cl sweep PRESET.yaml --out DIR`` (docs/interface.md §2) runs every point of the preset's
 ``sweep:`` block (the outer product, :func:`warpe_cl.config.load_grid`) and writes
 
 ``DIR/s00003_1a2b3c4d5e6f7081.nc``

@@ -1,6 +1,6 @@
 """Presets: the schema table, YAML loading, ``--set`` overrides, validation and sweep grids.
 
-A preset is a YAML file (or a plain dict of the same shape, interface.md §3). Every key it
+A preset is a YAML file (or a plain dict of the same shape, docs/interface.md §3). Every key it
 may hold is one row of :data:`SCHEMA`; that table is the single source of the key names,
 kinds, units, defaults, limits and help texts. It drives validation, the defaults, the
 resolved YAML written by :meth:`Config.to_yaml` and the reference table of

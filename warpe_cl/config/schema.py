@@ -113,25 +113,25 @@ SCHEMA: list[Field] = [
             "reaches it leaves the layer)."),
     _F("medium.bottom_interface", "choice", "fresnel", choices=("fresnel", "none"),
        help="Slab only. fresnel: a slab / vacuum-gap interface above the floor "
-            "(physics.md §5.5); none: the floor is in optical contact with the slab. "
+            "(docs/physics.md §5.5); none: the floor is in optical contact with the slab. "
             "Accepted but ignored for a granular medium, which has no interfaces."),
     _F("medium.phase_g", "float", 0.8, low=-1.0, high=1.0, low_open=True, high_open=True,
        help="Henyey-Greenstein asymmetry parameter g of volume scattering (0: isotropic, "
             "close to 1: forward)."),
     _F("medium.extinction_efficiency", "float", 1.0, low=0.0, low_open=True,
        help="Physical form: extinction efficiency Q_e of the inclusions or grains "
-            "(physics.md A4: 1 in geometric optics, where Hapke's w is defined and the "
+            "(docs/physics.md A4: 1 in geometric optics, where Hapke's w is defined and the "
             "diffraction peak of packed or embedded particles is dropped; 2 counts it)."),
     _F("medium.matrix_absorption", "choice", "seed", choices=("seed", "volume_weighted"),
        help="Slab, physical form: the matrix absorption a_m = 4 pi k / lambda enters the "
             "extinction as in the seed (seed), or weighted by the matrix volume fraction "
-            "gamma_c (volume_weighted; physics.md A5)."),
+            "gamma_c (volume_weighted; docs/physics.md A5)."),
     _F("medium.inclusion_absorption", "choice", "absolute", choices=("absolute", "relative"),
        help="Physical form: the absorption inside an inclusion uses its own k (absolute, "
-            "physics.md A6) or its k relative to the matrix (relative)."),
+            "docs/physics.md A6) or its k relative to the matrix (relative)."),
     _F("medium.fresnel_integrals", "choice", "exact", choices=("exact", "hapke"),
        help="Physical form: S_e and S_i by quadrature of the exact Fresnel law (exact, "
-            "physics.md §3.6) or Hapke's approximations (hapke; invalid for n_rel < 1, "
+            "docs/physics.md §3.6) or Hapke's approximations (hapke; invalid for n_rel < 1, "
             "refused there)."),
     _F("medium.radiative", "section",
        help="The medium in radiative terms, instead of compacity/matrix/inclusions: the "
@@ -196,7 +196,8 @@ SCHEMA: list[Field] = [
             "{start, stop, width}; never both per_decade and width."),
     _F("simulation.time_bins.start", "time", "1e-6 ns", low=0.0,
        help="First edge. Log-spaced: > 0, default 1e-6 ns; linear: >= 0, default 0 ns. "
-            "Rays leaving earlier (the specular, at t = 0) count in the first bin."),
+            "Rays leaving earlier (the specular, at t = 0) are in no bin: they are counted "
+            "apart, in the output's early_fraction (docs/interface.md §5.1)."),
     _F("simulation.time_bins.stop", "time", "1e5 ns", low=0.0, low_open=True,
        help="Last time to cover (> start); the last edge is the first one at or after it. "
             "Required for linear bins."),
@@ -213,7 +214,7 @@ SCHEMA: list[Field] = [
             "terminated. At most 2^31 - 1, the largest cap the walk kernel takes (a larger "
             "value used to be cut to it without a word)."),
     _F("simulation.fov", "section", {},
-       help="Numerical fields of view of the diffuse components (physics.md §6.2): half "
+       help="Numerical fields of view of the diffuse components (docs/physics.md §6.2): half "
             "angles from the zenith, in vacuum."),
     _F("simulation.fov.scattering", "angle", "12 deg", low=0.0, high=90.0, low_open=True,
        help="Field of view of the background (volume scattering) component."),
@@ -227,7 +228,7 @@ SCHEMA: list[Field] = [
             "or projected, pi sin^2 theta (a Lambertian floor then reads exactly A/pi)."),
     _F("simulation.component_rule", "choice", "history", choices=("history", "time_window"),
        help="How diffuse exits are split into bf_diffuse and scattering: history (a floor "
-            "reflection makes bf_diffuse, physics.md §6.1) or time_window (diffuse exits at "
+            "reflection makes bf_diffuse, docs/physics.md §6.1) or time_window (diffuse exits at "
             "or after the first back-and-forth time t1 = 2 h n / c are bf_diffuse)."),
     _F("simulation.precision", "choice", "single", choices=("single", "double"),
        help="Floating-point precision of the walk kernels: single (float32) or double "
@@ -235,7 +236,7 @@ SCHEMA: list[Field] = [
     _F("simulation.specular_lobe", "angle", "0.25 deg", low=0.0, high=90.0,
        low_open=True, high_open=True,
        help="Half-angle of the roughness lobe that scales the specular and BF-direct "
-            "reflectances (physics.md §7.3)."),
+            "reflectances (docs/physics.md §7.3)."),
     _F("simulation.mode", "choice", "analog", choices=("analog", "weighted"),
        help="Monte Carlo scheme: analog (every ray carries weight 1 and is absorbed or not; "
             "the seed's scheme, with its 3-ray threshold) or weighted (survival weighting: "
