@@ -1,12 +1,32 @@
-"""Shared fixtures: one OpenCL engine for the whole session, and helpers to build media."""
+"""Shared fixtures and helpers: one OpenCL engine for the whole session, media with readable
+defaults, the repository's folders and the binomial standard error the Monte Carlo tolerances
+are written in."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from warpe_cl.params import WalkParams
 
+#: The repository (for its presets/ and tools/ as a user's checkout has them).
+REPO = Path(__file__).resolve().parent.parent
+TOOLS = REPO / "tools"
+#: BELA's wavelength, m.
+LAMBDA = 1064e-9
 LOG_EDGES = 1e-6 * 10 ** (np.arange(0, 221) / 20)   # 1e-6 .. 1e5 ns, 20 bins per decade
+#: A scattering slab (tau0 = 3 for 10 mm, omega = 0.98) that exercises every kernel path.
+SCATTERING = dict(texture="slab", extinction=300.0, omega=0.98, g=0.8, n=1.31, k=1e-5, albedo=0.4)
+
+
+def binomial_sigma(p: float, n: int) -> float:
+    """Standard error of a fraction p measured on n independent rays, sqrt(p (1 - p) / n).
+
+    p (1 - p) is floored at 1/n, so that an expected fraction of 0 or 1 still allows about
+    one ray; for every p with p (1 - p) >= 1/n this is the plain binomial value. The tests
+    write their tolerances as 5 of these (a false alarm ~6e-7 per assertion)."""
+    return float(np.sqrt(max(p * (1.0 - p), 1.0 / n) / n))
 
 
 @pytest.fixture(scope="session")

@@ -321,7 +321,8 @@ def test_defaults_radiative():
     assert sim["specular_lobe"] == 0.25
     assert sim["mode"] == "analog"
     assert d["sweep"] == {}
-    assert d["instrument"] == {"name": None, "altitude": 5e5, "roughness": 0.1}
+    # no fixed default: absent, the instrument preset's own altitude and roughness stand
+    assert d["instrument"] == {"name": None, "altitude": None, "roughness": None}
 
 
 def test_physical_preset_file(tmp_path):
@@ -527,8 +528,8 @@ def test_to_yaml_round_trip(tmp_path, variant):
                         "precision": "double", "specular_lobe": "2.5 deg", "min_rays": 0,
                         "time_bins": {"start": "1e-3 ns", "stop": "3 us", "per_decade": 7},
                         "max_time": "1234.5 ns"},
-            instrument={"name": "bela", "altitude": "400 km", "roughness": "0.5 deg",
-                        "shots": 100},
+            instrument={"name": "atlas", "altitude": "400 km", "roughness": "0.5 deg",
+                        "shots": 100},                      # ATLAS works at 532 nm
             sweep={"medium.thickness": ["1 mm", "1 m"], "medium.radiative.omega": [0, 1]}))
     text = cfg.to_yaml()
     again = load_preset(yaml.safe_load(text))
@@ -544,14 +545,18 @@ def test_to_yaml_writes_units():
     assert doc["simulation"]["fov"] == {"scattering": "12 deg", "bf_diffuse": "3 deg"}
     assert doc["simulation"]["time_bins"]["start"] == "1e-06 ns"
     assert "compacity" not in doc["medium"]          # None entries are left out
-    assert doc["instrument"] == {"altitude": "500 km", "roughness": "0.1 deg"}
+    assert doc["instrument"] == {}          # no instrument: nothing to resolve
 
 
 def test_instrument_extra_keys_pass_through():
-    cfg = load_preset(radiative(instrument={"name": "bela", "shots": 10, "adc_bits": 8}))
+    cfg = load_preset(radiative(instrument={"name": "bela", "shots": 10, "adc": {"bits": 8}}))
     assert cfg.get("instrument.shots") == 10
-    assert cfg.data["instrument"]["adc_bits"] == 8
+    assert cfg.data["instrument"]["adc"] == {"bits": 8}
     assert cfg.get("instrument.not_there") is None
+    # ... and are checked against the instrument's table when the preset is loaded
+    with pytest.raises(ConfigError, match=r"^<dict>: instrument\.adc_bits: unknown key; did "
+                                          r"you mean adc\.bits\?$"):
+        load_preset(radiative(instrument={"name": "bela", "adc_bits": 8}))
 
 
 def test_material_table_is_resolved_from_preset_folder(tmp_path):
@@ -645,8 +650,11 @@ def test_docstring_examples():
     import doctest
 
     import warpe_cl.config
+    import warpe_cl.config.bins
+    import warpe_cl.instrument.params
     import warpe_cl.units
-    for module in (warpe_cl.units, warpe_cl.config):
+    for module in (warpe_cl.units, warpe_cl.config, warpe_cl.config.bins,
+                   warpe_cl.instrument.params):
         result = doctest.testmod(module)
         assert result.attempted > 0 and result.failed == 0, module.__name__
 
@@ -742,3 +750,13 @@ def test_docs_config_md_is_up_to_date():
     assert path.read_text(encoding="utf-8") == reference_markdown(), \
         "docs/config.md is out of date: run python tools/config_docs.py"
     assert "2^53" in path.read_text(encoding="utf-8")
+
+
+def test_a_bundled_preset_loads_by_name_as_on_the_command_line():
+    from warpe_cl.catalog import presets_dir
+    by_name = load_preset("radiative/slab_co2_1m")
+    by_path = load_preset(presets_dir() / "radiative" / "slab_co2_1m.yaml")
+    assert by_name.data == by_path.data
+    assert load_preset("slab_co2_1m").data == by_path.data        # a unique stem
+    with pytest.raises(ConfigError, match="no_such_preset"):
+        load_preset("radiative/no_such_preset")

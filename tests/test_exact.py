@@ -67,6 +67,7 @@ def test_kernel_word_rule_at_the_threshold(engine, selftest, precision):
                                       err_msg=str(omega))
 
 
+@pytest.mark.slow
 def test_single_and_double_absorb_the_same_rays(engine):
     """Paired: the same photons (same seed) in single and double precision, in a conservative
     granular medium (1 - omega = 3.01e-6, where the old float test u1 > omega absorbed 2.0 %
@@ -107,6 +108,7 @@ def _hg_cosines(engine, selftest, precision, g, n):
     return hg.astype(np.float64)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("precision", ["single", "double"])
 @pytest.mark.parametrize("g", [1e-3, -1e-3, 1e-5, -1e-5, 1e-7, -1e-7, 0.8, -0.8, 0.0])
 def test_hg_moments(engine, selftest, precision, g):

@@ -1,4 +1,4 @@
-"""The instrument chain, stage by stage, against closed forms (instruments.md §3).
+"""The instrument chain, stage by stage, against closed forms (docs/instrument.md §3).
 
 Random checks use tolerances derived from the standard error of the estimate (5 sigma), written
 next to them. Surface responses are synthetic (numpy) unless a test says otherwise.
@@ -16,9 +16,9 @@ from warpe_cl.instrument import adc, apply_instrument, detection, detector, elec
     footprint, load_instrument, photon_counting, pulse, radiometry, specular, speckle
 from warpe_cl.instrument.chain import shot_rng
 from warpe_cl.instrument.grid import convolve, deposit, make_grid, rebin_density
+from warpe_cl.params import COMPONENTS
 
-COMPONENTS = ["specular", "bf_direct", "bf_diffuse", "scattering"]
-LOG_EDGES = 1e-6 * 10 ** (np.arange(0, 221) / 20)     # 1e-6 .. 1e5 ns
+from conftest import LOG_EDGES
 
 
 def synthetic_surface(diffuse_integral=0.0, tau=5.0, f_spec=0.0, f_bf=0.0, t_bf=14.0357,
@@ -35,7 +35,7 @@ def synthetic_surface(diffuse_integral=0.0, tau=5.0, f_spec=0.0, f_bf=0.0, t_bf=
     ds = xr.Dataset(
         {"time_edges": ("time_edge", edges), "reflectance": (("component", "time"), refl),
          "ray_count": (("component", "time"), counts), "photons": ((), np.int64(photons))},
-        coords={"component": COMPONENTS, "time": np.sqrt(edges[:-1] * edges[1:])},
+        coords={"component": list(COMPONENTS), "time": np.sqrt(edges[:-1] * edges[1:])},
         attrs={"config": f"wavelength: {wavelength}\n", "seed": seed, "first_bf_time_ns": t_bf,
                "name": "synthetic"})
     if scenarios:
@@ -91,7 +91,7 @@ def test_gaussian_widths_add_in_quadrature_through_the_chain():
     params = load_instrument("bela", {"geometry.slope": "5 deg", "geometry.altitude": "400 km"})
     step = params["window.fine_step"]
     sigma_g = footprint.geometric_sigma(400e3, params["transmitter.divergence"], 0, 5, 0)
-    assert sigma_g == pytest.approx(3.5, abs=0.05)    # instruments.md §3.2 table: 3.5 ns
+    assert sigma_g == pytest.approx(3.5, abs=0.05)    # docs/instrument.md §3.2 table: 3.5 ns
     k, ko = _shape_kernel(params, step, sigma_g)
     h, ho = electronics.filter_kernel("gaussian", params["electronics.bandwidth"], step)
     _, _, width = _template(k, ko, h, ho, step, params["adc.sampling_interval"])
@@ -119,7 +119,7 @@ def test_deposit_keeps_amount_and_time():
 # ------------------------------------------------------------------ geometry and radiometry
 
 def test_seed_aperture_ratios_with_the_half_angle():
-    """physics.md §7.3 / instruments.md §1: δ = 30 µrad (half of BELA's 60 µrad)."""
+    """docs/physics.md §7.3 / docs/instrument.md §1: δ = 30 µrad (half of BELA's 60 µrad)."""
     bela = load_instrument("bela")
     div = bela["transmitter.divergence"]
     delta = footprint.half_angle(div)
@@ -145,13 +145,13 @@ def test_specular_tilt_rule_and_gaussian_lobe():
     # lobe: zero once 2|tilt| exceeds θ_L
     assert specular.aperture_fraction(0.2, 400e3, div, 0.25, tilt_deg=0.124) > 0
     assert specular.aperture_fraction(0.2, 400e3, div, 0.25, tilt_deg=0.126) == 0
-    # Gaussian beam on a flat surface: κ = A_r / (2π (2Rσ_θ)²), instruments.md §3.4 option 2
+    # Gaussian beam on a flat surface: κ = A_r / (2π (2Rσ_θ)²), docs/instrument.md §3.4 option 2
     k = specular.aperture_fraction(0.2, 400e3, div, 0.0, model="gaussian")
     assert k == pytest.approx(math.pi * 0.01 / (2 * math.pi * (2 * 400e3 * 15e-6) ** 2), rel=1e-9)
 
 
 def test_photons_per_reflectance_matches_the_link_budget():
-    """instruments.md §3.3: 5.26e4 photons per sr⁻¹ for BELA at 400 km (η_t = 1)."""
+    """docs/instrument.md §3.3: 5.26e4 photons per sr⁻¹ for BELA at 400 km (η_t = 1)."""
     p = load_instrument("bela", {"geometry.altitude": "400 km", "transmitter.efficiency": 1.0})
     assert radiometry.photons_per_reflectance(p) == pytest.approx(5.26e4, rel=2e-3)
     p = load_instrument("bela", {"geometry.altitude": "1050 km", "transmitter.efficiency": 1.0})
@@ -170,7 +170,7 @@ def test_lambertian_surface_gives_a_over_pi_and_its_photons():
     n_tx = 0.05 * 0.9 / radiometry.photon_energy(1064e-9)
     omega = math.pi * 0.2**2 / 4 / 400e3**2
     expected = n_tx * omega * albedo / math.pi
-    assert expected / 0.9 == pytest.approx(2.5e3, rel=0.02)   # instruments.md §3.3: 2.5e3
+    assert expected / 0.9 == pytest.approx(2.5e3, rel=0.02)   # docs/instrument.md §3.3: 2.5e3
     assert float(out["photons_at_aperture"].sel(part="diffuse")) == pytest.approx(expected, rel=1e-9)
     rate = out["photon_rate"].values
     assert rate.sum() * 0.1 == pytest.approx(expected, rel=1e-6)   # all of it in the window
@@ -196,7 +196,7 @@ def test_background_follows_the_solar_formula():
     radiance = 0.64 / 0.387**2 * 0.15 / math.pi              # 0.204 W m⁻² sr⁻¹ nm⁻¹
     watts = radiance * 2.0 * math.pi * 0.01 * math.pi * (265e-6) ** 2
     photons = watts / radiometry.photon_energy(1064e-9) * 12.5e-9
-    assert 65 < photons < 300                                 # instruments.md §3.5
+    assert 65 < photons < 300                                 # docs/instrument.md §3.5
     assert radiometry.background_rate(p) * 12.5 == pytest.approx(photons * 0.175, rel=1e-4)
     assert radiometry.background_rate(load_instrument("bela")) == 0.0   # PSR default
 
@@ -225,7 +225,7 @@ def test_photoelectrons_are_poisson():
 def test_avalanche_gain_has_the_excess_noise_factor():
     gain, k_eff = 100.0, 0.02
     f = detector.excess_noise_factor(gain, k_eff)
-    assert f == pytest.approx(3.95, abs=0.005)                 # instruments.md §3.6
+    assert f == pytest.approx(3.95, abs=0.005)                 # docs/instrument.md §3.6
     rng = np.random.Generator(np.random.Philox(6))
     n = 200000
     g = detector.avalanche(rng, np.ones(n, int), gain, f)
@@ -387,7 +387,7 @@ def test_missing_variables_and_bad_parameters_are_refused():
         load_instrument("belaa")
     with pytest.raises(ConfigError, match="did you mean electronics.transimpedance"):
         load_instrument("bela", {"electronics.transimpedence": "1 kohm"})
-    with pytest.raises(ConfigError, match="has no unit"):
+    with pytest.raises(ConfigError, match="50 is a bare number with no unit; give an energy"):
         load_instrument("bela", {"transmitter.pulse_energy": 50})
 
 

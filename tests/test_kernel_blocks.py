@@ -158,7 +158,7 @@ def test_hapke_fresnel_equals_complex_fresnel(n, k):
 
 @pytest.mark.parametrize("n", [1.30042, 1.4026, 1.0786, 1.4764, 1.92])
 def test_hemispherical_reciprocity(n):
-    """physics.md §8 check 6: S_i = 1 - (1 - S_e)/n^2 (and the §3.6 table)."""
+    """docs/physics.md §8 check 6: S_i = 1 - (1 - S_e)/n^2 (and the §3.6 table)."""
     s_e = radiative.hemispherical_external(n, 0.0)
     s_i = radiative.hemispherical_internal(n)
     assert s_i == pytest.approx(1 - (1 - s_e) / n ** 2, abs=1e-7)

@@ -4,12 +4,12 @@ is never run here (it is a benchmark tool with its own venv)."""
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-TOOLS = Path(__file__).resolve().parent.parent / "tools"
+from conftest import TOOLS
+
 sys.path.insert(0, str(TOOLS))
 
 import mcxcl_anchor  # noqa: E402

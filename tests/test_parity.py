@@ -97,6 +97,7 @@ def _two_sample_chi2(a, b, na, nb, min_expected=10):
 TIER2 = ("slab_fresnel", "slab_contact", "granular")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", TIER2)
 def test_histograms_agree_statistically(engine, name):
     """1e5 reference rays (seed 101) against 4e5 kernel rays (seed 202, single precision):

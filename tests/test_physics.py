@@ -1,4 +1,4 @@
-"""The checks of physics.md §8 on the OpenCL kernel (single precision, the default).
+"""The checks of docs/physics.md §8 on the OpenCL kernel (single precision, the default).
 
 Every Monte Carlo assertion carries its tolerance: 5 standard errors of the estimate (binomial
 for fractions), i.e. a false-alarm rate of about 6e-7 per assertion.
@@ -8,18 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import LOG_EDGES, medium
+from conftest import LAMBDA, LOG_EDGES, binomial_sigma, medium
 from warpe_cl import radiative
 from warpe_cl.params import C_M_PER_NS
 from warpe_cl.tally import reduce_counts
 
 CO2 = dict(n=1.4026, k=8.47e-10)
 H2O = dict(n=1.30042, k=1.272e-6)
-LAMBDA = 1064e-9
-
-
-def binomial_sigma(p, n):
-    return np.sqrt(max(p * (1 - p), 1.0 / n) / n)
 
 
 @pytest.mark.parametrize("kw", [
@@ -39,6 +34,7 @@ def test_energy_closure(engine, kw):
     assert np.all(c.time_in_fov <= c.time_any)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n,k", [(1.4026, 8.47e-10), (1.30042, 1.272e-6), (1.92, 0.2)])
 def test_specular_fraction_is_r0(engine, n, k):
     """§8.8: the specular fraction is R0(n_eff, k_eff)."""
@@ -50,6 +46,7 @@ def test_specular_fraction_is_r0(engine, n, k):
     assert c.total[0] == c.fates[0] and c.early[0] == c.fates[0] and c.time_any[0].sum() == 0
 
 
+@pytest.mark.slow
 def test_pure_slab_bf_direct_series_and_peak_times(engine):
     """§8.2 and §8.8: with omega = 0 and A = 0 there is no diffuse return, and the BF-direct
     peaks k = 1, 2, 3 sit exactly at t_k = 2 k h n / c with amplitudes
@@ -93,12 +90,13 @@ def test_pure_slab_bf_direct_times_exact_in_double(engine):
     np.testing.assert_allclose(t, kk * t1, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_co2_slab_seed_values(engine):
     """§8 table: the pure CO2 slab of 1 m, A = 0.15: BF direct 0.02600 (first peak) and the
     BF diffuse of the first pass in the 3-degree FOV.
 
     The first pass (floor reached once through the slab; arrival in [t1, 1.5 t1)) reads
-    (A/pi)(1 - R0)^4 exp(-2 tau0) / (1 - A S_e) sr^-1: the 0.0418 of physics.md §6.1 times the
+    (A/pi)(1 - R0)^4 exp(-2 tau0) / (1 - A S_e) sr^-1: the 0.0418 of docs/physics.md §6.1 times the
     zero-delay floor/slab inter-reflections of the gap, 1/(1 - A S_e) = 1.0117 (S_e = 0.0772),
     which the walk of §5.5 contains. Projected solid angle (pi sin^2 theta), so that a
     Lambertian radiance factor is read exactly.
@@ -129,9 +127,10 @@ def test_co2_slab_seed_values(engine):
     assert r_first == pytest.approx(measured / cone)
 
 
+@pytest.mark.slow
 def test_bright_floor_first_pass_includes_gap_interreflections(engine):
     """As above with A = 0.9, where the gap term 1/(1 - A S_e) = 1.075 is well above the
-    statistical error: the walk's floor loop (physics.md §5.5) is what the formula sums."""
+    statistical error: the walk's floor loop (docs/physics.md §5.5) is what the formula sums."""
     h, n = 1.0, 1.4026
     t1 = 2 * h * n / C_M_PER_NS
     N = 10_000_000
@@ -154,6 +153,7 @@ def test_conservative_granular_layer_returns_everything(engine):
     assert c.fates[1] == c.photons
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kw", [dict(texture="granular"),
                                 dict(texture="slab", bottom_interface="fresnel"),
                                 dict(texture="slab", bottom_interface="none")])

@@ -1,4 +1,4 @@
-"""Physical -> radiative parameters (physics.md §3-§4): the worked values of §4.6, the seed's
+"""Physical -> radiative parameters (docs/physics.md §3-§4): the worked values of §4.6, the seed's
 tau, limits and trends, and bad or doubtful physical input."""
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ def granular(material, compacity, grain_um, thickness_m):
                                                    "grain_size": f"{grain_um} um"}]}})
 
 
-# physics.md §4.6: case -> (N, C_gamma, w, E, tau0, omega, n_eff); None where the table has "-"
+# docs/physics.md §4.6: case -> (N, C_gamma, w, E, tau0, omega, n_eff); None where the table has "-"
 WORKED = [
     (lambda: slab("H2O", "CO2", 1.0, 100, 1), (0, None, None, 15.023, 15.02, 0, 1.30042)),
     (lambda: slab("CO2", "CO2", 1.0, 100, 1), (0, None, None, 0.0100, 0.0100, 0, 1.4026)),
@@ -121,7 +121,7 @@ def test_options_of_section_9():
         slab("H2O", "S", 0.9, 100, 1, matrix_absorption="volume_weighted"))
     assert weighted["matrix_absorption_per_m"] == pytest.approx(0.9 * 15.023, rel=1e-4)
     hapke = radiative.radiative_parameters(slab("H2O", "S", 0.9, 100, 1, fresnel_integrals="hapke"))
-    assert hapke["omega"] == pytest.approx(base["omega"], rel=4e-3)   # physics.md §3.6: < 0.4 %
+    assert hapke["omega"] == pytest.approx(base["omega"], rel=4e-3)   # docs/physics.md §3.6
     with pytest.raises(ConfigError, match="n_rel"):
         radiative.radiative_parameters(slab("H2O", "void", 0.9, 100, 1, fresnel_integrals="hapke"))
 
@@ -198,7 +198,7 @@ def test_doubtful_input_warns(tmp_path, capsys, grain, thickness, words):
 
 
 def test_several_species_with_their_own_grain_sizes():
-    """physics.md A14: per-species N_i and w_i, rho_v-weighted indices, one C_gamma from the
+    """docs/physics.md A14: per-species N_i and w_i, rho_v-weighted indices, one C_gamma from the
     total inclusion fraction; checked against the formulas written out here."""
     cfg = load_preset({"medium": {
         "texture": "slab", "thickness": "0.5 m", "compacity": 0.8, "matrix": "H2O",

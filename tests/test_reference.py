@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
+from conftest import binomial_sigma
+
 from warpe_cl.params import C_M_PER_NS, FATES, WalkParams
 from warpe_cl.reference import (external_reflectance, henyey_greenstein_cosine,
                                 internal_reflectance, normal_incidence_reflectance,
@@ -20,12 +22,12 @@ from warpe_cl.rng import photon_draws
 
 SPECULAR, BF_DIRECT, BF_DIFFUSE, SCATTERING = range(4)
 ESCAPED = FATES.index("escaped")
-N_CO2 = 1.4026  # effective index of CO2 ice at 1064 nm (physics.md §3.1)
+N_CO2 = 1.4026  # effective index of CO2 ice at 1064 nm (docs/physics.md §3.1)
 
 
-def binomial_sigma(photons, probability):
-    """Standard deviation of a binomial count, sqrt(N p (1 - p))."""
-    return math.sqrt(photons * probability * (1.0 - probability))
+def count_sigma(photons, probability):
+    """Standard deviation of a binomial count, sqrt(N p (1 - p)) (p (1 - p) >= 1/N here)."""
+    return photons * binomial_sigma(probability, photons)
 
 
 def slab(**changes):
@@ -50,7 +52,7 @@ def granular(**changes):
 # --------------------------------------------------------------------------------------------
 
 def hapke_reflectance(mu, n, k):
-    """Hapke's G1/G2 form of the complex Fresnel reflectance (physics.md §3.4), for comparison."""
+    """Hapke's G1/G2 form of the complex Fresnel reflectance (docs/physics.md §3.4), to compare."""
     a = n * n - k * k - (1.0 - mu * mu)
     b = math.sqrt(a * a + 4.0 * n * n * k * k)
     g1 = math.sqrt(0.5 * (a + b))
@@ -75,7 +77,7 @@ def test_external_reflectance_agrees_with_hapke_form(n, k):
                          [(1.30042, 0.0612, 0.4449), (N_CO2, 0.0772, 0.5309),
                           (1.0786, 0.0205, 0.1581), (1.4764, 0.0883, 0.5817)])
 def test_hemispherical_reflectances_obey_reciprocity(n, s_e_table, s_i_table):
-    # physics.md §3.6: S_e = ∫ R_ext 2 sinθ cosθ dθ, S_i the same with R_int (R = 1 under TIR),
+    # docs/physics.md §3.6: S_e = ∫ R_ext 2 sinθ cosθ dθ, S_i the same with R_int (R = 1 under TIR),
     # and S_i = 1 - (1 - S_e)/n².
     def weight(theta):
         return 2.0 * math.sin(theta) * math.cos(theta)
@@ -139,7 +141,7 @@ def test_fates_sum_and_tallies_match_records(name):
     photons = 1500
     counts = simulate_reference(params, photons, records=True)
     records = counts.records
-    # Energy closure (physics.md §8, check 1): every ray has exactly one fate.
+    # Energy closure (docs/physics.md §8, check 1): every ray has exactly one fate.
     assert counts.photons == photons
     assert counts.fates.sum() == photons
     assert all(len(v) == photons for v in records.values())
@@ -182,7 +184,7 @@ def test_fates_sum_and_tallies_match_records(name):
     np.testing.assert_array_equal(counts.time_any, time_any)
     np.testing.assert_array_equal(counts.time_in_fov, time_in_fov)
 
-    # Component rule (physics.md §6.1) and the mixed-history count.
+    # Component rule (docs/physics.md §6.1) and the mixed-history count.
     n_scat = records["n_scat"][exited]
     n_lamb = records["n_lamb"][exited]
     escaped = records["fate"][exited] == ESCAPED
@@ -203,6 +205,7 @@ def test_fates_sum_and_tallies_match_records(name):
         assert np.any(time_bin == -1) and counts.total[SPECULAR] > 0
 
 
+@pytest.mark.slow
 def test_specular_fraction_is_r0():
     # Only the entry draw matters; a thick absorbing slab ends every entered ray quickly.
     photons = 100_000
@@ -211,14 +214,15 @@ def test_specular_fraction_is_r0():
     r0 = ((N_CO2 - 1) ** 2) / ((N_CO2 + 1) ** 2)  # k = 0
     # Specular count ~ Binomial(N, R0): 5 sigma = 5 sqrt(N R0 (1 - R0)) ≈ 260 of ≈ 2808.
     assert abs(counts.fates[FATES.index("specular")] - photons * r0) <= (
-        5 * binomial_sigma(photons, r0))
+        5 * count_sigma(photons, r0))
     assert counts.total[SPECULAR] == counts.fates[FATES.index("specular")]
     assert counts.angular[SPECULAR, 0] == counts.total[SPECULAR]  # θ_e = 0 exactly
     assert counts.time_any[SPECULAR, 0] == counts.total[SPECULAR]  # t = 0
 
 
+@pytest.mark.slow
 def test_pure_absorbing_slab_bf_direct_series_and_times():
-    # physics.md §8 check 2 and §6.1: omega = 0, A = 0; the only exits are BF direct, after k
+    # docs/physics.md §8 check 2 and §6.1: omega = 0, A = 0; the only exits are BF direct, after k
     # bottom reflections, with fraction (1 - R0)² Σ_k R0^(2k-1) e^(-2kτ0) and times 2k h n / c.
     photons = 100_000
     tau0, h = 0.05, 1.0
@@ -233,11 +237,11 @@ def test_pure_absorbing_slab_bf_direct_series_and_times():
     assert counts.total[BF_DIFFUSE] == 0 and counts.total[SCATTERING] == 0
     assert counts.scattering_events == 0 and counts.fates[ESCAPED] == counts.total[BF_DIRECT]
     # BF direct count ~ Binomial(N, series), series ≈ 0.0247: 5 sigma ≈ 245 of ≈ 2470.
-    assert abs(counts.total[BF_DIRECT] - photons * series) <= 5 * binomial_sigma(photons, series)
+    assert abs(counts.total[BF_DIRECT] - photons * series) <= 5 * count_sigma(photons, series)
     # First peak alone (exits after one bottom reflection), same binomial bound.
     direct = records["component"] == BF_DIRECT
     first = np.sum(direct & (records["n_bspec"] == 1))
-    assert abs(first - photons * peaks[0]) <= 5 * binomial_sigma(photons, peaks[0])
+    assert abs(first - photons * peaks[0]) <= 5 * count_sigma(photons, peaks[0])
 
     # Times: path = 2k h exactly in exact arithmetic (k = number of bottom reflections).
     k_reflections = records["n_bspec"][direct]
@@ -273,7 +277,7 @@ def test_draw_order_of_the_first_events():
 
 
 def test_conservative_granular_medium_lets_every_ray_escape():
-    # physics.md §8 check 3: omega = 1, A = 1, nothing can be absorbed; with a huge time cap
+    # docs/physics.md §8 check 3: omega = 1, A = 1, nothing can be absorbed; with a huge time cap
     # every ray escapes (exactly, not statistically).
     photons = 3000
     params = granular(omega=1.0, albedo=1.0, extinction=2.0, thickness=1.0, g=0.8,
@@ -285,6 +289,7 @@ def test_conservative_granular_medium_lets_every_ray_escape():
     assert counts.scattering_events > 0
 
 
+@pytest.mark.slow
 def test_bare_lambertian_floor_is_lambertian():
     # Granular, no extinction, n = 1: the ray falls on the floor, which reflects it with
     # probability A into cos θ = sqrt(U); it then leaves with cos θ_e = cos θ. The fraction in
@@ -308,7 +313,7 @@ def test_bare_lambertian_floor_is_lambertian():
     assert np.all(np.abs(reflectance - albedo / math.pi)
                   <= 5 * sigma / (photons * math.pi * probability / albedo))
     # Escaped count ~ Binomial(N, A): 5 sigma.
-    assert abs(counts.fates[ESCAPED] - photons * albedo) <= 5 * binomial_sigma(photons, albedo)
+    assert abs(counts.fates[ESCAPED] - photons * albedo) <= 5 * count_sigma(photons, albedo)
     assert counts.total[BF_DIFFUSE] == counts.fates[ESCAPED]
     # Geometry, exactly: path h down, h / cos θ back up; t = L n / c with n = 1.
     escaped = records["fate"] == ESCAPED

@@ -4,11 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import medium
+from conftest import SCATTERING, medium
 from warpe_cl.api import scenario_key
 from warpe_cl.config import load_preset
 
-SCATTERING = dict(texture="slab", extinction=300.0, omega=0.98, g=0.8, n=1.31, k=1e-5, albedo=0.4)
 
 
 @pytest.mark.parametrize("precision", ["single", "double"])

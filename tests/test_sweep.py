@@ -140,7 +140,7 @@ def test_local_sweep_equals_run(reference):
 def test_fast_scenario_reader_matches_xarray(reference):
     """open_database reads scenario files with h5py into a template's layout: the same
     values, types and attributes as xarray.load_dataset gives."""
-    from warpe_cl.sweep import _read_scenario
+    from warpe_cl.database import _read_scenario
     tmp = reference[0]
     files = sorted((tmp / "local").glob("s*.nc"))
     template = xr.load_dataset(files[0], engine="h5netcdf")
@@ -175,6 +175,7 @@ def test_shards_in_one_folder_and_in_separate_folders(reference, tmp_path, capsy
     _assert_same_bits(warpe_cl.open_database(parts), run)
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_gives_the_same_bits(reference, tmp_path):
     import distributed  # noqa: F401 - in the test extra: this test must run, never skip
     _, preset, run, _ = reference
@@ -194,6 +195,7 @@ def test_dask_local_cluster_gives_the_same_bits(reference, tmp_path):
             assert r["pocl_cache_dir"].startswith(tmp_root)
 
 
+@pytest.mark.slow
 def test_dask_scheduler_address_needs_workers_with_the_opencl_resource(reference, tmp_path,
                                                                       capsys):
     from distributed import LocalCluster
@@ -213,6 +215,7 @@ def test_dask_scheduler_address_needs_workers_with_the_opencl_resource(reference
     _assert_same_bits(warpe_cl.open_database(folder), run)
 
 
+@pytest.mark.slow
 def test_one_worker_process_per_device(reference, engine, tmp_path):
     _, preset, run, _ = reference
     folder = tmp_path / "pool"
@@ -234,6 +237,7 @@ def test_out_file_gets_the_combined_grid(reference, tmp_path):
 
 # --------------------------------------------------------------------------- resume
 
+@pytest.mark.slow
 def test_sigkill_then_resume_recomputes_nothing(tmp_path, capsys):
     # 2e6 rays per scenario: about half a second each on 2 CPU cores, so the kill lands
     # while later scenarios are still to come.

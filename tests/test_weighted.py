@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import medium
+from conftest import LAMBDA, SCATTERING, medium
 from warpe_cl import radiative
 from warpe_cl.params import C_M_PER_NS, fixed_point, fixed_to_float
 from warpe_cl.reference import simulate_reference
@@ -17,9 +17,6 @@ from warpe_cl.tally import reduce_counts
 
 CO2 = dict(n=1.4026, k=8.47e-10)
 H2O = dict(n=1.30042, k=1.272e-6)
-LAMBDA = 1064e-9
-SCATTERING = dict(texture="slab", extinction=300.0, omega=0.98, g=0.8, n=1.31, k=1e-5,
-                  albedo=0.4)
 EXACT_FIELDS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
                 "emergence_bin")
 
@@ -86,7 +83,7 @@ def test_weighted_sums_across_lane_widths(engine, precision, rtol):
 
 
 def _first_bf_peak(engine, material, photons, mode):
-    """The pure slab of 1 m over a floor A = 0.15 (physics.md §8): the BF-direct energy of the
+    """The pure slab of 1 m over a floor A = 0.15 (docs/physics.md §8): the BF-direct energy of the
     first pass (arrival in [0.99 t1, 1.5 t1)) and its standard error."""
     h = 1.0
     tau0 = 4 * np.pi * material["k"] * h / LAMBDA
@@ -103,9 +100,10 @@ def _first_bf_peak(engine, material, photons, mode):
     return energy, stderr, c
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("material, seed_value", [(H2O, 1.4728e-15), (CO2, 0.025999)])
 def test_seed_pure_slab_values_to_one_percent(engine, material, seed_value):
-    """physics.md §8: the seed's "analytical solution", (1 - R0)^2 R0 exp(-2 tau0): 1.47e-15
+    """docs/physics.md §8: the seed's "analytical solution", (1 - R0)^2 R0 exp(-2 tau0): 1.47e-15
     for 1000 mm of water ice and 0.026 for CO2, reproduced to 1 % by the weighted walk. Its
     only randomness is the Fresnel draws, so 1.5e7 rays give a relative standard error of
     0.2 %: 5 sigma is inside 1 %."""
@@ -118,6 +116,7 @@ def test_seed_pure_slab_values_to_one_percent(engine, material, seed_value):
     assert abs(energy - analytic) < 5 * stderr
 
 
+@pytest.mark.slow
 def test_analog_mode_sees_nothing_of_the_water_ice_peak(engine):
     """Where the weighted walk measures 1.47e-15, the analog one has not a single ray."""
     energy, _, c = _first_bf_peak(engine, H2O, 1_000_000, "analog")

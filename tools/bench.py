@@ -37,6 +37,7 @@ import time
 
 import numpy as np
 
+from _common import loadavg  # tools/ is first on sys.path when run as a script
 from warpe_cl.api import get_engine, walk_params
 from warpe_cl.config import load_preset
 
@@ -97,15 +98,6 @@ def figure_of_merit(counts, params, seconds: float, t_min: float = 0.0) -> dict:
     rel_var = var / (q * q) if q > 0 else float("inf")
     return {"t_min_ns": t_min, "value": q, "relative_stderr": rel_var ** 0.5,
             "fom_per_s": 1.0 / (rel_var * seconds) if rel_var > 0 else float("inf")}
-
-
-def loadavg():
-    """The 1, 5 and 15 min load averages (None where /proc/loadavg is missing)."""
-    try:
-        with open("/proc/loadavg") as fh:
-            return [float(v) for v in fh.read().split()[:3]]
-    except OSError:
-        return None
 
 
 def compare_mcxcl(engine, params, ours, counts, args, state) -> tuple:

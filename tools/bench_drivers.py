@@ -22,7 +22,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench import SCENES, loadavg  # noqa: E402
+from _common import loadavg  # noqa: E402
+from bench import SCENES  # noqa: E402
 from warpe_cl.config import load_preset  # noqa: E402
 from warpe_cl.api import walk_params  # noqa: E402
 
@@ -48,7 +49,7 @@ def main(argv=None) -> int:
     else:
         chosen = []
         for spec in args.devices.split(","):
-            chosen += [m[0] for m in devmod._candidates(spec, listed)[:1]]
+            chosen += [m[0] for m in devmod.candidates(spec, listed)[:1]]
     rows = {}
     for info in chosen:
         t0 = time.perf_counter()

@@ -2,9 +2,13 @@
 """Run MCX-CL (pmcxcl) once and summarise it as JSON: the side of ``bench.py --compare mcxcl``
 that lives in MCX-CL's own virtual environment.
 
-This script imports only numpy and pmcxcl; it is started by ``tools/mcxcl_compare.py`` with that
-venv's python and the environment workarounds of ``shared/bench/mcxcl_anchor.sh``
-(OCL_ICD_VENDORS pointing at the OpenCL platform to use, LD_PRELOAD of the system libstdc++).
+MCX-CL (pmcxcl, Qianqian Fang's Monte Carlo eXtreme for OpenCL) run on PoCL is the project's
+speed anchor (docs/performance.md, "MCX-CL anchor"), and this script is the anchor run. It imports
+only numpy, pmcxcl and ``tools/_common.py`` (standard library only); it is started by
+``tools/mcxcl_compare.py`` with that venv's python and the two environment workarounds pmcxcl
+needs on PoCL: OCL_ICD_VENDORS pointing its bundled ICD loader at the OpenCL platform to use, and
+LD_PRELOAD of the system libstdc++ (without it PoCL's build options are cut short inside pmcxcl
+and every kernel build fails).
 pmcxcl must never become a dependency of warpe-cl.
 
     python mcxcl_anchor.py devices RESULT.json
@@ -30,6 +34,8 @@ import re
 import resource
 import sys
 import time
+
+from _common import loadavg  # tools/ is first on sys.path when run as a script
 
 C_MM_PER_NS = 299.792458
 
@@ -61,14 +67,6 @@ def parse_mcx_log(text: str) -> dict:
 def _cpu_s() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
-
-
-def _loadavg():
-    try:
-        with open("/proc/loadavg") as fh:
-            return [float(v) for v in fh.read().split()[:3]]
-    except OSError:
-        return None
 
 
 class _StdoutTo:
@@ -138,7 +136,7 @@ def run(request_path: str, result_path: str, log_path: str) -> None:
         req = json.load(fh)
     cfg = dict(req["cfg"])
     cfg["vol"] = np.ones(req["vol_shape"], dtype="uint8")
-    load0 = _loadavg()
+    load0 = loadavg()
     with _StdoutTo(log_path):
         c0, t0 = _cpu_s(), time.perf_counter()
         res = pmcxcl.run(cfg)
@@ -149,7 +147,7 @@ def run(request_path: str, result_path: str, log_path: str) -> None:
     speed = log["mcx_photons_per_ms"]
     out = {"nphoton": n, "wall_s": t1 - t0, "cpu_s": c1 - c0,
            "kernel_ms": n / speed if speed else None, "loadavg_before": load0,
-           "loadavg_after": _loadavg(), "pmcxcl": getattr(pmcxcl, "__version__", None), **log}
+           "loadavg_after": loadavg(), "pmcxcl": getattr(pmcxcl, "__version__", None), **log}
     summary = summarise_detected(res.get("detp"), int(req["vol_shape"][2]), req["mua_per_mm"],
                                  req["n"], req["time_edges_ns"])
     saved = sum(f["photons"] for f in summary["faces"].values())

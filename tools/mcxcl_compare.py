@@ -1,9 +1,10 @@
 """MCX-CL side by side with our walk: the host side of ``bench.py --compare mcxcl``.
 
-MCX-CL (pmcxcl 0.7.5, Qianqian Fang) runs in its own virtual environment (``$WARPE_MCXCL_VENV``,
-default ``/tmp/mcxcl-venv``, created on first use), never as a dependency of warpe-cl, through
-``tools/mcxcl_anchor.py`` started in a subprocess with the two workarounds of
-``shared/bench/mcxcl_anchor.sh``:
+MCX-CL (pmcxcl 0.7.5, Qianqian Fang), run on PoCL, is the project's speed anchor
+(docs/performance.md, "MCX-CL anchor"). It runs in its own virtual environment
+(``$WARPE_MCXCL_VENV``, default ``/tmp/mcxcl-venv``, created on first use), never as a dependency
+of warpe-cl, through ``tools/mcxcl_anchor.py`` started in a subprocess with the two environment
+workarounds that running pmcxcl on PoCL needs:
 
 - ``OCL_ICD_VENDORS`` names the OpenCL platform(s) pmcxcl's bundled ICD loader may load, so that
   MCX runs on the same device as our kernels (``--mcxcl-icd``);
@@ -89,7 +90,7 @@ def mcx_scene(params, nphoton: int, box_mm: float | None = None, tstep_ns: float
                          f"{thickness_mm} mm")
     nxy = int(round(box_mm if box_mm is not None else thickness_mm))
     ext_per_mm = params.extinction * 1e-3             # E = tau0 / h
-    mus = ext_per_mm * params.omega                    # physics.md: omega = mus / (mus + mua)
+    mus = ext_per_mm * params.omega        # omega = mus / (mus + mua): docs/physics.md §4.5
     mua = ext_per_mm * (1.0 - params.omega)
     t_max = params.max_time if params.max_time is not None else float(params.time_edges[-1])
     tend = t_max * 1e-9
@@ -155,9 +156,9 @@ def scattering_census(counts) -> dict:
     -------
     dict
         ``per_launched`` (all rays), ``per_entered`` (all but specular: MCX's normalisation) with
-        its standard error ``per_entered_err``, and per fate (physics.md: specular, escaped,
-        absorbed_medium, absorbed_floor, terminated) the fraction of launched rays and their mean
-        scattering count.
+        its standard error ``per_entered_err``, and per fate (docs/physics.md §5.8: specular,
+        escaped, absorbed_medium, absorbed_floor, terminated) the fraction of launched rays and
+        their mean scattering count.
     """
     from warpe_cl.params import FATES
     rec = counts.records

@@ -35,9 +35,13 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
     import numpy as np
     from warpe_cl.instrument import apply_instrument, load_instrument
     from warpe_cl.instrument.plot import plot_instrument
+    from warpe_cl.instrument.scenario import scenario_instrument
+    from warpe_cl.units import format_quantity
 
-    cfg_block = warpe_cl.load_preset(presets_dir() / "paper" / "bela_cases.yaml").raw["instrument"]
-    base = {"geometry.altitude": cfg_block["altitude"]}
+    # the preset's instrument block, resolved as run, sweep and simulate resolve it
+    block = scenario_instrument(warpe_cl.load_preset(presets_dir() / "paper" / "bela_cases.yaml"))
+    altitude = format_quantity(block["geometry.altitude"], "length")
+    base = {"geometry.altitude": altitude}
     runs = {r: apply_instrument(ds, "bela", dict(base, **{"geometry.roughness": r}), shots=shots)
             for r in ("0 deg", "0.01 deg", "0.1 deg")}
     for r, res in runs.items():
@@ -46,7 +50,7 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
              ("perfect slab CO2 1500 mm", runs["0 deg"].isel(scenario=1)),
              ("slab, roughness 0.01°", runs["0.01 deg"].isel(scenario=1))]
     plot_instrument(cases, out / "bela_cases_instrument.png",
-                    title=f"BELA at {cfg_block['altitude']}: {shots} shots, seed "
+                    title=f"BELA at {altitude}: {shots} shots, seed "
                           f"{runs['0 deg'].attrs['instrument_seed']}")
     facts = {}
     for label, sc in cases + [("slab, roughness 0.1°", runs["0.1 deg"].isel(scenario=1))]:

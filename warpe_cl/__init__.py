@@ -21,7 +21,7 @@ from .config import load_preset
 from .radiative import radiative_parameters
 from .api import simulate
 from .io import package_version
-from .sweep import open_database
+from .database import open_database
 
 __version__ = package_version()
 __all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "__version__"]

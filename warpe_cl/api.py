@@ -1,20 +1,26 @@
 """The Python entry points: :func:`simulate` and :func:`walk_params`.
 
+A bundled preset by name, a thousand rays, on the NumPy reference walk (any device spec of
+docs/interface.md §2.2 works the same way, e.g. ``device="auto"``, the default):
+
     >>> import warpe_cl
-    >>> cfg = warpe_cl.load_preset("presets/radiative/slab_co2_1m.yaml",
-    ...                            overrides={"simulation.photons": 1e5})   # doctest: +SKIP
-    >>> ds = warpe_cl.simulate(cfg)                                          # doctest: +SKIP
+    >>> cfg = warpe_cl.load_preset("radiative/slab_co2_1m", overrides={"simulation.photons": 1e3})
+    >>> ds = warpe_cl.simulate(cfg, device="numpy", progress=False)
+    >>> int(ds["photons"]), ds["reflectance"].dims
+    (1000, ('component', 'time'))
+    >>> ds["fraction"].sel(component="specular").item() > 0.02     # R0 = 0.028 for CO2 ice
+    True
 """
 from __future__ import annotations
 
 import hashlib
 import json
-import sys
 import time
 
 from . import io, tally
 from .config import Config, load_preset, time_edges
 from .params import WalkParams
+from .progress import Progress
 from .radiative import radiative_parameters
 
 _engines: dict = {}
@@ -141,34 +147,28 @@ def get_engine(device: str | None = None):
     return _engines[spec]
 
 
-def _progress(total: int, enabled):
-    """A tqdm bar on stderr that appears only for runs of more than 2 s, on a terminal."""
-    if enabled is False:
-        return None, lambda: None
-    from tqdm.auto import tqdm
-    bar = tqdm(total=total, unit="ray", unit_scale=True, delay=2.0, leave=False,
-               disable=None if enabled is None else not enabled, file=sys.stderr)
-    state = {"done": 0}
-
-    def update(done):
-        bar.update(done - state["done"])
-        state["done"] = done
-    return update, bar.close
-
-
 def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):
-    """Run one scenario (a configuration without sweep) and return its Dataset."""
+    """Run one scenario (a configuration without sweep) and return its Dataset.
+
+    The one function every path computes a scenario with (:func:`simulate`, hence
+    ``warpe-cl run``, and each scenario of ``warpe-cl sweep``): the walk, the tallies and,
+    when the preset has an ``instrument:`` block, the instrument chain on this scenario's
+    result (:func:`warpe_cl.instrument.scenario.apply_scenario_instrument`), so a point gives
+    the same bits, instrument variables included, whichever way it is computed.
+    """
     point = point or {}
     t0 = time.perf_counter()
     params, derived = walk_params(cfg, scenario_key(point, cfg))
     engine = get_engine(device)
     photons = int(cfg.get("simulation.photons"))
     precision = cfg.get("simulation.precision")
-    update, close = _progress(photons, progress)
+    # on a terminal, once the run has taken 2 s; removed when it ends
+    bar = Progress(photons, progress, unit="ray", unit_scale=True, delay=2.0, leave=False)
     try:
-        counts = engine.run(params, photons, precision=precision, progress=update)
+        counts = engine.run(params, photons, precision=precision,
+                            progress=None if progress is False else bar.update_to)
     finally:
-        close()
+        bar.close()
     arrays = tally.reduce_counts(counts, params, solid_angle=cfg.get("simulation.solid_angle"),
                                  specular_lobe=cfg.get("simulation.specular_lobe"),
                                  min_rays=int(cfg.get("simulation.min_rays")))
@@ -190,7 +190,8 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
     ds = io.build_dataset(arrays, counts, params, derived, attrs)
     ds["wall_time"] = ((), time.perf_counter() - t0, {"units": "s",
                                                       "long_name": "time spent in simulate"})
-    return ds
+    from .instrument.scenario import apply_scenario_instrument
+    return apply_scenario_instrument(ds, cfg)
 
 
 def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
@@ -202,7 +203,7 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
     cfg : Config, dict, str or path
         A loaded configuration, a dict of the YAML's shape, or a preset file.
     device : str, optional
-        Device spec (interface.md §2), or ``"numpy"`` for the reference walk.
+        Device spec (docs/interface.md §2), or ``"numpy"`` for the reference walk.
     progress : bool or None
         Progress bar: None shows one on a terminal for runs over 2 s; False never.
     overrides : dict, optional
@@ -214,8 +215,15 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
     Returns
     -------
     xarray.Dataset
-        The variables of interface.md §5; with a sweep, a leading ``scenario`` dimension whose
-        swept values are coordinates.
+        The variables of docs/interface.md §5; with a sweep, a leading ``scenario`` dimension whose
+        swept values are coordinates. With an ``instrument:`` block, also the instrument's
+        variables (docs/instrument.md), computed scenario by scenario.
+
+    Raises
+    ------
+    ConfigError
+        Bad input, before any walk: the preset, its sweep points and its instrument block
+        are validated when loaded.
     """
     if not isinstance(cfg, Config):
         cfg = load_preset(cfg, overrides=overrides)

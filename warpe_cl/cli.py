@@ -1,4 +1,4 @@
-"""The ``warpe-cl`` command line (interface.md §2).
+"""The ``warpe-cl`` command line (docs/interface.md §2).
 
 Exit codes: 0 success; 2 bad input (configuration, units, files); 3 no usable OpenCL
 device; 1 anything else. Errors are one readable line on stderr, never a traceback
@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+from . import report
 from .errors import ConfigError, DeviceError, WarpeError
 
 EXIT_OK, EXIT_OTHER, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
@@ -35,8 +36,7 @@ def _overrides(args) -> list:
 
 def _load(args):
     from .config import load_preset
-    from .catalog import resolve_preset
-    return load_preset(resolve_preset(args.preset), overrides=_overrides(args))
+    return load_preset(args.preset, overrides=_overrides(args))   # a path or a bundled name
 
 
 def _check_writable(path: Path, what: str):
@@ -49,118 +49,73 @@ def _check_writable(path: Path, what: str):
         raise ConfigError(f"cannot write in {folder}", key=what)
 
 
-def _fmt_derived(d: dict) -> list:
-    return [
-        f"  tau0              {d['tau0']:.6g}",
-        f"  omega             {d['omega']:.6g}",
-        f"  extinction        {d['extinction_per_m']:.6g} m-1",
-        f"  n_eff, k_eff      {d['n_eff']:.6g}, {d['k_eff']:.4g}",
-        f"  thickness         {d['thickness_m'] * 1e3:.6g} mm",
-        f"  first BF time     {d['first_bf_time_ns']:.6g} ns  (2 h n_eff / c)",
-        f"  specular R0       {d['specular_r0']:.6g}",
-    ] + ([f"  porosity factor   {d['porosity_factor']:.6g}   matrix absorption "
-          f"{d['matrix_absorption_per_m']:.6g} m-1"] if "porosity_factor" in d else []) + [
-        f"  {sp['material']:<8s}          rho_v {sp['proportion']:.4g}  d {sp['grain_size_m'] * 1e6:.4g} um"
-        f"  N {sp['number_density_per_m3']:.4g} m-3  n_rel {sp['n_rel']:.5g}  w {sp['w']:.6g}"
-        for sp in d.get("species", [])]
-
-
-def cmd_run(args) -> int:
-    from . import api, io
-    from .radiative import radiative_parameters
-
-    cfg = _load(args)
+def _check_outputs(args) -> Path:
+    """``--out`` (returned) and ``--plot``, if given, can be written: bad input (exit 2)
+    before any work."""
     out = Path(args.out)
     _check_writable(out, "--out")
     if args.plot:
         _check_writable(Path(args.plot), "--plot")
+    return out
+
+
+def _say(args):
+    """print, flushed (a wrapper reading the lines, a GUI or a test sending Ctrl-C, sees them
+    as printed), or nothing with ``--quiet``."""
+    return (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+
+
+def _write_outputs(ds, out: Path, plot, draw, say, started: float | None = None):
+    """Write ``ds`` to ``out`` and, with ``plot``, ``draw(ds, path)`` to it; then say so.
+
+    The file and the figure are written all or nothing (:class:`warpe_cl.io.Outputs`): Ctrl-C
+    or an error while writing either leaves neither (nor a temporary file), and the
+    destinations as they were. ``started`` (``time.perf_counter()``) adds the time taken in
+    all, in s.
+    """
+    from .io import Outputs
+    with Outputs() as outputs:
+        outputs.netcdf(ds, out)
+        if plot:
+            draw(ds, outputs.stage(plot))
+    say(f"wrote {out}" + ("" if started is None else
+                          f" ({time.perf_counter() - started:.2f} s in all)"))
+    if plot:
+        say(f"wrote {plot}")
+
+
+def cmd_run(args) -> int:
+    from . import api
+    from .plot import plot_waveform
+    from .radiative import radiative_parameters
+
+    cfg = _load(args)
+    out = _check_outputs(args)
     points = cfg.sweep_points()
     for _, pcfg in points:
         radiative_parameters(pcfg)    # bad input fails (exit 2) before a device is sought
-    instrument = _scenario_instrument(cfg)   # a bad instrument block fails before the walk too
     api.get_engine(args.device)       # no usable device fails (exit 3) before any output
-    # flushed: a wrapper reading the lines (a GUI, a test sending Ctrl-C) sees them as printed
-    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
-    say(f"warpe-cl run: {cfg.get('name')} ({cfg.source}), {len(points)} scenario(s), "
-        f"{int(cfg.get('simulation.photons')):,} rays each, seed {cfg.get('simulation.seed')}")
+    say = _say(args)
+    say(report.run_header(cfg, len(points)))
     t0 = time.perf_counter()
 
     def before(i, point, pcfg):
         if point:
-            say(f"scenario {i}: " + ", ".join(f"{k}={v}" for k, v in point.items()))
-        for line in _fmt_derived(radiative_parameters(pcfg)):
+            say(f"scenario {i}: " + report.point_text(point))
+        for line in report.derived_lines(radiative_parameters(pcfg)):
+            say(line)
+
+    def after(ds):
+        for line in report.scenario_lines(ds):
             say(line)
 
     ds = api.simulate(cfg, device=args.device, progress=None if not args.quiet else False,
-                      before_point=before, after_point=lambda d: _print_summary(d, say))
-    if instrument is not None:
-        from .instrument import apply_instrument
-        ds = apply_instrument(ds, instrument, source=str(cfg.source))
-        _print_instrument(ds, say)
-    # The file and the figure are written all or nothing: Ctrl-C or an error while writing
-    # either leaves neither (nor a temporary file), and the destinations as they were.
-    with io.Outputs() as outputs:
-        outputs.netcdf(ds, out)
-        if args.plot:
-            from .plot import plot_waveform
-            plot_waveform(ds, outputs.stage(args.plot))
-    say(f"wrote {out} ({time.perf_counter() - t0:.2f} s in all)")
-    if args.plot:
-        say(f"wrote {args.plot}")
+                      before_point=before, after_point=after)
+    if cfg.get("instrument.name"):   # applied by simulate, scenario by scenario
+        for line in report.instrument_lines(ds):
+            say(line)
+    _write_outputs(ds, out, args.plot, plot_waveform, say, started=t0)
     return EXIT_OK
-
-
-def _print_summary(ds, say):
-    photons = int(ds["photons"])
-    wall = float(ds["wall_time"])
-    events = int(ds["scattering_events"])
-    say(f"  device            {ds.attrs.get('opencl_device', '?')} ({ds.attrs.get('engine')}, "
-        f"{ds.attrs.get('precision')} precision)")
-    say("  fates             " + "  ".join(
-        f"{f} {v:.5f}" for f, v in zip(ds["fate"].values, ds["fate_fraction"].values)))
-    say("  components        " + "  ".join(
-        f"{c} {v:.5f}" for c, v in zip(ds["component"].values, ds["fraction"].values)))
-    say(f"  time              {wall:.2f} s   {photons / wall:,.0f} photons/s   "
-        f"{events / wall:,.0f} scattering events/s")
-
-
-def _scenario_instrument(cfg):
-    """The validated instrument of a preset's ``instrument:`` block (interface.md §3), or None.
-
-    ``altitude`` and ``roughness`` map to ``geometry.altitude`` and ``geometry.roughness``;
-    the other keys (``shots``, ``seed``, sections such as ``electronics:``) override the
-    instrument preset as written."""
-    block = dict((cfg.raw or {}).get("instrument") or {})
-    name = block.pop("name", None)
-    if not name:
-        return None
-    from .instrument import load_instrument
-    overrides = {}
-    for key, value in block.items():
-        overrides[{"altitude": "geometry.altitude", "roughness": "geometry.roughness"}.get(key, key)] = value
-    return load_instrument(name, overrides, override_source=str(cfg.source))
-
-
-def _print_instrument(ds, say):
-    import numpy as np
-    from .instrument.plot import cases_of
-    say(f"instrument {ds.attrs.get('instrument_name')}: altitude "
-        f"{ds.attrs.get('instrument_geometry_altitude')}, roughness "
-        f"{ds.attrs.get('instrument_geometry_roughness')}, {ds.sizes.get('shot', 0)} shots")
-    for label, sc in cases_of(ds):
-        parts = "  ".join(f"{p} {v:.3g}" for p, v in zip(sc["part"].values,
-                                                       sc["photons_at_aperture"].values))
-        say(f"  {label or 'scenario'}")
-        say(f"    photons at aperture   {parts}")
-        if "signal_mv" in sc:
-            say(f"    expected peak         {float(sc['expected_analog_mv'].max()):.4g} mV (unclipped), "
-                f"noise {float(sc['noise_mv']):.3g} mV, saturated shots "
-                f"{float(sc['saturated'].mean()):.2f}")
-        else:
-            say(f"    photons recorded      {float(sc['photon_count'].mean()):.3g} per shot")
-        say(f"    detected              {float(sc['detected'].mean()):.2f} of shots; range "
-            f"{float(np.nanmean(sc['range_time'])) if sc['detected'].any() else float('nan'):.3g} ns, "
-            f"width {float(np.nanmean(sc['pulse_width'])) if sc['detected'].any() else float('nan'):.3g} ns")
 
 
 def _load_result(path: Path):
@@ -174,8 +129,8 @@ def _load_result(path: Path):
 
 
 def cmd_instrument(args) -> int:
-    from . import io
     from .instrument import apply_instrument, check_parameter, load_instrument
+    from .instrument.plot import plot_instrument
     overrides = {}
     if args.altitude is not None:
         overrides["geometry.altitude"] = args.altitude
@@ -187,21 +142,12 @@ def cmd_instrument(args) -> int:
     seed = None if args.seed is None else check_parameter("seed", args.seed, where="--seed")
     path = Path(args.file)
     ds = _load_result(path)
-    out = Path(args.out)
-    _check_writable(out, "--out")
-    if args.plot:
-        _check_writable(Path(args.plot), "--plot")
-    say = (lambda *a: None) if args.quiet else print
+    out = _check_outputs(args)
+    say = _say(args)
     ds = apply_instrument(ds, params, shots=shots, seed=seed, source=str(path))
-    _print_instrument(ds, say)
-    with io.Outputs() as outputs:           # all or nothing, as for run
-        outputs.netcdf(ds, out)
-        if args.plot:
-            from .instrument.plot import plot_instrument
-            plot_instrument(ds, outputs.stage(args.plot))
-    say(f"wrote {out}")
-    if args.plot:
-        say(f"wrote {args.plot}")
+    for line in report.instrument_lines(ds):
+        say(line)
+    _write_outputs(ds, out, args.plot, plot_instrument, say)
     return EXIT_OK
 
 
@@ -212,14 +158,14 @@ def cmd_sweep(args) -> int:
     recorded in the manifest with its error) or did not finish; 2 bad input found before any
     scenario ran; 3 no usable device.
     """
-    from .sweep import parse_shard, run_sweep, summary_lines
+    from .sweep import parse_shard, run_sweep
     from .catalog import resolve_preset
     shard = parse_shard(args.shard)
-    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    say = _say(args)
     summary = run_sweep(resolve_preset(args.preset), args.out, overrides=_overrides(args),
                         shard=shard, scheduler=args.scheduler, resume=args.resume,
                         device=args.device, quiet=args.quiet, say=say)
-    for line in summary_lines(summary):
+    for line in report.sweep_summary_lines(summary):
         say(line)
     return summary.exit_code
 
@@ -234,28 +180,17 @@ def cmd_devices(args) -> int:
         from .qualify import VerdictCache
         VerdictCache().clear()
     for info, dev in devices:
-        print(info.describe(), flush=True)
+        print(info.describe(), flush=True)          # before the probe and qualification
         reason = probe(dev)
-        if reason is not None:
-            print(f"      NOT usable: {reason}")
-            continue
-        status = qualification(info)
-        if not status.usable:
-            print(f"      NOT usable: {status.reason}")
-            continue
-        speed = (f"{status.events_per_s:.3g} scattering events/s on scene B1"
-                 if status.events_per_s else "speed not measured")
-        print(f"      qualified: {status.lanes} lane{'s' if status.lanes > 1 else ''}, {speed} "
-              f"(single precision; checked {status.date or '?'} in {status.seconds or 0:.1f} s)")
-        for lanes, why in status.failures:
-            print(f"      failed at {lanes} lanes: {why}")
-        if args.all:
+        status = qualification(info) if reason is None else None
+        for line in report.device_status_lines(reason, status):
+            print(line)
+        if args.all and status is not None and status.usable:
             _print_all_verdicts(info)
     spec = resolve_spec(args.device)
     try:
         info, _ = select_device(spec)
-        print(f"--device {spec} picks {info.spec} ({info.device}, {info.platform} "
-              f"{info.platform_version})")
+        print(report.device_choice_line(spec, info))
     except DeviceError as err:
         print(err)
         return EXIT_DEVICE
@@ -263,14 +198,13 @@ def cmd_devices(args) -> int:
 
 
 def _print_all_verdicts(info):
-    """Every kernel combination's widest qualified lane width (``devices --all``)."""
+    """Every kernel combination's widest qualified lane width (``devices --all``), each printed
+    as soon as it is known."""
     from .qualify import all_combos, qualifier_for
     q = qualifier_for(info)
     for combo in all_combos(info.fp64):
         lanes, failures = q.best_lanes(combo)
-        verdict = (f"{lanes} lanes" if lanes else "NOT usable") + "".join(
-            f"; failed at {w}: {r}" for w, r in failures)
-        print(f"        {combo.label:26s} {verdict}")
+        print(report.verdict_line(combo, lanes, failures))
 
 
 def cmd_show_config(args) -> int:
@@ -278,8 +212,8 @@ def cmd_show_config(args) -> int:
     cfg = _load(args)
     print(cfg.to_yaml().rstrip())
     for point, pcfg in cfg.sweep_points():
-        print("# derived" + (" for " + ", ".join(f"{k}={v}" for k, v in point.items()) if point else ""))
-        for line in _fmt_derived(radiative_parameters(pcfg)):
+        print("# derived" + (" for " + report.point_text(point) if point else ""))
+        for line in report.derived_lines(radiative_parameters(pcfg)):
             print("#" + line)
     return EXIT_OK
 
@@ -297,6 +231,7 @@ def cmd_presets(args) -> int:
 
 
 def cmd_plot(args) -> int:
+    from .io import Outputs
     from .plot import plot_angular, plot_waveform
     path = Path(args.file)
     ds = _load_result(path)
@@ -305,20 +240,15 @@ def cmd_plot(args) -> int:
         if "received_reflectance" not in ds:
             raise ConfigError("has no instrument variables; give a file written by "
                               "`warpe-cl instrument`", key=str(path))
-        _check_writable(Path(args.out), "--out")
-        from .instrument.plot import plot_instrument
-        from .io import Outputs
-        with Outputs() as outputs:
-            plot_instrument(ds, outputs.stage(args.out))
-        print(f"wrote {args.out}")
-        return EXIT_OK
-    if "reflectance" not in ds:
-        raise ConfigError("has no reflectance variable; give a file written by `warpe-cl run`",
-                          key=str(path))
+        from .instrument.plot import plot_instrument as draw
+    else:
+        if "reflectance" not in ds:
+            raise ConfigError("has no reflectance variable; give a file written by "
+                              "`warpe-cl run`", key=str(path))
+        draw = plot_angular if kind == "angular" else plot_waveform
     _check_writable(Path(args.out), "--out")
-    from .io import Outputs
     with Outputs() as outputs:
-        (plot_angular if kind == "angular" else plot_waveform)(ds, outputs.stage(args.out))
+        draw(ds, outputs.stage(args.out))
     print(f"wrote {args.out}")
     return EXIT_OK
 

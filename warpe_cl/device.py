@@ -200,8 +200,22 @@ def probe(device) -> str | None:
     return _probe_cache[key]
 
 
-def _candidates(spec: str, devices):
-    """Devices matching ``spec`` in order of preference."""
+def candidates(spec: str, devices):
+    """The devices matching ``spec``, in order of preference, without probing them.
+
+    Parameters
+    ----------
+    spec : str
+        ``auto`` (GPUs, then CPUs, then the others), ``cpu``, ``gpu``, ``P`` or ``P:D``
+        (platform and device index), or a substring of the device or platform name.
+    devices : list
+        ``(DeviceInfo, pyopencl.Device)`` pairs, as :func:`list_devices` gives them.
+
+    Returns
+    -------
+    list
+        The pairs of ``devices`` that match (empty when none does).
+    """
     s = spec.strip()
     if s == "auto":
         gpus = [d for d in devices if d[0].kind == "gpu"]
@@ -255,7 +269,7 @@ def select_device(spec: str | None = None, qualify: bool = True):
     devices = list_devices()
     if not devices:
         raise DeviceError(f"no OpenCL platform found; {INSTALL_HINT}")
-    matches = _candidates(spec, devices)
+    matches = candidates(spec, devices)
     if not matches:
         listing = "; ".join(d[0].describe() for d in devices)
         raise DeviceError(f"--device {spec}: no OpenCL device matches; available: {listing}")

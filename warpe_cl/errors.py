@@ -2,12 +2,12 @@
 
 Every error a user can cause by what they type or write derives from :class:`WarpeError`,
 so the command line can turn it into one readable line and an exit code
-(interface.md §2): :class:`ConfigError` -> 2, :class:`DeviceError` -> 3, any other
+(docs/interface.md §2): :class:`ConfigError` -> 2, :class:`DeviceError` -> 3, any other
 :class:`WarpeError` (e.g. :class:`WeightError`) -> 1.
 """
 from __future__ import annotations
 
-__all__ = ["WarpeError", "ConfigError", "DeviceError", "WeightError", "WarpeWarning"]
+__all__ = ["WarpeError", "ConfigError", "DeviceError", "WeightError", "WarpeWarning", "one_line"]
 
 
 class WarpeError(Exception):
@@ -74,3 +74,11 @@ class WeightError(WarpeError):
 
 class WarpeWarning(UserWarning):
     """A physically doubtful input: the run goes on, and the command line prints one line."""
+
+
+def one_line(err: BaseException) -> str:
+    """An exception as one line, white space folded: the message of a :class:`WarpeError`,
+    ``"Type: message"`` for any other (how the sweep manifest records a failed scenario)."""
+    if isinstance(err, WarpeError):
+        return " ".join(str(err).split())
+    return " ".join(f"{type(err).__name__}: {err}".split())

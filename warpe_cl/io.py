@@ -1,9 +1,10 @@
-"""Assembling the output Dataset (interface.md §5), provenance, and atomic output writing.
+"""Assembling the output Dataset (docs/interface.md §5), provenance and versions, and atomic output
+writing.
 
-Every file the command line writes goes through a hidden temporary file in the destination
-folder, renamed over the destination only once complete (:func:`write_netcdf`,
-:class:`Outputs`): an error, a crash or Ctrl-C never leaves a partial file, and the
-temporary file is removed on the way out.
+Every file warpe-cl writes (results, figures, the sweep manifest, the verdict cache) goes
+through a hidden temporary file in the destination folder, renamed over the destination only
+once complete (:func:`write_netcdf`, :func:`write_text`, :class:`Outputs`): an error, a crash or
+Ctrl-C never leaves a partial file, and the temporary file is removed on the way out.
 """
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ import datetime as _dt
 import json
 import os
 import platform as _platform
+import secrets
 import signal
 import sys
-import tempfile
 import threading
 from pathlib import Path
 
@@ -110,23 +111,53 @@ def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
     return ds
 
 
+def utc_now() -> str:
+    """The current UTC time as ISO 8601 to the second (``2025-01-31T12:00:00+00:00``)."""
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def versions(modules=("xarray", "pyopencl")) -> dict:
+    """Versions of warpe-cl, Python and numpy, and of those of ``modules`` already imported.
+
+    Parameters
+    ----------
+    modules : tuple of str
+        Module names whose version is added when this process has imported them (none is
+        imported here).
+
+    Returns
+    -------
+    dict
+        ``{"warpe_cl": ..., "python": ..., "numpy": ..., name: ...}`` (the sweep manifest's
+        ``versions``; :func:`provenance` names them ``NAME_version``).
+    """
+    out = {"warpe_cl": package_version(), "python": sys.version.split()[0],
+           "numpy": np.__version__}
+    for name in modules:
+        module = sys.modules.get(name)
+        if module is not None:
+            out[name] = getattr(module, "__version__", getattr(module, "VERSION_TEXT", "?"))
+    return out
+
+
 def provenance(extra: dict | None = None) -> dict:
     """Attributes every output file carries: versions, host, time, command line."""
-    import numpy
+    try:
+        import pyopencl  # noqa: F401 - its version goes in the file where it is installed
+    except Exception:  # noqa: BLE001 - pyopencl missing: the numpy engine still works
+        pass
+    v = versions(("pyopencl",))
     out = {
-        "warpe_cl_version": package_version(),
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "python_version": sys.version.split()[0],
-        "numpy_version": numpy.__version__,
+        "warpe_cl_version": v["warpe_cl"],
+        "created_utc": utc_now(),
+        "python_version": v["python"],
+        "numpy_version": v["numpy"],
         "host": _platform.node(),
         "command": " ".join(sys.argv),
         "Conventions": "CF-1.8",
     }
-    try:
-        import pyopencl
-        out["pyopencl_version"] = pyopencl.VERSION_TEXT
-    except Exception:  # noqa: BLE001 - pyopencl missing: the numpy engine still works
-        pass
+    if "pyopencl" in v:
+        out["pyopencl_version"] = v["pyopencl"]
     if extra:
         out.update(extra)
     return out
@@ -139,15 +170,32 @@ def _same_attr(a, b) -> bool:
     return a == b
 
 
+def _pad(ds, longest: dict):
+    """``ds`` with each dimension of ``longest`` it has padded at its end, with NaN, to that
+    length (``ds`` itself when none is shorter)."""
+    widths = {d: (0, n - ds.sizes[d]) for d, n in longest.items()
+              if d in ds.sizes and ds.sizes[d] < n}
+    return ds.pad(widths, constant_values=np.nan) if widths else ds
+
+
 def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     """Stack scenario Datasets along ``scenario``.
 
     The swept values become coordinates, the per-scenario derived parameters (tau0, omega, ...)
     and Philox scenario keys become variables, attributes shared by every scenario stay
     attributes, and ``attrs`` (e.g. the whole preset with its sweep block) is added last.
+    A dimension without coordinate whose length differs between scenarios (``photon``, the
+    time tags of a photon-counting instrument) is padded at its end to the longest with NaN,
+    as :func:`warpe_cl.instrument.output.build` pads it.
     """
     import xarray as xr
 
+    longest = {}
+    for ds in datasets:
+        for dim, size in ds.sizes.items():
+            if dim not in ds.indexes:
+                longest[dim] = max(longest.get(dim, 0), size)
+    datasets = [_pad(ds, longest) for ds in datasets]
     first = datasets[0].attrs            # an attribute varies if any scenario differs from
     varying = {k for k in {k for ds in datasets for k in ds.attrs}   # the first: O(N), not N^2
                if any(not _same_attr(ds.attrs.get(k), first.get(k)) for ds in datasets)}
@@ -182,13 +230,28 @@ def write_netcdf(ds, path) -> Path:
     return Path(path)
 
 
+def write_text(path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically, as :func:`write_netcdf` does, and flushed
+    to disk before the rename (the sweep manifest)."""
+    with Outputs() as outputs:
+        outputs.text(path, text)
+    return Path(path)
+
+
 def _temporary_name(path: Path) -> Path:
     """A new hidden file ``.NAME.XXXXXXXX.tmp.EXT`` next to ``path`` (the extension kept, so
-    that writers choosing a format by it, such as matplotlib, still do)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix,
-                               dir=path.parent)
-    os.close(fd)
-    return Path(tmp)
+    that writers choosing a format by it, such as matplotlib, still do).
+
+    Created as ``open(path, "w")`` would create it (read-write for all, less the umask), not
+    private as :func:`tempfile.mkstemp` makes it: the renamed file is the result others read.
+    """
+    while True:
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp{path.suffix}")
+        try:
+            os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+            return tmp
+        except FileExistsError:     # 2^32 names: another writer's, try the next
+            continue
 
 
 class Outputs:
@@ -220,7 +283,7 @@ class Outputs:
         """A temporary path to write ``path``'s content to; its folder is created."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._staged.append((None, path))  # remembered before it exists: Ctrl-C in mkstemp
+        self._staged.append((None, path))  # remembered before it exists: Ctrl-C while creating it
         tmp = _temporary_name(path)
         self._staged[-1] = (tmp, path)
         return tmp
@@ -228,6 +291,13 @@ class Outputs:
     def netcdf(self, ds, path) -> None:
         """Stage ``path`` and write ``ds`` to it as NetCDF-4 (h5netcdf)."""
         ds.to_netcdf(self.stage(path), engine="h5netcdf", invalid_netcdf=False)
+
+    def text(self, path, text: str) -> None:
+        """Stage ``path`` and write ``text`` to it (UTF-8), flushed to disk."""
+        with open(self.stage(path), "w", encoding="utf-8") as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
 
     def __exit__(self, kind, value, tb) -> bool:
         try:

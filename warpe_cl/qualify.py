@@ -36,7 +36,6 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from functools import lru_cache
@@ -311,10 +310,8 @@ class VerdictCache:
                 data = self._read()
                 for key, entry in items:
                     data[_key_id(key)] = {**entry, "key": key}
-                fd, tmp = tempfile.mkstemp(prefix=".qualification-", dir=self.folder)
-                with os.fdopen(fd, "w") as fh:
-                    json.dump(data, fh, indent=1, sort_keys=True)
-                os.replace(tmp, self.path)
+                from .io import write_text
+                write_text(self.path, json.dumps(data, indent=1, sort_keys=True))
         except OSError:
             pass   # a cache that cannot be written costs time, never correctness
 

@@ -1,4 +1,4 @@
-"""Radiative parameters of a medium, and the Fresnel laws on the host (physics.md §3–§4).
+"""Radiative parameters of a medium, and the Fresnel laws on the host (docs/physics.md §3–§4).
 
 A preset gives its medium either directly in radiative terms (``medium.radiative: {tau0,
 omega, n, k}``) or physically (grain size, compacity, materials); both end here as the same
@@ -17,7 +17,7 @@ from .params import C_M_PER_NS
 
 def fresnel_external(mu, n: float, k: float = 0.0):
     """Unpolarised reflectance from vacuum into a medium of index n + ik (Hapke 1993 eqs.
-    4.48–4.53, physics.md §3.4).
+    4.48–4.53, docs/physics.md §3.4).
 
     Parameters
     ----------
@@ -41,7 +41,7 @@ def fresnel_external(mu, n: float, k: float = 0.0):
 
 def fresnel_internal(mu, n: float):
     """Unpolarised reflectance from inside a medium of real index n into vacuum; 1 beyond the
-    critical angle (physics.md §3.5).
+    critical angle (docs/physics.md §3.5).
 
     Parameters
     ----------
@@ -59,7 +59,7 @@ def fresnel_internal(mu, n: float):
 
 
 def normal_reflectance(n: float, k: float = 0.0) -> float:
-    """R0 = ((n − 1)² + k²)/((n + 1)² + k²): the specular fraction of a slab (physics.md §3.4)."""
+    """R0 = ((n − 1)² + k²)/((n + 1)² + k²), a slab's specular fraction (docs/physics.md §3.4)."""
     return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
 
 
@@ -81,7 +81,7 @@ def _hemispherical(reflectance, order: int = 400) -> float:
 
 
 def hemispherical_external(n: float, k: float = 0.0) -> float:
-    """S_e: cosine-weighted hemispherical reflectance for light from vacuum (physics.md §3.6)."""
+    """S_e, the cosine-weighted hemispherical reflectance from vacuum (docs/physics.md §3.6)."""
     return _hemispherical(lambda mu: fresnel_external(mu, n, k))
 
 
@@ -101,7 +101,7 @@ def hemispherical_internal(n: float) -> float:
 
 
 def first_bf_time(thickness_m: float, n: float) -> float:
-    """t1 = 2 h n_eff / c, ns: the first back-and-forth time (physics.md §5.7)."""
+    """t1 = 2 h n_eff / c, ns: the first back-and-forth time (docs/physics.md §5.7)."""
     return 2.0 * thickness_m * n / C_M_PER_NS
 
 
@@ -121,14 +121,14 @@ def _derived(texture: str, thickness: float, tau0: float, extinction: float, ome
 
 
 def relative_index(n_i: float, k_i: float, n_m: float, k_m: float) -> tuple:
-    """Complex relative index m_i / m_m of an inclusion in a matrix (physics.md §3.3,
+    """Complex relative index m_i / m_m of an inclusion in a matrix (docs/physics.md §3.3,
     Andrieu's ``fresnel_coef.pro``): returns ``(n_rel, k_rel)``."""
     m = complex(n_i, k_i) / complex(n_m, k_m)
     return m.real, m.imag
 
 
 def hapke_internal_path(n_rel: float, diameter: float) -> float:
-    """Mean internal path ⟨D⟩ of a sphere, m (Hapke 1993 ch. 11; physics.md §4.4):
+    """Mean internal path ⟨D⟩ of a sphere, m (Hapke 1993 ch. 11; docs/physics.md §4.4):
     (2/3)[n² − (1/n)(n² − 1)^{3/2}] d for n > 1, and the n → 1 limit (2/3) d otherwise."""
     if n_rel <= 1.0:
         return 2.0 / 3.0 * diameter
@@ -138,7 +138,7 @@ def hapke_internal_path(n_rel: float, diameter: float) -> float:
 def particle_albedo(n_rel: float, k_rel: float, absorption: float, diameter: float,
                     integrals: str = "exact") -> dict:
     """Single-scattering albedo of one particle by Hapke's equivalent slab (Hapke 1993 eqs.
-    11.14, 11.15a; physics.md §4.4), without internal scatterers (s = 0).
+    11.14, 11.15a; docs/physics.md §4.4), without internal scatterers (s = 0).
 
     Parameters
     ----------
@@ -172,7 +172,7 @@ def particle_albedo(n_rel: float, k_rel: float, absorption: float, diameter: flo
 
 
 def porosity_factor(compacity: float, texture: str) -> float:
-    """Close-packing factor C_γ (seed eqs. 1–2; physics.md §4.2): −ln(1 − γ)/γ for a granular
+    """Close-packing factor C_γ (seed eqs. 1–2; docs/physics.md §4.2): −ln(1 − γ)/γ for a granular
     medium, ln(γ)/(γ − 1) for a slab (the granular form with the particle fraction 1 − γ).
     Its limit at a vanishing particle fraction is 1."""
     phi = compacity if texture == "granular" else 1.0 - compacity
@@ -188,7 +188,7 @@ def _warn(message: str):
 
 
 def physical_parameters(cfg) -> dict:
-    """Radiative parameters of a medium given physically (physics.md §3–§4).
+    """Radiative parameters of a medium given physically (docs/physics.md §3–§4).
 
     Slab: a matrix (volume fraction γ_c) holding inclusions; granular: grains (volume fraction
     γ_c) and void pores. For each species i (relative proportion ρ_i, diameter d_i):

@@ -13,8 +13,8 @@ Reading guide
   contract, and returns what happened to it;
 * :func:`simulate_reference` launches the photons, classifies every exit into a component and
   fills the tallies of walk.md §4;
-* the physics helpers are the Fresnel reflectances (walk.md §3.3; physics.md §3.4, §3.5), the
-  Henyey–Greenstein deflection and the MCML direction update (physics.md §5.4).
+* the physics helpers are the Fresnel reflectances (walk.md §3.3; docs/physics.md §3.4, §3.5), the
+  Henyey–Greenstein deflection and the MCML direction update (docs/physics.md §5.4).
 
 Everything inside the per-photon loop is plain Python floats and :mod:`math` / :mod:`cmath`
 calls (no NumPy scalars), for speed. Lengths are in metres, times in nanoseconds.
@@ -69,7 +69,7 @@ TWO_POW_32 = 4294967296.0
 # --------------------------------------------------------------------------------------------
 
 def normal_incidence_reflectance(n: float, k: float) -> float:
-    """R0 = ((n − 1)² + k²)/((n + 1)² + k²), vacuum onto (n, k) at normal incidence (walk.md §3.2).
+    """R0 = ((n − 1)² + k²)/((n + 1)² + k²), from vacuum at normal incidence (walk.md §3 step 2).
 
     Parameters
     ----------
@@ -88,7 +88,7 @@ def external_reflectance(mu: float, n: float, k: float) -> float:
     """R_ext(μ; n, k): unpolarised Fresnel reflectance from vacuum into the complex index n + ik.
 
     Deliberately computed by plain complex arithmetic (complex Snell's law and the Fresnel
-    amplitudes), not by Hapke's G1/G2 form of physics.md §3.4 that the kernel uses, so the two
+    amplitudes), not by Hapke's G1/G2 form of docs/physics.md §3.4 that the kernel uses, so the two
     implementations cross-check each other.
 
     Parameters
@@ -121,7 +121,7 @@ def external_reflectance(mu: float, n: float, k: float) -> float:
 def internal_reflectance(mu: float, n: float) -> float:
     """R_int(μ): real-index Fresnel reflectance from inside the slab (index n) into vacuum.
 
-    walk.md §3.3, physics.md §3.5 and A12. Only called when there is no total internal
+    walk.md §3.3, docs/physics.md §3.5 and A12. Only called when there is no total internal
     reflection, n·sqrt(1 − μ²) < 1.
 
     Parameters
@@ -143,7 +143,7 @@ def internal_reflectance(mu: float, n: float) -> float:
 
 
 def henyey_greenstein_cosine(g: float, u: float) -> float:
-    """Deflection cosine cos Θ sampled from Henyey–Greenstein with asymmetry g (physics.md §5.4).
+    """Deflection cosine cos Θ drawn from Henyey–Greenstein of asymmetry g (docs/physics.md §5.4).
 
     Parameters
     ----------
@@ -168,7 +168,7 @@ def henyey_greenstein_cosine(g: float, u: float) -> float:
 
 
 def rotate_direction(ux: float, uy: float, uz: float, cos_theta: float, psi: float):
-    """Turn the direction u by the polar angle Θ and azimuth ψ (MCML; physics.md §5.4).
+    """Turn the direction u by the polar angle Θ and azimuth ψ (MCML; docs/physics.md §5.4).
 
     Parameters
     ----------
@@ -205,7 +205,7 @@ class _WalkConstants:
     """The numbers one ray's walk needs, as plain Python floats (walk.md §1)."""
 
     is_slab: bool
-    fresnel_bottom: bool  # slab with a Fresnel interface above the floor (physics.md §5.5)
+    fresnel_bottom: bool  # slab with a Fresnel interface above the floor (docs/physics.md §5.5)
     thickness: float      # h, m
     extinction: float     # E, 1/m (0: infinite free flight)
     omega: float          # single-scattering albedo
@@ -217,7 +217,7 @@ class _WalkConstants:
     albedo_words: int     # analog floor absorbs iff its word x >= albedo_words
     path_cap: float       # L_max, m
     max_flights: int      # safety cap on free flights
-    entry_reflectance: float  # R0, walk.md §3.2
+    entry_reflectance: float  # R0, walk.md §3 step 2
     weighted: bool = False    # survival weighting (walk.md §6)
     absorption: float = 0.0   # a = (1 − ω) E, 1/m, applied as exp(−a s) when weighted
     roulette_weight: float = 0.0
@@ -301,7 +301,7 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
     roulette_survival = walk.roulette_survival
     nan = math.nan
 
-    # 1. Launch (physics.md §5.1): top of the layer, straight down, no path, no events.
+    # 1. Launch (docs/physics.md §5.1): top of the layer, straight down, no path, no events.
     z = 0.0
     ux, uy, uz = 0.0, 0.0, 1.0
     path = 0.0
@@ -332,7 +332,7 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
         weight *= albedo
         return survives_roulette(u)
 
-    # 2. Entry (physics.md §5.2), event 0 of a slab: u0 decides the specular reflection.
+    # 2. Entry (docs/physics.md §5.2), event 0 of a slab: u0 decides the specular reflection.
     #    "An event of probability P happens iff U <= P" (walk.md §2).
     if walk.is_slab:
         u0, _, _, _ = next_block()
@@ -340,7 +340,7 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
             return RayOutcome(FATE_SPECULAR, 1.0, 0.0, 0, 0, 0, 0, 1.0)
     # Granular: no interface; the first event is already a flight.
 
-    # 3. One flight per event (walk.md §3.3), and one event per floor reflection in the gap.
+    # 3. One flight per event (walk.md §3 step 3), and one event per floor reflection in the gap.
     flights = 0
     while True:
         # 3.1 Safety cap on the number of flights.
@@ -349,7 +349,7 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
         flights += 1
         u0, u1, u2, u3 = next_block()
 
-        # 3.2 Free flight (physics.md §5.3): optical step −ln u0, physical step ℓ/E.
+        # 3.2 Free flight (docs/physics.md §5.3): optical step −ln u0, physical step ℓ/E.
         optical_step = -math.log(u0)
         step = optical_step / extinction if extinction > 0.0 else math.inf
 
@@ -395,7 +395,7 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
         if uz > 0.0:
             # 3.1 (walk.md) Bottom boundary.
             if walk.fresnel_bottom:
-                # Slab over a vacuum gap over the floor (physics.md §5.5).
+                # Slab over a vacuum gap over the floor (docs/physics.md §5.5).
                 mu = uz
                 total_internal = n * math.sqrt(max(0.0, 1.0 - mu * mu)) >= 1.0
                 # TIR is decided without looking at u1; a partial reflection iff u1 <= R.
@@ -437,7 +437,7 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
 
         # 3.2 (walk.md) Top boundary, reached from inside.
         if walk.is_slab:
-            # physics.md §5.6: TIR, else reflect iff u1 <= R_int; a reflection sends it back down.
+            # docs/physics.md §5.6: TIR, else reflect iff u1 <= R_int; a reflection sends it down.
             mu = -uz
             sin_sq = max(0.0, 1.0 - mu * mu)
             total_internal = n * math.sqrt(sin_sq) >= 1.0
@@ -538,7 +538,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
             time_bin = -1
             emergence_bin = -1
             if ray.fate == FATE_SPECULAR or ray.fate == FATE_ESCAPED:
-                # Component of the exit (walk.md §4, physics.md §6.1).
+                # Component of the exit (walk.md §4, docs/physics.md §6.1).
                 if ray.fate == FATE_SPECULAR:
                     component = SPECULAR
                     time_ns = 0.0

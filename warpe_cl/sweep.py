@@ -1,6 +1,6 @@
-"""Sweeps as a resumable scenario database: grids, scenario files, shards, resume, Dask.
+"""Sweeps as a resumable scenario database: the plan, the manifest, and :func:`run_sweep`.
 
-``warpe-cl sweep PRESET.yaml --out DIR`` (interface.md §2) runs every point of the preset's
+``warpe-cl sweep PRESET.yaml --out DIR`` (docs/interface.md §2) runs every point of the preset's
 ``sweep:`` block (the outer product, :func:`warpe_cl.config.load_grid`) and writes
 
 ``DIR/s00003_1a2b3c4d5e6f7081.nc``
@@ -16,19 +16,19 @@
 A scenario's random numbers are keyed by (seed, scenario key), and its key is a hash of its own
 resolved configuration (seed and photons apart): the same point gives the same bits whichever
 grid, process, shard, worker or order computes it, and the same bits as ``warpe-cl run`` gives
-for that point alone.
+for that point alone. Scenario ``i`` belongs to shard ``i mod N`` (round robin, so costly
+regions of a grid spread over the shards).
 
-Engines (:func:`run_sweep`): the points run in this process when there is one device
-(the usual case: no start-up cost, one device is kept busy by one scenario at a time); in one
-spawned worker process per device when several are named (``--device 0:0,0:1`` or
-``--device all``); on a Dask cluster with ``--scheduler``. Scenario ``i`` belongs to shard
-``i mod N`` (round robin, so costly regions of a grid spread over the shards).
+The sweep is in three modules:
 
-``dask.distributed`` and the OpenCL driver are imported only where they are used.
+- here, what one sweep does: its plan (:func:`plan`), its manifest, the scenario task
+  (:func:`run_scenario`) and :func:`run_sweep`;
+- :mod:`warpe_cl.workers`, where the scenarios run (this process, one spawned worker process
+  per device, or Dask) and the OpenCL environment of the workers;
+- :mod:`warpe_cl.database`, reading a database back (:func:`~warpe_cl.database.open_database`).
 """
 from __future__ import annotations
 
-import datetime as _dt
 import hashlib
 import json
 import os
@@ -38,24 +38,25 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import ConfigError, DeviceError, WarpeError
+from .database import database_folder, manifest_name, open_database, read_manifests
+from .errors import ConfigError, one_line
+from .io import utc_now, versions, write_text
+from .progress import Progress
+from .report import point_text, sweep_start_line
+from .report import sweep_summary_lines as summary_lines     # docs/cluster.md imports it here
+from .workers import CLUSTER_HINT, Workers, worker_environment
 
+# open_database, summary_lines, worker_environment and CLUSTER_HINT live in database.py,
+# report.py and workers.py; they stay importable from here, where earlier versions had them.
 __all__ = ["run_sweep", "open_database", "SweepSummary", "parse_shard", "worker_environment",
-           "CLUSTER_HINT"]
+           "CLUSTER_HINT", "summary_lines"]
 
-CLUSTER_HINT = "pip install 'warpe-cl[cluster]'"
 FORMAT = "warpe-cl sweep database"
 FORMAT_VERSION = 1
-MANIFEST_RE = re.compile(r"^manifest(-shard-\d+-of-\d+)?\.json$")
 MANIFEST_INTERVAL_S = 2.0     # the manifest is rewritten at most this often (and at the end)
-OPENCL_RESOURCE = "opencl"    # Dask worker resource: one per OpenCL device
 
 
 # --------------------------------------------------------------------------- small helpers
-
-def _utc() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
 
 def _jsonable(value):
     """JSON fallback for numpy values in configurations."""
@@ -66,39 +67,6 @@ def _jsonable(value):
 def _sha256(value) -> str:
     text = json.dumps(value, sort_keys=True, default=_jsonable, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a hidden temporary file and a rename."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as stream:
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _one_line(err: BaseException) -> str:
-    """An exception as the one line the command line would print."""
-    if isinstance(err, WarpeError):
-        return " ".join(str(err).split())
-    return " ".join(f"{type(err).__name__}: {err}".split())
-
-
-def _versions(dask_used: bool = False) -> dict:
-    from .io import package_version
-    import numpy
-    out = {"warpe_cl": package_version(), "python": sys.version.split()[0],
-           "numpy": numpy.__version__}
-    for name in ("xarray", "pyopencl") + (("dask", "distributed") if dask_used else ()):
-        module = sys.modules.get(name)
-        if module is not None:
-            out[name] = getattr(module, "__version__", getattr(module, "VERSION_TEXT", "?"))
-    return out
 
 
 def parse_shard(text: str | None):
@@ -112,49 +80,17 @@ def parse_shard(text: str | None):
     return int(match[1]), int(match[2])
 
 
-# --------------------------------------------------------------------------- worker hygiene
-
-def allocated_cpus() -> int:
-    """CPUs this process may use: ``$SLURM_CPUS_PER_TASK``, else the CPU affinity mask."""
-    slurm = os.environ.get("SLURM_CPUS_PER_TASK", "")
-    if slurm.isdigit() and int(slurm) > 0:
-        return int(slurm)
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
-
-
-def worker_environment(threads: int | None = None) -> dict:
-    """Set the OpenCL environment of a worker before OpenCL is first loaded in it.
-
-    PoCL runs ``threads`` threads (default: :func:`allocated_cpus`), so that workers sharing a
-    node do not oversubscribe it, and the PoCL and pyopencl kernel caches live on node-local
-    disk (``$TMPDIR`` or ``/tmp``), not on a shared home folder. Variables the user set are
-    kept. Once pyopencl is imported the driver has read them, so nothing is changed then.
-
-    Returns
-    -------
-    dict
-        The variables this call set.
-    """
-    if "pyopencl" in sys.modules:
-        return {}
-    user = os.getuid() if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
-    local = Path(os.environ.get("TMPDIR") or "/tmp") / f"warpe-cl-{user}"
-    wanted = {
-        "POCL_MAX_PTHREAD_COUNT": str(max(1, threads or allocated_cpus())),
-        "POCL_CACHE_DIR": str(local / "pocl-cache"),
-        "PYOPENCL_CACHE_DIR": str(local / "pyopencl-cache"),
-    }
-    done = {}
-    for name, value in wanted.items():
-        if not os.environ.get(name):
-            if name.endswith("_DIR"):
-                Path(value).mkdir(parents=True, exist_ok=True)
-            os.environ[name] = value
-            done[name] = value
-    return done
+def _remove_partial(folder: Path, name: str) -> int:
+    """Delete temporary files a killed writer of ``name`` left behind (``.NAME.X.tmp`` and
+    ``.NAME.X.tmp.EXT``, warpe_cl.io)."""
+    removed = 0
+    for tmp in folder.glob(f".{name}.*.tmp*"):
+        try:
+            tmp.unlink()
+            removed += 1
+        except FileNotFoundError:
+            pass
+    return removed
 
 
 # --------------------------------------------------------------------------- one scenario
@@ -195,24 +131,10 @@ def run_scenario(task: dict) -> dict:
                       wall_time_s=float(ds["wall_time"]),
                       device=str(ds.attrs.get("opencl_device", "?")))
     except Exception as err:  # noqa: BLE001 - recorded in the manifest, the sweep goes on
-        record.update(status="failed", error=_one_line(err), photons=0,
+        record.update(status="failed", error=one_line(err), photons=0,
                       wall_time_s=time.perf_counter() - t0)
-    record["finished_utc"] = _utc()
+    record["finished_utc"] = utc_now()
     return record
-
-
-_POOL_DEVICE = None   # the device of a local pool worker (set by _pool_init)
-
-
-def _pool_init(devices, threads):
-    """Initializer of a local pool worker: take one device, set the OpenCL environment."""
-    global _POOL_DEVICE
-    _POOL_DEVICE = devices.get()
-    worker_environment(threads)
-
-
-def _pool_task(task: dict) -> dict:
-    return run_scenario({**task, "device": _POOL_DEVICE})
 
 
 # --------------------------------------------------------------------------- the plan
@@ -250,66 +172,31 @@ def plan(grid) -> tuple:
     return scenarios, fingerprint
 
 
-def _manifests(folder: Path) -> list:
-    """Every manifest in ``folder`` as (path, dict)."""
-    out = []
-    if folder.is_dir():
-        for path in sorted(folder.iterdir()):
-            if MANIFEST_RE.match(path.name):
-                try:
-                    out.append((path, json.loads(path.read_text(encoding="utf-8"))))
-                except (OSError, ValueError) as err:
-                    raise ConfigError(f"unreadable manifest ({_one_line(err)}); it is not a "
-                                      f"warpe-cl sweep database", key=str(path)) from None
-    return out
+@dataclass
+class _Sweep:
+    """One invocation of :func:`run_sweep` once its input is checked: the grid, this shard's
+    part of it, what the folder already holds, and where the scenarios are to run."""
 
+    grid: object                    # warpe_cl.config.Grid
+    scenarios: list                 # every Scenario of the grid
+    fingerprint: str
+    folder: Path                    # the database folder
+    combined: Path | None           # X.nc for --out X.nc
+    shard: tuple | None             # (I, N)
+    owned: list                     # the Scenarios of this shard
+    present: set                    # indices whose result file is in the folder
+    previous: dict                  # index -> the record an earlier manifest holds
+    device: str | None = None
+    scheduler: str | None = None
 
-def _remove_partial(folder: Path, name: str) -> int:
-    """Delete temporary files a killed writer of ``name`` left behind (``.NAME.X.tmp`` and
-    ``.NAME.X.tmp.EXT``, warpe_cl.io)."""
-    removed = 0
-    for tmp in folder.glob(f".{name}.*.tmp*"):
-        try:
-            tmp.unlink()
-            removed += 1
-        except FileNotFoundError:
-            pass
-    return removed
+    @property
+    def shard_text(self) -> str | None:
+        return None if self.shard is None else f"{self.shard[0]}/{self.shard[1]}"
 
-
-# --------------------------------------------------------------------------- progress
-
-class _Progress:
-    """One tqdm bar over scenarios on a terminal; one plain line per scenario otherwise."""
-
-    def __init__(self, total: int, quiet: bool, label: str):
-        self.quiet = quiet
-        self.count = 0
-        self.total = total
-        self.bar = None
-        if not quiet and total and sys.stderr.isatty():
-            from tqdm.auto import tqdm
-            self.bar = tqdm(total=total, unit="scenario", desc=label, file=sys.stderr,
-                            dynamic_ncols=True)
-
-    def write(self, text: str, error: bool = False):
-        if self.bar is not None:
-            self.bar.write(text, file=sys.stderr if error else sys.stdout)
-        elif error or not self.quiet:
-            print(text, file=sys.stderr if error else sys.stdout, flush=True)
-
-    def advance(self, text: str, error: bool = False):
-        self.count += 1
-        if self.bar is not None:
-            self.bar.update(1)
-            if error:
-                self.write(text, error=True)
-        else:
-            self.write(f"[{self.count}/{self.total}] {text}", error=error)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
+    @property
+    def runnable(self) -> int:
+        """Scenarios of this shard still to compute."""
+        return sum(s.valid and s.index not in self.present for s in self.owned)
 
 
 # --------------------------------------------------------------------------- the sweep
@@ -336,29 +223,6 @@ class SweepSummary:
         return 0 if not self.failed and not self.pending else 1
 
 
-def database_folder(out) -> tuple:
-    """``--out`` -> (database folder, combined file or None): ``X.nc`` keeps its scenarios in
-    ``X.sweep/`` and gets the combined Dataset once the grid is complete."""
-    out = Path(out)
-    if out.suffix == ".nc":
-        return out.with_suffix(".sweep"), out
-    return out, None
-
-
-def _local_devices(device: str | None) -> list:
-    """The device specs of the local engine: one, or one per worker of a spawned pool."""
-    from .device import resolve_spec
-    spec = resolve_spec(device)
-    if spec == "all":
-        from .device import list_devices
-        gpus = [info.spec for info, _ in list_devices() if info.kind == "gpu"]
-        return gpus or ["auto"]
-    specs = [s.strip() for s in spec.split(",") if s.strip()]
-    if not specs:
-        raise ConfigError(f"{device!r} names no device", key="--device")
-    return specs
-
-
 def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume=False,
               device=None, quiet=False, say=print) -> SweepSummary:
     """Run (or resume) a sweep into a database folder.
@@ -382,6 +246,11 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
     device : str, optional
         Device spec; a comma-separated list or ``all`` (every GPU) runs one worker process
         per device.
+    quiet : bool
+        No progress bar and no line per scenario (failures are still printed on stderr).
+    say : callable
+        Prints the first line (``print``; the command line passes one that ``--quiet``
+        silences).
 
     Returns
     -------
@@ -393,6 +262,25 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
         Bad preset, ``--shard``, ``--scheduler``, or a folder that holds another grid.
     DeviceError
         No usable device (local engine), before anything is written.
+    """
+    sweep = _prepare(preset, out, overrides, shard, resume)
+    sweep.device, sweep.scheduler = device, scheduler
+    # Where the scenarios run; device problems surface before anything is written.
+    workers = Workers.open(scheduler, device, sweep.runnable)
+    try:
+        return _run(sweep, workers, quiet, say)
+    finally:
+        workers.close()
+
+
+def _prepare(preset, out, overrides, shard, resume) -> _Sweep:
+    """The grid and the folder checked against each other, before anything is written.
+
+    Raises
+    ------
+    ConfigError
+        Every point invalid, ``--out`` not a folder or in a missing one, a folder holding
+        another grid, or results of these scenarios already there without ``resume``.
     """
     from .config import load_grid
     grid = load_grid(preset, overrides)
@@ -410,7 +298,7 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
 
     # A folder holds one grid: every manifest already there must share our fingerprint.
     previous = {}
-    for path, manifest in _manifests(folder):
+    for path, manifest in read_manifests(folder):
         if manifest.get("fingerprint") != fingerprint:
             raise ConfigError(
                 f"holds a database of another grid ({path.name}: preset "
@@ -425,70 +313,8 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
         raise ConfigError(f"already holds {count} result(s) of these scenarios; pass --resume "
                           f"to keep them and compute the rest, or give another --out",
                           key=str(folder))
-
-    # Where the scenarios run; device problems surface before anything is written.
-    runnable = sum(s.valid and s.index not in present for s in owned)
-    engine = _Engine.open(scheduler, device, runnable)
-    try:
-        return _run(grid, scenarios, fingerprint, owned, present, previous, folder, combined,
-                    shard, scheduler, device, engine, quiet, say)
-    finally:
-        engine.close()
-
-
-class _Engine:
-    """Where scenarios run: nowhere (nothing to do), in this process, a spawned pool of one
-    worker per device, or Dask. ``results(tasks)`` yields each task's record as it finishes."""
-
-    def __init__(self, mode: str, text: str, devices=None, client=None, cluster=None,
-                 threads=None):
-        self.mode, self.text, self.devices = mode, text, devices
-        self.client, self.cluster, self.threads = client, cluster, threads
-
-    @classmethod
-    def open(cls, scheduler, device, runnable: int) -> "_Engine":
-        if scheduler is not None and device is not None and "," in device:
-            raise ConfigError(f"{device} is not allowed with --scheduler; each Dask worker uses "
-                              f"one device (give one spec, or none to let each worker's "
-                              f"$WARPE_CL_DEVICE choose)", key="--device")
-        if runnable == 0:
-            return cls("none", "nothing to run")
-        if scheduler is not None:
-            client, cluster, threads, text = _dask_client(scheduler)
-            return cls("dask", text, client=client, cluster=cluster, threads=threads)
-        devices = _local_devices(device)
-        if len(devices) == 1:
-            worker_environment()
-            from .api import get_engine
-            engine = get_engine(devices[0])            # DeviceError -> exit 3
-            info = getattr(engine, "info", None)
-            return cls("in-process", f"in-process, {info.device if info else engine.name}",
-                       devices)
-        from .device import _candidates, list_devices
-        listed = list_devices()
-        for spec in devices:
-            if spec != "numpy" and not _candidates(spec, listed):
-                raise DeviceError(f"--device {spec}: no OpenCL device matches")
-        return cls("pool", f"{len(devices)} worker processes ({', '.join(devices)})", devices)
-
-    def results(self, tasks: list, fingerprint: str, quiet: bool):
-        for task in tasks:
-            if self.devices:
-                task["device"] = self.devices[0]
-            task["threads"] = self.threads
-        if self.mode == "dask":
-            return _run_dask(self.client, tasks, fingerprint)
-        if self.mode == "pool":
-            return _run_pool(tasks, self.devices)
-        for task in tasks:    # in this process: the ray progress bar on a terminal
-            task["progress"] = None if (not quiet and sys.stderr.isatty()) else False
-        return map(run_scenario, tasks)
-
-    def close(self):
-        if self.client is not None:
-            self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+    return _Sweep(grid, scenarios, fingerprint, folder, combined, shard, owned, present,
+                  previous)
 
 
 class _Manifest:
@@ -502,7 +328,7 @@ class _Manifest:
         self.header = {
             "format": FORMAT, "format_version": FORMAT_VERSION, "name": valid[0].cfg.name,
             "preset": str(grid.source), "keys": grid.keys, "fingerprint": fingerprint,
-            **header, "started_utc": _utc(),
+            **header, "started_utc": utc_now(),
             "photons": photons[0] if len(photons) == 1 else photons,
             "seed": seeds[0] if len(seeds) == 1 else seeds,
             "preset_yaml": grid.to_yaml(),
@@ -523,58 +349,63 @@ class _Manifest:
             row.update(self.records.get(s.index, {"status": "other shard"}))
             rows.append(row)
         counts = {k: sum(r["status"] == k for r in rows) for k in ("done", "failed", "pending")}
-        manifest = {**self.header, "updated_utc": _utc(),
-                    "versions": _versions("distributed" in sys.modules), "counts": counts,
+        used = ("dask", "distributed") if "distributed" in sys.modules else ()
+        manifest = {**self.header, "updated_utc": utc_now(),
+                    "versions": versions(("xarray", "pyopencl") + used), "counts": counts,
                     "scenarios": rows}
-        _atomic_write_text(self.path, json.dumps(manifest, indent=1, default=_jsonable))
+        write_text(self.path, json.dumps(manifest, indent=1, default=_jsonable))
 
 
-def _run(grid, scenarios, fingerprint, owned, present, previous, folder, combined, shard,
-         scheduler, device, engine, quiet, say) -> SweepSummary:
-    """The body of :func:`run_sweep` once the engine is open: manifest, tasks, progress."""
-    folder.mkdir(parents=True, exist_ok=True)
-    manifest = _Manifest(
-        folder / ("manifest.json" if shard is None else
-                  f"manifest-shard-{shard[0]}-of-{shard[1]}.json"),
-        grid, scenarios, fingerprint,
-        {"shard": None if shard is None else f"{shard[0]}/{shard[1]}", "engine": engine.text,
-         "device": device, "scheduler": scheduler})
-    records = manifest.records
-    summary = SweepSummary(folder=folder, total=len(scenarios), owned=len(owned))
+def _triage(sweep: _Sweep, records: dict, summary: SweepSummary) -> list:
+    """Sort this shard's scenarios: invalid (failed now), already in the folder (skipped), or
+    to compute (pending; returned). Fills ``records`` and ``summary``."""
     todo = []
-    for s in owned:
+    for s in sweep.owned:
         if not s.valid:
             records[s.index] = {"status": "failed", "error": str(s.cfg), "photons": 0}
             summary.failed.append((s.index, s.point, str(s.cfg)))
-        elif s.index in present:
-            old = previous.get(s.index, {})
+        elif s.index in sweep.present:
+            old = sweep.previous.get(s.index, {})
             records[s.index] = {**(old if old.get("status") == "done" else {}),
                                 "status": "done", "this_run": "skipped"}
             summary.skipped += 1
         else:
-            _remove_partial(folder, s.file)          # what a killed writer left behind
+            _remove_partial(sweep.folder, s.file)          # what a killed writer left behind
             records[s.index] = {"status": "pending"}
             todo.append(s)
+    return todo
+
+
+def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
+    """The body of :func:`run_sweep` once the workers are open: manifest, tasks, progress."""
+    folder = sweep.folder
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest = _Manifest(folder / manifest_name(sweep.shard), sweep.grid, sweep.scenarios,
+                         sweep.fingerprint,
+                         {"shard": sweep.shard_text, "engine": workers.text,
+                          "device": sweep.device, "scheduler": sweep.scheduler})
+    records = manifest.records
+    summary = SweepSummary(folder=folder, total=len(sweep.scenarios), owned=len(sweep.owned))
+    todo = _triage(sweep, records, summary)
     manifest.write(force=True)
-    say(f"warpe-cl sweep: {manifest.header['name']} ({grid.source}), {len(scenarios)} "
-        f"scenario(s) in the grid"
-        + ("" if shard is None else f", {len(owned)} in shard {shard[0]}/{shard[1]}")
-        + f"; {summary.skipped} already done, {len(todo)} to run, "
-          f"{len(summary.failed)} invalid; {engine.text}; database {folder}")
+    say(sweep_start_line(summary, manifest.header["name"], sweep.grid.source, sweep.shard,
+                         len(todo), workers.text))
     for index, _, error in summary.failed:
         print(f"warpe-cl: scenario {index} failed: {error}", file=sys.stderr)
 
     tasks = [{"index": s.index, "point": s.point, "cfg": s.cfg, "path": str(folder / s.file),
-              "device": device, "fingerprint": fingerprint, "progress": False} for s in todo]
+              "device": sweep.device, "fingerprint": sweep.fingerprint, "progress": False}
+             for s in todo]
     by_index = {s.index: s for s in todo}
-    progress = _Progress(len(todo), quiet,
-                         "sweep" if shard is None else f"shard {shard[0]}/{shard[1]}")
+    progress = Progress(len(todo), False if quiet else None, quiet=quiet, unit="scenario",
+                        desc="sweep" if sweep.shard is None else f"shard {sweep.shard_text}",
+                        dynamic_ncols=True)
     t0 = time.perf_counter()
     try:
-        for rec in engine.results(tasks, fingerprint, quiet):
+        for rec in workers.results(run_scenario, tasks, sweep.fingerprint, quiet):
             s = by_index[rec["index"]]
             records[s.index] = {**rec, "this_run": "computed"}
-            where = ", ".join(f"{k}={v}" for k, v in s.point.items()) or "the preset"
+            where = point_text(s.point) or "the preset"
             if rec["status"] == "done":
                 summary.done += 1
                 summary.photons += rec["photons"]
@@ -590,215 +421,10 @@ def _run(grid, scenarios, fingerprint, owned, present, previous, folder, combine
         summary.pending = sum(r["status"] == "pending" for r in records.values())
         manifest.write(force=True)
 
-    summary.finished_in_folder = sum((folder / s.file).is_file() for s in scenarios if s.valid)
-    if combined is not None and summary.finished_in_folder == len(scenarios):
+    summary.finished_in_folder = sum((folder / s.file).is_file()
+                                     for s in sweep.scenarios if s.valid)
+    if sweep.combined is not None and summary.finished_in_folder == len(sweep.scenarios):
         from .io import write_netcdf
-        write_netcdf(open_database(folder), combined)
-        summary.combined = combined
+        write_netcdf(open_database(folder), sweep.combined)
+        summary.combined = sweep.combined
     return summary
-
-
-def summary_lines(summary: SweepSummary) -> list:
-    """The end-of-run report: counts, time, speed, the failures."""
-    rate = summary.photons / summary.wall_time_s if summary.wall_time_s > 0 else 0.0
-    lines = [f"warpe-cl sweep: {summary.done} done, {summary.skipped} skipped (already in the "
-             f"folder), {len(summary.failed)} failed"
-             + (f", {summary.pending} not finished" if summary.pending else "")
-             + f"; {summary.wall_time_s:.2f} s, {rate:,.0f} photons/s; "
-               f"{summary.finished_in_folder} of {summary.total} scenarios of the grid in "
-               f"{summary.folder}"]
-    if summary.combined is not None:
-        lines.append(f"wrote {summary.combined} (all {summary.total} scenarios)")
-    return lines
-
-
-# --------------------------------------------------------------------------- engines
-
-def _run_pool(tasks: list, devices: list):
-    """One spawned worker process per device; results as they come."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
-    ctx = multiprocessing.get_context("spawn")
-    queue = ctx.Queue()
-    for spec in devices:
-        queue.put(spec)
-    threads = max(1, allocated_cpus() // len(devices))
-    with ProcessPoolExecutor(max_workers=len(devices), mp_context=ctx,
-                             initializer=_pool_init, initargs=(queue, threads)) as pool:
-        futures = {pool.submit(_pool_task, task): task for task in tasks}
-        for future in as_completed(futures):
-            try:
-                yield future.result()
-            except BrokenProcessPool as err:
-                yield {"index": futures[future]["index"], "status": "failed", "photons": 0,
-                       "error": f"the worker process died ({_one_line(err)})",
-                       "wall_time_s": 0.0, "finished_utc": _utc()}
-
-
-def _dask_client(address: str):
-    """(Client, LocalCluster or None, PoCL threads per worker, description) for --scheduler."""
-    try:
-        from distributed import Client, LocalCluster
-    except ImportError:
-        raise ConfigError(f"needs dask.distributed, which is not installed: "
-                          f"{CLUSTER_HINT}", key="--scheduler") from None
-    text = str(address).strip()
-    if text.startswith("local"):
-        match = re.fullmatch(r"local(?::(\d+))?", text)
-        if not match or (match[1] is not None and int(match[1]) < 1):
-            raise ConfigError(f"{text} is not allowed; give local:N (N worker processes) or a "
-                              f"scheduler address such as tcp://HOST:8786", key="--scheduler")
-        workers = int(match[1] or 1)
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               resources={OPENCL_RESOURCE: 1}, dashboard_address=None)
-        client = Client(cluster)
-        threads = max(1, allocated_cpus() // workers)
-        return client, cluster, threads, f"Dask LocalCluster of {workers} worker processes"
-    try:
-        client = Client(text, timeout="20s")
-    except (OSError, TimeoutError, ValueError) as err:
-        raise ConfigError(f"cannot reach a Dask scheduler there ({_one_line(err)})",
-                          key=f"--scheduler {text}") from None
-    workers = client.scheduler_info().get("workers", {})
-    if workers and not any(w.get("resources", {}).get(OPENCL_RESOURCE) for w in workers.values()):
-        client.close()
-        raise ConfigError(f"no worker of this scheduler offers the resource {OPENCL_RESOURCE}; "
-                          f"start one worker per device with `dask worker {text} --nthreads 1 "
-                          f"--resources {OPENCL_RESOURCE}=1` (docs/cluster.md)",
-                          key=f"--scheduler {text}")
-    return client, None, None, f"Dask scheduler {text} ({len(workers)} worker(s) now)"
-
-
-def _run_dask(client, tasks: list, fingerprint: str):
-    """Scenarios as Dask tasks needing one ``opencl`` resource each; results as they come.
-
-    Each worker keeps its OpenCL engine (context, queue, built kernels) between tasks: the
-    engine cache of :func:`warpe_cl.api.get_engine` lives in the worker process.
-    """
-    from distributed import as_completed
-    futures = {}
-    for task in tasks:
-        future = client.submit(run_scenario, task, key=f"warpe-cl-{fingerprint[:12]}-{task['index']}",
-                               resources={OPENCL_RESOURCE: 1}, pure=False, retries=0)
-        futures[future] = task
-    for future in as_completed(futures):
-        try:
-            yield future.result()
-        except Exception as err:  # noqa: BLE001 - e.g. KilledWorker: recorded, retried on --resume
-            yield {"index": futures[future]["index"], "status": "failed", "photons": 0,
-                   "error": _one_line(err), "wall_time_s": 0.0, "finished_utc": _utc()}
-
-
-# --------------------------------------------------------------------------- reading
-
-def _attribute(value):
-    """A NetCDF attribute as read by h5py -> as xarray's h5netcdf backend gives it."""
-    import numpy as np
-    if isinstance(value, (bytes, np.bytes_)):
-        return value.decode()
-    if isinstance(value, np.ndarray) and value.ndim == 1 and value.size == 1:
-        return value[0]
-    return value
-
-
-def _read_scenario(path: Path, template):
-    """One scenario file, read with h5py into the layout of ``template`` (a scenario of the
-    same grid opened by xarray).
-
-    Opening a small file through xarray and h5netcdf costs tens of milliseconds, most of it
-    resolving dimension scales; a database holds thousands. Every scenario of a grid shares
-    its dimensions, coordinates and variable attributes, so only the values and the global
-    attributes are read here, the same bits as ``xarray.load_dataset`` gives (tested). A file
-    whose variables or coordinates do not match the template is read by xarray instead.
-    """
-    import h5py
-    import numpy as np
-    import xarray as xr
-    with h5py.File(path, "r") as h5:
-        same_layout = all(name in h5 and h5[name].shape == template[name].shape
-                          for name in list(template.data_vars) + list(template.coords))
-        same_layout = same_layout and all(
-            np.array_equal(h5[name][()], template[name].values)
-            for name in template.coords if template[name].dtype.kind in "fiu")
-        if same_layout:
-            ds = template.copy(deep=False)     # new Variable objects; the template keeps its data
-            for name, var in template.data_vars.items():
-                ds.variables[name].values = np.asarray(h5[name][()]).astype(var.dtype)
-            ds.attrs = {k: _attribute(v) for k, v in h5.attrs.items() if not k.startswith("_")}
-            return ds
-    return xr.load_dataset(path, engine="h5netcdf")
-
-
-def open_database(paths):
-    """One Dataset of every finished scenario of a sweep database.
-
-    Parameters
-    ----------
-    paths : str, path, or a list of them
-        Database folders (``warpe-cl sweep --out``; for ``--out X.nc`` the folder is
-        ``X.sweep``). Several folders of the same grid (shards written to separate folders)
-        are merged; a scenario found in several is read once.
-
-    Returns
-    -------
-    xarray.Dataset
-        The layout ``warpe-cl run`` writes for a sweep (interface.md §5): a leading
-        ``scenario`` dimension whose coordinate is the grid index, the swept values as
-        coordinates along it, the derived parameters and ``scenario_key`` as variables.
-        Unfinished scenarios are absent; the attributes ``sweep_scenarios_total``,
-        ``sweep_failed`` (JSON: index -> error) and ``sweep_fingerprint`` say what the grid
-        holds.
-
-    Raises
-    ------
-    ConfigError
-        A path that is not a database, folders of different grids, or no finished scenario.
-    """
-    import xarray as xr
-    from .io import combine_scenarios
-
-    folders = [Path(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
-    grid = None
-    fingerprint = None
-    failed = {}
-    found = {}
-    for folder in folders:
-        if folder.suffix == ".nc" and not folder.is_dir():
-            folder = folder.with_suffix(".sweep")
-        manifests = _manifests(folder)
-        if not manifests:
-            raise ConfigError("is not a warpe-cl sweep database (no manifest.json)",
-                              key=str(folder))
-        for path, manifest in manifests:
-            if fingerprint is None:
-                fingerprint, grid = manifest["fingerprint"], manifest
-            elif manifest["fingerprint"] != fingerprint:
-                raise ConfigError(f"{path.name} belongs to another grid than "
-                                  f"{folders[0]}; open them separately", key=str(folder))
-            for rec in manifest["scenarios"]:
-                if rec.get("status") == "failed":
-                    failed.setdefault(rec["index"], rec.get("error"))
-        for rec in grid["scenarios"]:
-            if rec["file"] and rec["index"] not in found and (folder / rec["file"]).is_file():
-                found[rec["index"]] = folder / rec["file"]
-    if not found:
-        raise ConfigError("holds no finished scenario yet", key=", ".join(map(str, folders)))
-    rows = {rec["index"]: rec for rec in grid["scenarios"]}
-    indices = sorted(found)
-    template = xr.load_dataset(found[indices[0]], engine="h5netcdf")
-    datasets = [template] + [_read_scenario(found[i], template) for i in indices[1:]]
-    points = [rows[i]["point"] for i in indices]
-    out = combine_scenarios(datasets, points, {"config": grid.get("preset_yaml", "")})
-    out = out.assign_coords(scenario=("scenario", indices, {
-        "long_name": "index of the scenario in the sweep grid (outer product order)"}))
-    for name in ("sweep_index", "sweep_point"):
-        out.attrs.pop(name, None)
-    out.attrs.update({
-        "sweep_fingerprint": fingerprint,
-        "sweep_scenarios_total": len(rows),
-        "sweep_failed": json.dumps({str(i): e for i, e in sorted(failed.items())
-                                    if i not in found}),
-    })
-    return out

@@ -1,15 +1,26 @@
 """Quantities with a unit: ``"100 mm"``, ``"12.5 ns"``, ``"0.25 deg"``.
 
 Presets write every dimensioned value as a string with a unit; this module turns such a
-string into a float in the package's canonical unit and back:
+string into a float in the package's canonical unit and back. It is the package's one
+quantity parser: scenario presets use the first three dimensions, instrument presets
+(:mod:`warpe_cl.instrument.params`) all of them.
 
-============  ==============  ===============================================
-dimension     canonical unit  accepted units
-============  ==============  ===============================================
-``length``    metre           m, cm, mm, um, µm, micron, nm, km
-``time``      nanosecond      s, ms, us, µs, ns, ps
-``angle``     degree          deg, degree, degrees, °, rad, mrad, urad, µrad
-============  ==============  ===============================================
+=================  ==============  ===============================================
+dimension          canonical unit  accepted units
+=================  ==============  ===============================================
+``length``         metre           m, cm, mm, um, µm, micron, nm, km
+``time``           nanosecond      s, ms, us, µs, ns, ps
+``angle``          degree          deg, degree, degrees, °, rad, mrad, urad, µrad
+``energy``         joule           J, mJ, uJ, µJ, nJ
+``voltage``        volt            V, mV, uV, µV
+``current``        ampere          A, mA, uA, µA, nA, pA
+``current_noise``  A/√Hz           A/rtHz, nA/rtHz, pA/rtHz, fA/rtHz
+``frequency``      hertz           Hz, kHz, MHz, GHz
+``resistance``     ohm             ohm, kohm, Mohm
+``irradiance``     W m⁻² nm⁻¹      W/m2/nm
+``distance``       astronomical    AU
+                   unit
+=================  ==============  ===============================================
 
 Units are case-sensitive (``Mm`` is not ``mm``). The number and the unit may be separated
 by spaces or not (``"500 km"``, ``"500km"``). A bare number is refused: the unit is what
@@ -30,13 +41,15 @@ import math
 import re
 
 __all__ = ["UnitError", "DIMENSIONS", "UNITS", "parse_quantity", "format_quantity",
-           "unit_list"]
+           "format_attribute", "canonical_unit", "unit_list"]
 
-DIMENSIONS = ("length", "time", "angle")
+DIMENSIONS = ("length", "time", "angle", "energy", "voltage", "current", "current_noise",
+              "frequency", "resistance", "irradiance", "distance")
 
 # Each unit is (power of ten, extra factor). Powers of ten are applied by an exact
 # multiplication or division by an integer power of ten, so that "100 um" gives exactly
-# the float 1e-4 and format_quantity round-trips.
+# the float 1e-4 and format_quantity round-trips. The instrument dimensions (energy and
+# after) are read as number x factor, the arithmetic their presets have always used.
 _RAD = 180.0 / math.pi
 UNITS: dict[str, dict[str, tuple[int, float]]] = {
     "length": {  # -> metres
@@ -54,6 +67,17 @@ UNITS: dict[str, dict[str, tuple[int, float]]] = {
         "rad": (0, _RAD), "mrad": (-3, _RAD), "urad": (-6, _RAD),
         "µrad": (-6, _RAD), "μrad": (-6, _RAD),
     },
+    "energy": {"J": (0, 1.0), "mJ": (0, 1e-3), "uJ": (0, 1e-6), "µJ": (0, 1e-6),
+               "nJ": (0, 1e-9)},
+    "voltage": {"V": (0, 1.0), "mV": (0, 1e-3), "uV": (0, 1e-6), "µV": (0, 1e-6)},
+    "current": {"A": (0, 1.0), "mA": (0, 1e-3), "uA": (0, 1e-6), "µA": (0, 1e-6),
+                "nA": (0, 1e-9), "pA": (0, 1e-12)},
+    "current_noise": {"A/rtHz": (0, 1.0), "nA/rtHz": (0, 1e-9), "pA/rtHz": (0, 1e-12),
+                      "fA/rtHz": (0, 1e-15)},
+    "frequency": {"Hz": (0, 1.0), "kHz": (0, 1e3), "MHz": (0, 1e6), "GHz": (0, 1e9)},
+    "resistance": {"ohm": (0, 1.0), "kohm": (0, 1e3), "Mohm": (0, 1e6)},
+    "irradiance": {"W/m2/nm": (0, 1.0)},
+    "distance": {"AU": (0, 1.0)},
 }
 
 # Shown to users in error messages (aliases such as the Greek-letter mu are left out).
@@ -61,8 +85,13 @@ _SHOWN = {
     "length": ("m", "cm", "mm", "um", "µm", "micron", "nm", "km"),
     "time": ("s", "ms", "us", "µs", "ns", "ps"),
     "angle": ("deg", "degree(s)", "°", "rad", "mrad", "urad", "µrad"),
+    **{d: tuple(u for u in UNITS[d] if "μ" not in u) for d in DIMENSIONS[3:]},
 }
-_ARTICLE = {"length": "a length", "time": "a time", "angle": "an angle"}
+_ARTICLE = {"length": "a length", "time": "a time", "angle": "an angle",
+            "energy": "an energy", "voltage": "a voltage", "current": "a current",
+            "current_noise": "a current noise density", "frequency": "a frequency",
+            "resistance": "a resistance", "irradiance": "a spectral irradiance",
+            "distance": "a heliocentric distance"}
 
 _NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?"
 _QUANTITY = re.compile(rf"^\s*({_NUMBER})\s*(.*?)\s*$")
@@ -109,14 +138,16 @@ def parse_quantity(text, dimension: str) -> float:
     ----------
     text : str
         A number followed by a unit, e.g. ``"100 mm"``, ``"1e-6 ns"``, ``"0.25°"``.
-    dimension : {"length", "time", "angle"}
-        What the quantity must be.
+    dimension : str
+        What the quantity must be: one of :data:`DIMENSIONS`.
 
     Returns
     -------
     float
-        The value in metres (length), nanoseconds (time) or degrees (angle). The sign is
-        kept; range checks are the caller's business.
+        The value in the canonical unit of ``dimension``: metres (length), nanoseconds
+        (time), degrees (angle), or for the instrument dimensions the first unit of their
+        row in :data:`UNITS` (J, V, A, A/rtHz, Hz, ohm, W/m2/nm, AU). The sign is kept; range checks are the caller's
+        business.
 
     Raises
     ------
@@ -175,9 +206,18 @@ def _number_text(x: float) -> str:
     return repr(float(x))
 
 
-# Units format_quantity may choose from, largest first.
-_DISPLAY = {"length": ("km", "m", "mm", "um", "nm"), "time": ("ns",), "angle": ("deg",)}
-_CANONICAL = {"length": "m", "time": "ns", "angle": "deg"}
+# Units format_quantity may choose from, largest first; the canonical unit (the first of
+# its row of UNITS) for the instrument dimensions.
+_CANONICAL = {"length": "m", "time": "ns", "angle": "deg",
+              **{d: next(iter(UNITS[d])) for d in DIMENSIONS[3:]}}
+_DISPLAY = {"length": ("km", "m", "mm", "um", "nm"), "time": ("ns",), "angle": ("deg",),
+            **{d: (_CANONICAL[d],) for d in DIMENSIONS[3:]}}
+
+
+def canonical_unit(dimension: str) -> str:
+    """The unit values of ``dimension`` are stored in: ``m``, ``ns``, ``deg``, ``J`` ..."""
+    _check_dimension(dimension)
+    return _CANONICAL[dimension]
 
 
 def format_quantity(value: float, dimension: str) -> str:
@@ -185,13 +225,15 @@ def format_quantity(value: float, dimension: str) -> str:
 
     Lengths take the unit among km, m, mm, um, nm that gives the shortest text with a
     number between 1 and 10000 (``0.1`` -> ``"100 mm"``, ``1.064e-6`` -> ``"1064 nm"``);
-    times are always written in ns and angles in deg.
+    times are always written in ns, angles in deg and the instrument dimensions in their
+    canonical unit.
 
     Parameters
     ----------
     value : float
-        Metres (length), nanoseconds (time) or degrees (angle).
-    dimension : {"length", "time", "angle"}
+        In the canonical unit of ``dimension`` (m, ns, deg, J, ...).
+    dimension : str
+        One of :data:`DIMENSIONS`.
 
     Returns
     -------
@@ -222,3 +264,35 @@ def format_quantity(value: float, dimension: str) -> str:
         if parse_quantity(text, dimension) == value:
             return text
     return f"{_number_text(value)} {_CANONICAL[dimension]}"
+
+
+def format_attribute(value: float, dimension: str) -> str:
+    """A canonical value as a short readable text for output attributes (6 digits).
+
+    Lengths, times and angles as :func:`format_quantity` (exact), except angles below
+    0.01 deg, written in urad (``"1.74533 urad"``); the other dimensions as ``"0.05 J"``.
+    Unlike :func:`format_quantity` the text is rounded: it describes, it is not read back.
+
+    Parameters
+    ----------
+    value : float
+        In the canonical unit of ``dimension``.
+    dimension : str
+        One of :data:`DIMENSIONS`.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> format_attribute(500e3, "length")
+    '500 km'
+    >>> format_attribute(2e-12, "current_noise")
+    '2e-12 A/rtHz'
+    """
+    if dimension == "angle" and 0 < abs(value) < 0.01:
+        return f"{math.radians(value) * 1e6:.6g} urad"
+    if dimension in ("length", "time", "angle"):
+        return format_quantity(value, dimension)
+    return f"{value:.6g} {canonical_unit(dimension)}"

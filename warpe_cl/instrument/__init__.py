@@ -1,11 +1,12 @@
-"""What an instrument records from a simulated surface (instruments.md §3).
+"""What an instrument records from a simulated surface (docs/instrument.md §3).
 
 One module per stage of the chain:
 
 ==================  ==========================================================================
 module              stage
 ==================  ==========================================================================
-``params``          instrument presets: parameter table, units, validation
+``params``          instrument presets: parameter table, loading (checked by warpe_cl.config)
+``scenario``        a scenario preset's ``instrument:`` block, applied to each scenario
 ``surface``         what the surface result hands over: R_d(t), specular/BF-direct fractions
 ``pulse``           §3.1 transmitted pulse (Gaussian FWHM or tabulated)
 ``footprint``       §3.2 footprint and slope/roughness kernel g(t)

@@ -1,4 +1,4 @@
-"""ADC: sampling with a random phase per shot, and quantisation, instruments.md §3.7.5.
+"""ADC: sampling with a random phase per shot, and quantisation, docs/instrument.md §3.7.5.
 
 Samples are taken at t_k = t₀ + k Δt_s with t₀ = window start + φ, φ ~ U(0, Δt_s) per shot
 (the return is not locked to the ADC clock), and quantised to N bits over 0 … full scale:

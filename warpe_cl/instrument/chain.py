@@ -1,5 +1,5 @@
-"""The instrument chain of instruments.md §3, stage by stage, for one scenario, and the output
-Dataset (interface.md §5: ``sample_time``, ``signal_mv``, ``expected_mv``).
+"""The instrument chain of docs/instrument.md §3, stage by stage, for one scenario, and the output
+Dataset (docs/interface.md §5: ``sample_time``, ``signal_mv``, ``expected_mv``).
 
 Time zero is WARPE's: the arrival of light reflected at the mean surface at the footprint
 centre. Each shot draws its noise from its own generator, ``Generator(Philox(key))`` with the

@@ -1,5 +1,5 @@
 """Per-shot detection, range and width: a matched-filter stand-in for BELA's unknown onboard
-algorithm [A], instruments.md §3.8.
+algorithm [A], docs/instrument.md §3.8.
 
 The sampled waveform minus its known baseline is correlated with the expected pulse template
 (p ⊗ g ⊗ h_e, sampled at the shot's phase, unit norm); a shot is detected when the correlation

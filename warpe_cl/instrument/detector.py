@@ -1,4 +1,4 @@
-"""Linear-mode APD, instruments.md §3.6.
+"""Linear-mode APD, docs/instrument.md §3.6.
 
 Photoelectrons per fine bin k ~ Poisson(λ δt), λ = S (n_s + n_spec) + n_b + I_db/q (pe ns⁻¹).
 The summed avalanche gain of k electrons is drawn from a Gamma distribution of mean k M and

@@ -1,4 +1,4 @@
-"""Analog electronics: filter, electronic noise, gain and saturation, instruments.md §3.7.
+"""Analog electronics: filter, electronic noise, gain and saturation, docs/instrument.md §3.7.
 
 v(t) = G_T [h_e ⊗ i](t) + v_n(t) with ∫h_e dt = 1. Gaussian filter: σ_h = 0.1325/f_3dB and
 one-sided noise bandwidth B_eq = ½∫h_e² dt = 1/(4√π σ_h); option: a 4th-order Bessel low-pass

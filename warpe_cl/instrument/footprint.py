@@ -1,4 +1,4 @@
-"""Footprint and geometric (slope / roughness) kernel g(t), instruments.md §3.2.
+"""Footprint and geometric (slope / roughness) kernel g(t), docs/instrument.md §3.2.
 
 σ_g² = (2/c)² [σ_ξ²/cos²φ + σ_f² (tan²θ_x + tan²θ_y) + (R σ_θ²)²], with R = H/cos φ the slant
 range, σ_f = R σ_θ the footprint rms radius, θ_x = φ − s the signed angle between the beam axis
@@ -19,7 +19,7 @@ def beam_sigma(divergence_full_deg: float) -> float:
 
 
 def half_angle(divergence_full_deg: float) -> float:
-    """Beam half-angle δ, rad (the seed's δ: 30 µrad for BELA, instruments.md §1 item 1)."""
+    """Beam half-angle δ, rad (the seed's δ: 30 µrad for BELA, docs/instrument.md §1 item 1)."""
     return math.radians(divergence_full_deg) / 2.0
 
 

@@ -1,5 +1,5 @@
 """The instrument's output Dataset: the surface variables kept, the chain's arrays added with
-units and meanings, the instrument parameters as attributes, provenance (interface.md §5)."""
+units and meanings, the instrument parameters as attributes, provenance (docs/interface.md §5)."""
 from __future__ import annotations
 
 import numpy as np

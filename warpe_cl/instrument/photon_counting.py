@@ -1,4 +1,4 @@
-"""Photon-counting branch (ATLAS), instruments.md §3.9.
+"""Photon-counting branch (ATLAS), docs/instrument.md §3.9.
 
 Arrivals are a Poisson process of rate n_pe(t) (signal, background, dark) over the window; each
 photoelectron goes to one of N_ch detector channels at random. Per channel, a paralyzable

@@ -1,4 +1,4 @@
-"""Transmitted pulse p(t), instruments.md §3.1.
+"""Transmitted pulse p(t), docs/instrument.md §3.1.
 
 p(t) = exp(−t²/2σ_l²)/(√(2π) σ_l) with σ_l = FWHM/(2√(2 ln 2)) and ∫p dt = 1 (ns⁻¹), or a
 tabulated profile (CSV with columns ``time_ns``, ``power``) whose time origin is put at its

@@ -1,5 +1,5 @@
 """Radiometry: lidar equation for the diffuse part, photon budgets, background and the number
-of speckle modes, instruments.md §3.3 and §3.5.
+of speckle modes, docs/instrument.md §3.3 and §3.5.
 
 Photons at the aperture from a surface response of integrated reflectance ∫R dt (sr⁻¹):
 N = E_t η_t T_atm² Ω_r ∫R dt / (hν), Ω_r = π D_r²/(4R²). For a Lambertian surface of albedo A,
@@ -30,7 +30,7 @@ def transmitted_photons(params) -> float:
 
 def photons_per_reflectance(params) -> float:
     """Photons at the aperture per unit integrated reflectance (per sr⁻¹):
-    E_t η_t T² Ω_r / (hν). BELA with η_t = 1: 5.26e4 at 400 km (instruments.md §3.3)."""
+    E_t η_t T² Ω_r / (hν). BELA with η_t = 1: 5.26e4 at 400 km (docs/instrument.md §3.3)."""
     r = slant_range(params["geometry.altitude"], params["geometry.pointing"])
     t2 = params["geometry.atmosphere_transmission"] ** 2
     return transmitted_photons(params) * t2 * receiver_solid_angle(params["receiver.aperture"], r)

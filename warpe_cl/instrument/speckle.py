@@ -1,4 +1,4 @@
-"""Speckle, instruments.md §3.3: a per-shot multiplicative factor S ~ Gamma(shape M, mean 1) on
+"""Speckle, docs/instrument.md §3.3: a per-shot multiplicative factor S ~ Gamma(shape M, mean 1) on
 the surface signal [A, first-order model after Gardner 1982], so that the photoelectron count
 is negative-binomial with variance N + N²/M."""
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Specular and BF-direct returns: the fraction κ of the reflected beam that hits the aperture,
-instruments.md §3.4 and physics.md §7.3 (seed eqs. 7–11).
+docs/instrument.md §3.4 and docs/physics.md §7.3 (seed eqs. 7–11).
 
 WARPE hands over the fractions f_spec, f_BF (per launched ray) and their delays; the instrument
 turns each into photons at the aperture, E_t η_t T² f κ / (hν), here, in one place.

@@ -1,6 +1,6 @@
-"""What the surface simulation hands to the instrument, instruments.md §3.0.
+"""What the surface simulation hands to the instrument, docs/instrument.md §3.0.
 
-From a result file (interface.md §5): the diffuse response R_d(t) = reflectance of
+From a result file (docs/interface.md §5): the diffuse response R_d(t) = reflectance of
 ``scattering`` + ``bf_diffuse`` (sr⁻¹ ns⁻¹, log-spaced bins), and the specular and BF-direct
 returns as fractions per launched ray (``ray_count / photons``) with their delays: t = 0 for the
 specular, t_k = k · 2 h n_eff / c for the k-th BF-direct passage (``first_bf_time_ns``), so that

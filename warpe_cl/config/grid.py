@@ -1,0 +1,158 @@
+"""Sweep grids: the outer product of a preset's ``sweep:`` block, point by point.
+
+:func:`expand_points` is the one expander: :meth:`Config.sweep_points
+<warpe_cl.config.Config.sweep_points>` (``warpe-cl run``, :func:`warpe_cl.simulate`) stops at
+the first invalid point, :func:`load_grid` (``warpe-cl sweep``) keeps each point's error
+beside the valid ones; both build every point the same way, so a point gives the same
+scenario (and the same bits) whichever way it is computed.
+"""
+from __future__ import annotations
+
+import copy
+import itertools
+from dataclasses import dataclass
+
+import yaml
+
+from ..errors import ConfigError
+from .check import sweep_field
+from .keys import apply_overrides, parse_overrides, schema_key, split_key
+from .preset import Config, read_source
+from .schema import FIELDS, SCALAR_KINDS, SWEEPABLE
+from .validate import allowed, show
+
+__all__ = ["Grid", "load_grid", "expand_points"]
+
+
+def expand_points(raw: dict, source: str, build, keep_errors: bool) -> list:
+    """Every point of the ``sweep`` block of ``raw``, outer product in the order keys appear.
+
+    Parameters
+    ----------
+    raw : dict
+        A preset as written (overrides applied); its ``sweep`` block (absent or empty: one
+        point) maps dotted keys to lists of values.
+    source : str
+        The preset's name, for messages.
+    build : callable
+        ``build(point_raw) -> Config``: the point's preset (``raw`` without its sweep block,
+        the point's values set) validated.
+    keep_errors : bool
+        False: the first invalid point raises. True: an invalid point carries its error in
+        place of its Config (a preset without a sweep still raises).
+
+    Returns
+    -------
+    list of (dict, Config or ConfigError)
+        The swept values as written and the point's configuration (or its one-line error,
+        ending in ``(in the sweep point KEY=VALUE, ...)``).
+    """
+    sweep = raw.get("sweep") or {}
+    base = {k: v for k, v in raw.items() if k != "sweep"}
+    keys = list(sweep)
+    points = []
+    for combo in itertools.product(*(sweep[k] for k in keys)):
+        point = dict(zip(keys, combo))
+        point_raw = copy.deepcopy(base)
+        try:
+            apply_overrides(point_raw, copy.deepcopy(point))
+            cfg = build(point_raw)
+        except ConfigError as exc:
+            if not keys:
+                raise
+            where = ", ".join(f"{k}={show(v)}" for k, v in point.items())
+            cfg = ConfigError(f"{exc.message} (in the sweep point {where})", exc.key, source)
+            if not keep_errors:
+                raise cfg from None
+        points.append((point, cfg))
+    return points
+
+
+@dataclass
+class Grid:
+    """A preset's sweep grid with every point validated on its own (``warpe-cl sweep``).
+
+    Attributes
+    ----------
+    source : str
+        The preset's path as given, or ``"<dict>"``.
+    raw : dict
+        The preset as written, overrides applied and list overrides turned into sweep axes.
+    keys : list of str
+        The swept keys, in the order of the outer product (empty without a sweep).
+    points : list of (dict, Config or ConfigError)
+        For each point of the outer product (the order of :meth:`Config.sweep_points`), the
+        swept values as written and that point's validated configuration, or the one-line
+        error that rejects it.
+    """
+
+    source: str
+    raw: dict
+    keys: list
+    points: list
+
+    def to_yaml(self) -> str:
+        """The resolved preset (with its sweep block) when every point is valid, else the
+        preset as written (overrides applied)."""
+        try:
+            return Config(copy.deepcopy(self.raw), self.source).to_yaml()
+        except ConfigError:
+            text = yaml.safe_dump(self.raw, sort_keys=False, allow_unicode=True, width=100)
+            return f"# warpe-cl preset {self.source} as written (a sweep point is invalid)\n{text}"
+
+
+def load_grid(source, overrides=None) -> Grid:
+    """Load a preset as a grid of independent points, for a resumable sweep.
+
+    Unlike :func:`load_preset`, a value that rejects one point (a compacity of 1.2) does not
+    reject the preset: that point carries its :class:`ConfigError`, the others stand. Each
+    valid point's Config is built exactly as :meth:`Config.sweep_points` builds it, so it
+    gives the same scenario (and the same bits) as ``warpe-cl run``.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or dict
+        A YAML preset or a dict of the same shape.
+    overrides : dict or list of str, optional
+        As for :func:`load_preset`. An override whose value is a list, on a key that a sweep
+        may name and that is not itself a list (``medium.thickness=["1 mm", "10 mm"]``),
+        becomes a sweep axis: it replaces a swept key of the same name, or is added after
+        the preset's own.
+
+    Raises
+    ------
+    ConfigError
+        For what no point can survive: an unreadable file, a malformed sweep block, an
+        unknown sweep key; or, without a sweep, the single point's error.
+    """
+    name, raw, base_dir, name_default = read_source(source)
+    if not isinstance(raw, dict):
+        Config(raw, name, name_default=name_default, base_dir=base_dir)  # raises its message
+    try:
+        axes = {}
+        plain = {}
+        for key, value in parse_overrides(overrides).items():
+            skey = schema_key(split_key(key))
+            if (isinstance(value, list) and skey in SWEEPABLE
+                    and (skey == "medium" or FIELDS[skey].kind in SCALAR_KINDS)):
+                axes[key] = value
+            else:
+                plain[key] = value
+        apply_overrides(raw, plain)
+        if axes:
+            sweep = raw.get("sweep") if isinstance(raw.get("sweep"), dict) else {}
+            raw["sweep"] = {**{k: v for k, v in sweep.items() if k not in axes}, **axes}
+        sweep = raw.get("sweep") or {}
+        if not isinstance(sweep, dict):
+            raise ConfigError(f"{show(sweep)} is not a mapping; give KEY: [VALUE, ...], "
+                              f'e.g. medium.thickness: ["1 mm", "10 mm"]', "sweep")
+        for key, values in sweep.items():
+            target = sweep_field(key, f"sweep.{key}")
+            if not isinstance(values, list) or not values:
+                raise ConfigError(f"{show(values)} is not allowed; give a non-empty list of "
+                                  f"values, each {allowed(target)}", f"sweep.{key}")
+    except ConfigError as exc:
+        raise exc.with_source(name) from None
+    points = expand_points(raw, name, lambda point_raw: Config(
+        point_raw, name, name_default=name_default, base_dir=base_dir), keep_errors=True)
+    return Grid(name, raw, list(sweep), points)

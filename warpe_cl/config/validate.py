@@ -1,0 +1,355 @@
+"""Checks of single values against a :class:`~warpe_cl.config.schema.Field`, the messages
+they raise, and the YAML reader: shared by scenario presets and instrument presets.
+
+Every check raises :class:`~warpe_cl.errors.ConfigError` with one line naming the value as
+the user wrote it, what it counts, and what is allowed, with a did-you-mean hint where a
+near miss is likely (a choice, a key, a unit)::
+
+    simulation.photons: 1e+30 rays is not allowed; give a whole number of rays in [1, 2^53 = ...]
+    instrument.detector.type: apdd is not allowed; give one of apd, photon_counting (did you mean apd?)
+
+The caller adds the key (``where``) and the file (``ConfigError.with_source``).
+"""
+from __future__ import annotations
+
+import difflib
+import math
+import os
+
+import numpy as np
+import yaml
+
+from ..errors import ConfigError
+from ..units import UNITS, UnitError, canonical_unit, format_attribute, parse_quantity, \
+    unit_list
+
+__all__ = ["check_scalar", "allowed", "show", "did_you_mean", "unknown_key", "read_yaml",
+           "load_yaml", "is_quantity"]
+
+#: Valid values shown in messages when a quantity has no default to show.
+EXAMPLES = {"length": "100 mm", "time": "12.5 ns", "angle": "12 deg", "energy": "50 mJ",
+            "voltage": "1 V", "current": "10 nA", "current_noise": "2 pA/rtHz",
+            "frequency": "33 MHz", "resistance": "50 kohm", "irradiance": "0.64 W/m2/nm",
+            "distance": "0.387 AU"}
+
+
+def is_quantity(kind: str) -> bool:
+    """True for the kinds written as a number and a unit (a dimension of :mod:`warpe_cl.units`)."""
+    return kind in UNITS
+
+
+# --------------------------------------------------------------------------- messages
+
+def _number_text(x) -> str:
+    if isinstance(x, float) and x.is_integer() and abs(x) < 1e16:
+        return str(int(x))
+    return repr(x) if isinstance(x, float) else str(x)
+
+
+def show(value) -> str:
+    """A value as a user would recognise it from their YAML, on one line."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "an empty value"
+    if isinstance(value, str):
+        return value if value.strip() else '""'
+    if isinstance(value, (int, float)):
+        return _number_text(value)
+    text = yaml.safe_dump(value, default_flow_style=True, allow_unicode=True, width=1e9)
+    text = " ".join(text.split())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _limit_text(x) -> str:
+    """A limit of the table as written in messages; large powers of two also as 2^k."""
+    if isinstance(x, int) and x >= 2 ** 20 and x & (x - 1) == 0:
+        return f"2^{x.bit_length() - 1} = {x}"
+    return _number_text(x)
+
+
+def range_text(field) -> str:
+    """The limits of ``field`` as ``in [0, 1]``, ``> 0 m``, ``<= 30 deg``; "" for none."""
+    low, high = field.low, field.high
+    unit = ""
+    if is_quantity(field.kind) and any(b not in (None, 0) for b in (low, high)):
+        unit = " " + canonical_unit(field.kind)
+    if low is not None and high is not None:
+        return (f"in {'(' if field.low_open else '['}{_limit_text(low)}, "
+                f"{_limit_text(high)}{')' if field.high_open else ']'}{unit}")
+    if low is not None:
+        return f"{'>' if field.low_open else '>='} {_limit_text(low)}{unit}"
+    if high is not None:
+        return f"{'<' if field.high_open else '<='} {_limit_text(high)}{unit}"
+    return ""
+
+
+def with_unit(field, value) -> str:
+    """``value`` as the user wrote it, followed by what it counts (``1e+30 rays``)."""
+    return show(value) + (f" {field.unit}" if field.unit else "")
+
+
+def _example(field) -> str:
+    if field.example:
+        return field.example
+    if isinstance(field.default, str):
+        return field.default
+    if isinstance(field.default, (int, float)) and not isinstance(field.default, bool):
+        return format_attribute(field.default, field.kind)   # a canonical default
+    return EXAMPLES[field.kind]
+
+
+def allowed(field) -> str:
+    """What a valid value of ``field`` looks like, e.g. 'a number in [0, 1]'."""
+    rng = range_text(field)
+    rng = " " + rng if rng else ""
+    words = ""
+    if field.choices and field.kind in ("float", "int"):
+        words = " or ".join(field.choices) + " or "
+    if is_quantity(field.kind):
+        article = "an" if field.kind in ("angle", "energy", "irradiance") else "a"
+        noun = field.kind.replace("_", " ")
+        return f'{article} {noun}{rng} with a unit, e.g. "{_example(field)}"'
+    if field.kind == "float":
+        return f"{words}a number{rng}"
+    if field.kind == "int":
+        if field.unit:
+            return f"{words}a whole number of {field.unit}{rng}"
+        return f"{words}an integer{rng}"
+    if field.kind == "choice":
+        return "one of " + ", ".join(field.choices)
+    if field.kind == "bool":
+        return "true or false"
+    if field.kind == "str":
+        return "a text string"
+    if field.kind == "list":
+        return "a list of mappings"
+    return "a mapping"
+
+
+def did_you_mean(word: str, candidates, cutoff: float = 0.6) -> str | None:
+    """The candidate closest to ``word``, or None when none is close."""
+    match = difflib.get_close_matches(word, list(candidates), n=1, cutoff=cutoff)
+    return match[0] if match else None
+
+
+def unknown_key(where: str, name: str, siblings: list, prefix: str, all_keys=(),
+                listing: str | None = None) -> ConfigError:
+    """'unknown key; did you mean ...?' for key ``name`` of the section at ``prefix``.
+
+    Parameters
+    ----------
+    where : str
+        The key as the message names it (``simulation.photon``).
+    name : str
+        The unknown name within its section (``photon``).
+    siblings : list of str
+        The names allowed in that section.
+    prefix : str
+        The section's dotted key (``""`` for the top level), put before a guess.
+    all_keys : iterable of str
+        Every dotted key of the table: the right name in the wrong section (``photons`` at
+        the top level) is pointed to its place.
+    listing : str, optional
+        What to list when nothing is close (default: the siblings).
+    """
+    guess = did_you_mean(name, siblings)
+    if guess is not None:
+        full = f"{prefix}.{guess}" if prefix else guess
+        return ConfigError(f"unknown key; did you mean {full}?", where)
+    elsewhere = [k for k in all_keys if k.rsplit(".", 1)[-1] == name]
+    if elsewhere:
+        return ConfigError(f"unknown key here; did you mean {elsewhere[0].replace('[]', '[0]')}?",
+                           where)
+    listing = listing or "the keys allowed here are " + ", ".join(siblings)
+    return ConfigError(f"unknown key; {listing}", where)
+
+
+# --------------------------------------------------------------------------- scalars
+
+def _number(field, value, where: str) -> float:
+    """A finite float from a YAML number or a numeric string ("1e6")."""
+    if isinstance(value, bool):
+        raise ConfigError(f"{show(value)} is a boolean (YAML reads yes/no/on/off as "
+                          f"booleans), not a number; give {allowed(field)}", where)
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        x = value
+    elif isinstance(value, str):
+        try:
+            x = float(value.strip().replace("_", ""))
+        except ValueError:
+            raise ConfigError(f"{show(value)} is not a number; give {allowed(field)}",
+                              where) from None
+    else:
+        raise ConfigError(f"{show(value)} is not a number; give {allowed(field)}", where)
+    if not math.isfinite(x):
+        raise ConfigError(f"{show(value)} is not a finite number; give {allowed(field)}",
+                          where)
+    return x
+
+
+def _integer(field, value, where: str) -> int:
+    """An int from 3, 1e6, 1.0e6 or "1e6"; refuses 2.5."""
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        return int(value)
+    if isinstance(value, str) and value.strip().lstrip("+-").isdigit():
+        return int(value)
+    x = _number(field, value, where)
+    if not float(x).is_integer():
+        raise ConfigError(f"{with_unit(field, value)} is not a whole number; give "
+                          f"{allowed(field)}", where)
+    return int(x)
+
+
+def in_range(field, x) -> bool:
+    """True when ``x`` (canonical unit) lies within the limits of ``field``."""
+    if field.low is not None and (x < field.low or (field.low_open and x == field.low)):
+        return False
+    if field.high is not None and (x > field.high or (field.high_open and x == field.high)):
+        return False
+    return True
+
+
+def _choice(field, value, where: str) -> str:
+    if isinstance(value, str) and value.strip().lower() in field.choices:
+        return value.strip().lower()
+    guess = did_you_mean(value.lower(), field.choices) if isinstance(value, str) else None
+    hint = f" (did you mean {guess}?)" if guess else ""
+    raise ConfigError(f"{show(value)} is not allowed; give {allowed(field)}{hint}", where)
+
+
+def check_scalar(field, value, where: str):
+    """Validate one scalar value of ``field`` and return it in the canonical unit.
+
+    Parameters
+    ----------
+    field : Field
+        Its kind is a dimension of :mod:`warpe_cl.units` (a string with a unit), or
+        ``"float"``, ``"int"``, ``"bool"``, ``"str"``, ``"choice"``.
+    value : object
+        As written in the YAML or on the command line (``"100 mm"``, ``1e6``, ``"1e6"``).
+    where : str
+        The key named by the error.
+
+    Returns
+    -------
+    object
+        A float in the canonical unit (quantities, ``"float"``), an int, a bool, a string,
+        a lower-case choice, or one of the words ``field.choices`` of a number (``auto``).
+
+    Raises
+    ------
+    ConfigError
+        One line: the value, what it counts and what is allowed, with a hint where one
+        helps (the units of a quantity, the closest choice).
+    """
+    kind = field.kind
+    if is_quantity(kind):
+        try:
+            x = parse_quantity(value, kind)
+        except UnitError as exc:
+            raise ConfigError(f"{exc.problem}; give {allowed(field)} "
+                              f"(units: {unit_list(kind)})", where) from None
+    elif kind in ("float", "int") and field.choices and isinstance(value, str) \
+            and value.strip().lower() in field.choices:
+        return value.strip().lower()
+    elif kind == "float":
+        x = float(_number(field, value, where))  # plain float, also from numpy
+    elif kind == "int":
+        x = _integer(field, value, where)
+    elif kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{show(value)} is not allowed; give true or false", where)
+        return value
+    elif kind == "str":
+        if not isinstance(value, str) or (not value.strip() and field.default != ""):
+            raise ConfigError(f"{show(value)} is not allowed; give {allowed(field)}"
+                              + (' (quote it: "...")' if isinstance(value, (int, float))
+                                 else ""), where)
+        return value
+    elif kind == "choice":
+        return _choice(field, value, where)
+    else:  # pragma: no cover - table error
+        raise TypeError(f"{field.key}: {kind} is not a scalar kind")
+    if not in_range(field, x):
+        raise ConfigError(f"{with_unit(field, value)} is not allowed; give {allowed(field)}",
+                          where)
+    return x
+
+
+# --------------------------------------------------------------------------- YAML reading
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that refuses duplicate keys instead of silently keeping the last."""
+
+
+def _construct_mapping(loader, node, deep=False):
+    loader.flatten_mapping(node)
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        try:
+            duplicate = key in seen
+            seen.add(key)
+        except TypeError:  # unhashable key: let SafeLoader report it
+            break
+        if duplicate:
+            raise yaml.constructor.ConstructorError(
+                None, None, f'the key "{key}" is given twice', key_node.start_mark)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def load_yaml(text: str, source: str | None = None):
+    """The YAML document in ``text``, read safely; a duplicate key is an error.
+
+    Raises
+    ------
+    ConfigError
+        ``not valid YAML (line L, column C: the key "shots" is given twice)`` and the like,
+        naming ``source``.
+    """
+    try:
+        return yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = getattr(exc, "problem", None) or str(exc)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        raise ConfigError(f"not valid YAML ({where}{problem})", source=source) from None
+
+
+def read_yaml(path, what: str = "a preset", empty: str | None = None):
+    """The YAML document in the file ``path``; file-level problems become ConfigErrors.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    what : str
+        What the file should be, for messages (``"a preset"``, ``"an instrument preset"``).
+    empty : str, optional
+        The end of the message for an empty file (default: none, the document is None).
+
+    Raises
+    ------
+    ConfigError
+        No such file, a folder, not UTF-8, unreadable, not valid YAML (a duplicate key
+        included), or empty when ``empty`` is given; one line naming the file.
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ConfigError("no such file", source=path)
+    if os.path.isdir(path):
+        raise ConfigError(f"is a folder, not {what} file", source=path)
+    try:
+        with open(path, encoding="utf-8") as stream:
+            text = stream.read()
+    except UnicodeDecodeError:
+        raise ConfigError(f"not UTF-8 text; {what} is a YAML text file", source=path) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot be read ({exc.strerror})", source=path) from None
+    document = load_yaml(text, path)
+    if document is None and empty is not None:
+        raise ConfigError(f"the file is empty; {empty}", source=path)
+    return document

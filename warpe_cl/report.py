@@ -1,0 +1,213 @@
+"""The text reports of the command line: what ``warpe-cl`` prints about a run, an instrument,
+the devices and a sweep.
+
+Every function here returns text (a line or a list of lines) and prints nothing; the commands
+of :mod:`warpe_cl.cli` decide where and when the lines go (``--quiet``, flushing between slow
+steps). Times are in s, lengths in the units named in each line.
+"""
+from __future__ import annotations
+
+__all__ = ["point_text", "derived_lines", "run_header", "scenario_lines", "instrument_lines",
+           "device_status_lines", "verdict_line", "device_choice_line", "sweep_start_line",
+           "sweep_summary_lines"]
+
+
+def point_text(point: dict) -> str:
+    """A sweep point as ``key=value, key=value`` (empty for a preset without sweep)."""
+    return ", ".join(f"{k}={v}" for k, v in point.items())
+
+
+# --------------------------------------------------------------------------- run, show-config
+
+def derived_lines(d: dict) -> list:
+    """The derived radiative parameters of one scenario, indented two spaces.
+
+    Parameters
+    ----------
+    d : dict
+        :func:`warpe_cl.radiative.radiative_parameters`: ``extinction_per_m`` in m-1,
+        ``thickness_m`` (printed in mm), ``first_bf_time_ns`` in ns, ``grain_size_m`` of each
+        species (printed in um), ``number_density_per_m3`` in m-3.
+
+    Returns
+    -------
+    list of str
+    """
+    return [
+        f"  tau0              {d['tau0']:.6g}",
+        f"  omega             {d['omega']:.6g}",
+        f"  extinction        {d['extinction_per_m']:.6g} m-1",
+        f"  n_eff, k_eff      {d['n_eff']:.6g}, {d['k_eff']:.4g}",
+        f"  thickness         {d['thickness_m'] * 1e3:.6g} mm",
+        f"  first BF time     {d['first_bf_time_ns']:.6g} ns  (2 h n_eff / c)",
+        f"  specular R0       {d['specular_r0']:.6g}",
+    ] + ([f"  porosity factor   {d['porosity_factor']:.6g}   matrix absorption "
+          f"{d['matrix_absorption_per_m']:.6g} m-1"] if "porosity_factor" in d else []) + [
+        f"  {sp['material']:<8s}          rho_v {sp['proportion']:.4g}  d {sp['grain_size_m'] * 1e6:.4g} um"
+        f"  N {sp['number_density_per_m3']:.4g} m-3  n_rel {sp['n_rel']:.5g}  w {sp['w']:.6g}"
+        for sp in d.get("species", [])]
+
+
+def run_header(cfg, scenarios: int) -> str:
+    """The first line of ``warpe-cl run``: preset, source, scenarios, rays each, seed."""
+    return (f"warpe-cl run: {cfg.get('name')} ({cfg.source}), {scenarios} scenario(s), "
+            f"{int(cfg.get('simulation.photons')):,} rays each, seed {cfg.get('simulation.seed')}")
+
+
+def scenario_lines(ds) -> list:
+    """What one simulated scenario gave: device, fates, components, wall time (s) and speed.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        One scenario of :func:`warpe_cl.api.simulate_point`.
+
+    Returns
+    -------
+    list of str
+    """
+    photons = int(ds["photons"])
+    wall = float(ds["wall_time"])
+    events = int(ds["scattering_events"])
+    return [
+        f"  device            {ds.attrs.get('opencl_device', '?')} ({ds.attrs.get('engine')}, "
+        f"{ds.attrs.get('precision')} precision)",
+        "  fates             " + "  ".join(
+            f"{f} {v:.5f}" for f, v in zip(ds["fate"].values, ds["fate_fraction"].values)),
+        "  components        " + "  ".join(
+            f"{c} {v:.5f}" for c, v in zip(ds["component"].values, ds["fraction"].values)),
+        f"  time              {wall:.2f} s   {photons / wall:,.0f} photons/s   "
+        f"{events / wall:,.0f} scattering events/s",
+    ]
+
+
+# --------------------------------------------------------------------------- instrument
+
+def instrument_lines(ds) -> list:
+    """What the instrument recorded, case by case: photons at the aperture per part, the
+    expected peak (mV) and noise, or photons recorded per shot, detection, range and width (ns).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A result of :func:`warpe_cl.instrument.apply_instrument`.
+
+    Returns
+    -------
+    list of str
+    """
+    import numpy as np
+    from .instrument.plot import cases_of
+    lines = [f"instrument {ds.attrs.get('instrument_name')}: altitude "
+             f"{ds.attrs.get('instrument_geometry_altitude')}, roughness "
+             f"{ds.attrs.get('instrument_geometry_roughness')}, {ds.sizes.get('shot', 0)} shots"]
+    for label, sc in cases_of(ds):
+        parts = "  ".join(f"{p} {v:.3g}" for p, v in zip(sc["part"].values,
+                                                       sc["photons_at_aperture"].values))
+        lines.append(f"  {label or 'scenario'}")
+        lines.append(f"    photons at aperture   {parts}")
+        if "signal_mv" in sc:
+            lines.append(
+                f"    expected peak         {float(sc['expected_analog_mv'].max()):.4g} mV "
+                f"(unclipped), noise {float(sc['noise_mv']):.3g} mV, saturated shots "
+                f"{float(sc['saturated'].mean()):.2f}")
+        else:
+            lines.append(f"    photons recorded      {float(sc['photon_count'].mean()):.3g} "
+                         f"per shot")
+        detected = sc["detected"].any()
+        lines.append(
+            f"    detected              {float(sc['detected'].mean()):.2f} of shots; range "
+            f"{float(np.nanmean(sc['range_time'])) if detected else float('nan'):.3g} ns, "
+            f"width {float(np.nanmean(sc['pulse_width'])) if detected else float('nan'):.3g} ns")
+    return lines
+
+
+# --------------------------------------------------------------------------- devices
+
+def device_status_lines(reason: str | None, status=None) -> list:
+    """The lines under a device of ``warpe-cl devices``: why it is not usable, or its
+    qualification (lanes, speed on scene B1, date, seconds taken) and the widths that failed.
+
+    Parameters
+    ----------
+    reason : str or None
+        Why the self-test program does not build (:func:`warpe_cl.device.probe`), or None.
+    status : optional
+        The device's qualification (:func:`warpe_cl.device.qualification`) where it builds.
+
+    Returns
+    -------
+    list of str
+    """
+    if reason is not None:
+        return [f"      NOT usable: {reason}"]
+    if not status.usable:
+        return [f"      NOT usable: {status.reason}"]
+    speed = (f"{status.events_per_s:.3g} scattering events/s on scene B1"
+             if status.events_per_s else "speed not measured")
+    return ([f"      qualified: {status.lanes} lane{'s' if status.lanes > 1 else ''}, {speed} "
+             f"(single precision; checked {status.date or '?'} in {status.seconds or 0:.1f} s)"]
+            + [f"      failed at {lanes} lanes: {why}" for lanes, why in status.failures])
+
+
+def verdict_line(combo, lanes: int, failures: list) -> str:
+    """One kernel combination of ``warpe-cl devices --all``: its widest qualified lane width
+    (0: none) and the widths that failed, with why."""
+    verdict = (f"{lanes} lanes" if lanes else "NOT usable") + "".join(
+        f"; failed at {w}: {r}" for w, r in failures)
+    return f"        {combo.label:26s} {verdict}"
+
+
+def device_choice_line(spec: str, info) -> str:
+    """The last line of ``warpe-cl devices``: the device ``spec`` resolves to."""
+    return (f"--device {spec} picks {info.spec} ({info.device}, {info.platform} "
+            f"{info.platform_version})")
+
+
+# --------------------------------------------------------------------------- sweep
+
+def sweep_start_line(summary, name: str, source, shard, to_run: int, engine: str) -> str:
+    """The first line of ``warpe-cl sweep``: the grid, this shard's part, what is already done,
+    what runs where, and the database folder.
+
+    Parameters
+    ----------
+    summary : SweepSummary
+        Before any scenario ran (:class:`warpe_cl.sweep.SweepSummary`).
+    name, source : str
+        The preset's name and file.
+    shard : (int, int) or None
+    to_run : int
+        Scenarios this run computes.
+    engine : str
+        Where they run (:attr:`warpe_cl.workers.Workers.text`).
+    """
+    return (f"warpe-cl sweep: {name} ({source}), {summary.total} scenario(s) in the grid"
+            + ("" if shard is None else f", {summary.owned} in shard {shard[0]}/{shard[1]}")
+            + f"; {summary.skipped} already done, {to_run} to run, "
+              f"{len(summary.failed)} invalid; {engine}; database {summary.folder}")
+
+
+def sweep_summary_lines(summary) -> list:
+    """The end of ``warpe-cl sweep``: counts, wall time (s), photons/s, the grid's scenarios in
+    the folder, and the combined file where one was written.
+
+    Parameters
+    ----------
+    summary : SweepSummary
+        What :func:`warpe_cl.sweep.run_sweep` returned.
+
+    Returns
+    -------
+    list of str
+    """
+    rate = summary.photons / summary.wall_time_s if summary.wall_time_s > 0 else 0.0
+    lines = [f"warpe-cl sweep: {summary.done} done, {summary.skipped} skipped (already in the "
+             f"folder), {len(summary.failed)} failed"
+             + (f", {summary.pending} not finished" if summary.pending else "")
+             + f"; {summary.wall_time_s:.2f} s, {rate:,.0f} photons/s; "
+               f"{summary.finished_in_folder} of {summary.total} scenarios of the grid in "
+               f"{summary.folder}"]
+    if summary.combined is not None:
+        lines.append(f"wrote {summary.combined} (all {summary.total} scenarios)")
+    return lines
