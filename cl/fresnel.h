@@ -4,7 +4,7 @@
 #define WARPE_FRESNEL_H
 
 /* From vacuum into a medium of complex index m = n + ik, at incidence cos(theta) = mu.
- * Hapke (1993) eqs. 4.48-4.53 (physics.md §3.4):
+ * Hapke (1993) eqs. 4.48-4.53 (docs/physics.md §3.4):
  *   a = n^2 - k^2 - sin^2(theta), b = sqrt(a^2 + 4 n^2 k^2),
  *   G1 = sqrt((a + b)/2), G2 = sqrt((b - a)/2),
  *   R_perp = [(mu - G1)^2 + G2^2] / [(mu + G1)^2 + G2^2],
@@ -26,7 +26,7 @@ inline VREAL fresnel_external(VREAL mu, REAL n, REAL k)
 }
 
 /* From inside a medium of real index n into vacuum at incidence cos(theta) = mu, below the
- * critical angle (the caller handles total internal reflection). Real n inside (physics.md
+ * critical angle (the caller handles total internal reflection). Real n inside (docs/physics.md
  * §3.5, A12): cos(theta_t) = sqrt(1 - n^2 (1 - mu^2)),
  *   r_s = (n mu - cos_t)/(n mu + cos_t), r_p = (mu - n cos_t)/(mu + n cos_t), R = (r_s^2 + r_p^2)/2. */
 inline VREAL fresnel_internal(VREAL mu, REAL n)

@@ -3,7 +3,7 @@
  * Structure switches (set by the host as -D options, never physical values):
  *   WARPE_DOUBLE  compute the walk in double precision (default: single).
  * The single-precision walk keeps its path length L in a compensated (Kahan) float sum
- * (walk.cl, physics.md A15); nothing in it computes in double.
+ * (walk.cl, docs/physics.md A15); nothing in it computes in double.
  */
 #ifndef WARPE_REAL_H
 #define WARPE_REAL_H

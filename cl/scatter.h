@@ -1,8 +1,8 @@
-/* scatter.h: sampling of directions (physics.md §5.4, §5.5), lane by lane (lanes.h). */
+/* scatter.h: sampling of directions (docs/physics.md §5.4, §5.5), lane by lane (lanes.h). */
 #ifndef WARPE_SCATTER_H
 #define WARPE_SCATTER_H
 
-/* Henyey-Greenstein deflection cosine from one uniform U (physics.md §5.4, docs/walk.md §3),
+/* Henyey-Greenstein deflection cosine from one uniform U (docs/physics.md §5.4, docs/walk.md §3),
  * in the form that has no cancellation for small |g|: with s = 2U - 1, 1 - s^2 = 4U(1 - U)
  * and d = 1 + g s = (1 - g) + 2gU,
  *   cos(Theta) = s + g (1 - s^2) (3 + 2 g s - g^2) / (2 d^2),
@@ -19,7 +19,7 @@ inline VREAL hg_cos_theta(REAL g, VREAL U)
 }
 
 /* Turn the unit direction u by the polar angle acos(cos_theta) and azimuth psi, given as
- * (cos psi, sin psi) (MCML, Wang, Jacques & Zheng 1995; physics.md §5.4). Both branches are
+ * (cos psi, sin psi) (MCML, Wang, Jacques & Zheng 1995; docs/physics.md §5.4). Both branches are
  * evaluated and each lane keeps its own (|uz| > 0.99999: the vertical formula). */
 inline void rotate_direction(VREAL *ux, VREAL *uy, VREAL *uz, VREAL cos_theta,
                              VREAL cos_psi, VREAL sin_psi)
@@ -39,7 +39,7 @@ inline void rotate_direction(VREAL *ux, VREAL *uy, VREAL *uz, VREAL cos_theta,
     y = SEL(gy, vy, vertical);
     z = SEL(gz, vz, vertical);
 #ifndef WARPE_DOUBLE
-    /* float32 drifts off the unit sphere over long walks: renormalise (physics.md §5.4) */
+    /* float32 drifts off the unit sphere over long walks: renormalise (docs/physics.md §5.4) */
     VREAL inv = rsqrt(x * x + y * y + z * z);
     x *= inv; y *= inv; z *= inv;
 #endif

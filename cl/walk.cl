@@ -2,7 +2,7 @@
  * time (lanes.h), and the kernel that tallies their exits.
  *
  * The rules, event by event, are docs/walk.md (cited "walk.md §N" below); the physics behind
- * them is physics.md §5-§6, which walk.md cites rule by rule ("physics.md §N" below).
+ * them is docs/physics.md §5-§6, which walk.md cites rule by rule ("docs/physics.md §N" below).
  * Structure switches (-D): WARPE_TEXTURE_SLAB or WARPE_TEXTURE_GRANULAR (exactly one),
  * WARPE_DOUBLE (precision), WARPE_LANES (photons per work-item), WARPE_WEIGHTED (survival
  * weighting, walk.md §6), WARPE_RECORD (one record per photon, for the parity tests); the
@@ -36,8 +36,8 @@
 /* The scenario's inputs (walk.md §1), the same for every ray of a launch. */
 typedef struct {
     REAL h, E, g, n, k;          /* thickness (m), extinction (1/m), HG g, index n + ik */
-    REAL L_max;                  /* path-length cap, m (physics.md §5.8) */
-    uint max_flights;            /* flight cap (physics.md §5.8) */
+    REAL L_max;                  /* path-length cap, m (docs/physics.md §5.8) */
+    uint max_flights;            /* flight cap (docs/physics.md §5.8) */
     int bottom_fresnel;          /* slab: a vacuum gap above the floor (else optical contact) */
     ulong omega_words;           /* analog: absorbed in the medium iff x1 >= it (walk.md §2) */
     ulong albedo_words;          /* analog: absorbed by the floor iff its word >= it */
@@ -110,8 +110,9 @@ typedef struct {
     int n_edges;
     REAL cos_fov[N_COMPONENTS];  /* cos of each component's FOV; -1: any angle */
     int rule_time_window;        /* component rule time_window (else history) */
-    REAL t1;                     /* first back-and-forth time 2 h n / c, ns (physics.md §5.7) */
-    REAL ns_per_m;               /* t = L n / c (physics.md §5.7, seed eq. 4) */
+    REAL t1;                     /* first back-and-forth time 2 h n / c, ns
+                                  * (docs/physics.md §5.7) */
+    REAL ns_per_m;               /* t = L n / c (docs/physics.md §5.7, seed eq. 4) */
 } tallies_t;
 
 /* A work-item's statistics, written to item_stats at the end. */
@@ -191,7 +192,8 @@ WALK_STEP VMASK floor_toll(VMASK m, VREAL u, VUINT x, const scene_t *sc, rays_t 
 
 /* Every lane without a ray takes the next photon of the launch from the counter next_photon
  * (walk.md §5), launched at the top of the layer, straight down, with nothing done yet
- * (walk.md §3 step 1, physics.md §5.1). Sets *exhausted once the launch has no photon left. */
+ * (walk.md §3 step 1, docs/physics.md §5.1). Sets *exhausted once the launch has no photon
+ * left. */
 WALK_STEP void refill_lanes(rays_t *r, int *exhausted, __global uint *next_photon,
                          uint n_photons, uint base_lo, uint base_hi, IREAL phase_start)
 {
@@ -240,7 +242,7 @@ WALK_STEP void refill_lanes(rays_t *r, int *exhausted, __global uint *next_photo
 #endif
 }
 
-/* FLIGHT, the free flight of the lanes in fl (walk.md §3 steps 3.1-3.5, physics.md §5.3,
+/* FLIGHT, the free flight of the lanes in fl (walk.md §3 steps 3.1-3.5, docs/physics.md §5.3,
  * §5.7-§5.8): the flight cap; the optical step -ln u0 and the physical step s = l/E (seed
  * eq. 3); a collision if s is shorter than the way to the boundary, else the boundary; the path
  * L += s and its cap L_max; weighted, exp(-mu_a s) on the weight of every flight (walk.md §6).
@@ -261,13 +263,13 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
 #ifdef WARPE_DOUBLE
     r->Ls = SEL(r->Ls, r->Ls + len, fl);
 #else
-    {   /* compensated (Kahan) sum of the path: physics.md A15 */
+    {   /* compensated (Kahan) sum of the path: docs/physics.md A15 */
         const VREAL y = len - r->Lc, sum = r->Ls + y;
         r->Lc = SEL(r->Lc, (sum - r->Ls) - y, fl);
         r->Ls = SEL(r->Ls, sum, fl);
     }
 #endif
-    const VMASK over = fl & (r->Ls > sc->L_max);                   /* physics.md §5.8 */
+    const VMASK over = fl & (r->Ls > sc->L_max);                   /* docs/physics.md §5.8 */
     finish(e, over, FATE_TERMINATED);
     c &= !over;
     b &= !over;
@@ -279,7 +281,7 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
 }
 
 /* The lanes in bnd at a boundary, with the words u1 (x1), u2 and the azimuth (cos psi,
- * sin psi) = u3 of their block (walk.md §3.1-§3.2, physics.md §5.5-§5.6). Slab: at the top
+ * sin psi) = u3 of their block (walk.md §3.1-§3.2, docs/physics.md §5.5-§5.6). Slab: at the top
  * and, over a vacuum gap, at the bottom, total internal reflection or reflect iff
  * u1 <= R_int(mu) (walk.md §3.3); out at the top with cos theta_e by Snell, down into the gap
  * at the bottom. Granular: no interface, exit at cos theta_e = -uz. A floor in optical contact
@@ -307,7 +309,7 @@ WALK_STEP void reach_boundary(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos
     r->uz = SEL(r->uz, -r->uz, up);
     r->n_top += ONE(up);
     const VMASK out = top & !reflect;
-    /* Snell: cos theta_e = sqrt(1 - n^2 (1 - mu^2)) (physics.md §3.5) */
+    /* Snell: cos theta_e = sqrt(1 - n^2 (1 - mu^2)) (docs/physics.md §3.5) */
     r->cos_exit = SEL(r->cos_exit, sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0)),
                       out);
     finish(e, out, FATE_ESCAPED);
@@ -328,7 +330,7 @@ WALK_STEP void reach_boundary(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos
 
 #ifdef WARPE_TEXTURE_SLAB
 /* GAP, one reflection of the lanes in gap by the floor below the slab's lower face (walk.md
- * §3.1, physics.md §5.5): the floor's toll on u0 (x0); a Lambertian direction in vacuum,
+ * §3.1, docs/physics.md §5.5): the floor's toll on u0 (x0); a Lambertian direction in vacuum,
  * mu_v = sqrt(u1), azimuth 2 pi u2; back to the floor iff u3 <= R_ext(mu_v; n, k), else
  * refracted into the slab (Snell, real part: sin theta_s = sin theta_v / n) and flights
  * resume. The gap adds no path length. */
@@ -350,7 +352,7 @@ WALK_STEP void gap_event(VMASK gap, VREAL u0, VUINT x0, VREAL u1, VREAL u2, VREA
 }
 #endif
 
-/* The component of an exit (walk.md §4, physics.md §6.1): specular; bf_direct without
+/* The component of an exit (walk.md §4, docs/physics.md §6.1): specular; bf_direct without
  * scattering or floor reflection; otherwise, by the history rule, bf_diffuse after a floor
  * reflection and scattering without one, or by the time-window rule bf_diffuse iff t >= t1. */
 WALK_STEP int exit_component(int fate, uint n_s, uint n_l, REAL t, const tallies_t *tally)
@@ -543,7 +545,8 @@ __kernel void walk(const uint seed, const ulong scenario,
     const uint key_lo = (uint)scenario, key_hi = (uint)(scenario >> 32);
     const REAL two_pi = (REAL)(2.0 * WARPE_PI);
 #ifdef WARPE_TEXTURE_SLAB
-    const VREAL R0 = fresnel_external((VREAL)1, n, k);  /* physics.md §5.2, normal incidence */
+    /* the specular reflectance at normal incidence (docs/physics.md §5.2) */
+    const VREAL R0 = fresnel_external((VREAL)1, n, k);
     const IREAL phase_start = PHASE_ENTRY;
 #else
     const IREAL phase_start = PHASE_FLIGHT;           /* granular: no entry event */
@@ -571,7 +574,7 @@ __kernel void walk(const uint seed, const ulong scenario,
         const VMASK in_flight = r.alive & (r.phase == (VMASK)PHASE_FLIGHT);
 
 #ifdef WARPE_TEXTURE_SLAB
-        /* ENTRY (walk.md §3 step 2, physics.md §5.2): specular iff u0 <= R0, recorded at
+        /* ENTRY (walk.md §3 step 2, docs/physics.md §5.2): specular iff u0 <= R0, recorded at
          * t = 0, theta_e = 0; else the ray enters, and flies from its next event */
         {
             const VMASK entry = r.alive & (r.phase == (VMASK)PHASE_ENTRY);
@@ -587,7 +590,7 @@ __kernel void walk(const uint seed, const ulong scenario,
         VREAL cos_psi, sin_psi;
         SINCOS(two_pi * u3, sin_psi, cos_psi);
 
-        /* collision (walk.md §3 step 3.4, physics.md §5.4): the medium's toll, then the HG
+        /* collision (walk.md §3 step 3.4, docs/physics.md §5.4): the medium's toll, then the HG
          * deflection (u2) and the azimuth (u3) */
         coll = medium_toll(coll, u1, x1, &sc, &r, &e);
         r.n_scat += ONE(coll);

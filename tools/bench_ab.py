@@ -31,16 +31,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+from _common import loadavg  # tools/ is first on sys.path when run as a script
+
 HERE = Path(__file__).resolve().parent
-
-
-def loadavg():
-    """The 1, 5 and 15 min load averages (None where /proc/loadavg is missing)."""
-    try:
-        with open("/proc/loadavg") as fh:
-            return [float(v) for v in fh.read().split()[:3]]
-    except OSError:
-        return None
 
 
 def tree_env(tree: Path) -> dict:

@@ -253,7 +253,7 @@ class WalkParams:
 
     @property
     def first_bf_time(self) -> float:
-        """First back-and-forth time t1 = 2 h n / c, ns (physics.md §5.7)."""
+        """First back-and-forth time t1 = 2 h n / c, ns (docs/physics.md §5.7)."""
         return 2.0 * self.thickness * self.n / C_M_PER_NS
 
     @property

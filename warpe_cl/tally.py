@@ -1,4 +1,4 @@
-"""From integer counts to physical quantities: the normalisations of physics.md §7.
+"""From integer counts to physical quantities: the normalisations of docs/physics.md §7.
 
 Nothing here knows how the counts were made (OpenCL engine or NumPy reference).
 """
@@ -15,7 +15,7 @@ DIFFUSE = tuple(COMPONENTS.index(c) for c in ("bf_diffuse", "scattering"))
 
 
 def fov_solid_angle(fov_deg: float, convention: str = "cone") -> float:
-    """Solid angle of a numerical field of view, sr (physics.md §7.1, A10).
+    """Solid angle of a numerical field of view, sr (docs/physics.md §7.1, A10).
 
     ``cone``: 2π(1 − cos θ) (0.0086106 sr at 3°, 0.137303 sr at 12°);
     ``projected``: π sin²θ, with which a Lambertian surface reads exactly A/π.
@@ -27,18 +27,18 @@ def fov_solid_angle(fov_deg: float, convention: str = "cone") -> float:
 
 
 def lobe_solid_angle(lobe_deg: float) -> float:
-    """Ω_lobe = π tan²(θ_L), sr: the specular scaling of physics.md §7.3.
+    """Ω_lobe = π tan²(θ_L), sr: the specular scaling of docs/physics.md §7.3.
 
     The seed's peak height R = N_spec·r_ap/(N·Ω·Δt), with r_ap = (A_r/2)²/(H tan θ_L)² and Ω the
     receiver's solid angle π(A_r/2)²/H² seen from the ground, is F/(Ω_lobe·Δt): the altitude H
-    and the aperture A_r cancel (physics.md A9). 5.98e-5 sr for θ_L = 0.25°.
+    and the aperture A_r cancel (docs/physics.md A9). 5.98e-5 sr for θ_L = 0.25°.
     """
     return float(np.pi * np.tan(np.radians(lobe_deg)) ** 2)
 
 
 def reduce_counts(counts: Counts, params: WalkParams, *, solid_angle: str = "cone",
                   specular_lobe: float = 0.25, min_rays: int = 3) -> dict:
-    """The output variables of interface.md §5 as NumPy arrays.
+    """The output variables of docs/interface.md §5 as NumPy arrays.
 
     Parameters
     ----------
