@@ -44,6 +44,8 @@ def test_installed_kernel_folder_is_found():
 def test_kernel_folder_belongs_to_the_imported_package():
     """The kernels are read beside the package that is imported (``warpe_cl/cl`` installed,
     ``cl/`` in a checkout), never from another checkout that an editable install points at."""
+    from pathlib import Path
+
     import warpe_cl
     from warpe_cl.device import kernel_dir
     here = Path(warpe_cl.__file__).resolve().parent
