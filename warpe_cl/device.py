@@ -67,11 +67,11 @@ def assemble_source(names, folder: Path | None = None) -> str:
 def source_hash(names, options=(), folder: Path | None = None) -> str:
     """SHA-256 of a program: its files' names and contents, in order, then its build options.
 
-    This is the ``kernel_sha256`` of every output file. It identifies what the device
-    compiled -- the sources and the ``-D`` switches and layouts that select the machine code
-    (warpe_cl/engine.py build_options) -- and nothing else: not the folder the sources were
-    read from (the ``#line`` paths of :func:`assemble_source`), so the same kernel has the
-    same hash in every checkout and installation.
+    It identifies what is compiled -- the sources, and the ``-D`` options given -- and nothing
+    else: not the folder the sources were read from (the ``#line`` paths of
+    :func:`assemble_source`), so the same kernel has the same hash in every checkout and
+    installation. The ``kernel_sha256`` of the output files is this hash of the walk's files
+    and its layout macros (warpe_cl/engine.py ``walk_source_hash``).
 
     Parameters
     ----------
