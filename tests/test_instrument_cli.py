@@ -306,6 +306,7 @@ sweep:
 """
 
 
+@pytest.mark.slow
 def test_point_instrument_bits_are_the_same_every_way(tmp_path, capsys, engine):
     """A point's instrument variables are the same bits from `warpe-cl run` of the whole grid,
     from warpe_cl.simulate and from `warpe-cl sweep` (each scenario's file): the noise of a

@@ -65,6 +65,7 @@ def test_compare_records_catches_a_wrong_kernel(engine):
     assert qualify.compare_records(one_bin, ref, "double", False) is not None
 
 
+@pytest.mark.slow
 def test_the_session_device_passes_every_combination_in_process(engine):
     """The known-answer walk of every kernel combination passes on the device the suite runs
     on, at the lane width the engine walks (measure off: no timing in unit tests)."""
@@ -74,6 +75,7 @@ def test_the_session_device_passes_every_combination_in_process(engine):
         assert entry["passed"], (combo.label, lanes, entry["reason"])
 
 
+@pytest.mark.slow
 def test_a_crash_or_a_wrong_kernel_falls_back_and_says_so(engine, cache, monkeypatch):
     """16 lanes abort the child, 8 lanes compute wrong rays: the walk runs at 4 lanes, gives
     the reference's counts, and warns once in one line naming both failures."""
