@@ -126,6 +126,7 @@ def test_numpy_device_runs_without_opencl(tmp_path, capsys):
     assert rc == 0 and capsys.readouterr().out == ""
     ds = xr.load_dataset(out)
     assert ds.attrs["engine"] == "numpy" and int(ds.photons) == 3000
+    assert ds.attrs["precision"] == "double"      # the reference walk's, not the preset's single
 
 
 def test_sweep_preset_gives_a_scenario_dimension(tmp_path, capsys):

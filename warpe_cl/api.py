@@ -179,7 +179,7 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
         "source": str(cfg.source),
         "seed": int(params.seed),
         "scenario_key": format_key(params.scenario),
-        "precision": precision,
+        "precision": getattr(engine, "fixed_precision", None) or precision,
         "mode": cfg.get("simulation.mode"),
         "texture": params.texture,
         "bottom_interface": params.bottom_interface if params.texture == "slab" else "none",

@@ -629,6 +629,8 @@ class ReferenceEngine:
 
     name = "numpy"
     kernel_hash = ""
+    #: The precision every reference walk runs in, whatever simulation.precision asks.
+    fixed_precision = "double"
     provenance = {"opencl_platform": "none", "opencl_device": "numpy reference walk",
                   "opencl_driver": "none", "opencl_device_type": "none"}
 
