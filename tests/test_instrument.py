@@ -16,34 +16,8 @@ from warpe_cl.instrument import adc, apply_instrument, detection, detector, elec
     footprint, load_instrument, photon_counting, pulse, radiometry, specular, speckle
 from warpe_cl.instrument.chain import shot_rng
 from warpe_cl.instrument.grid import convolve, deposit, make_grid, rebin_density
-from warpe_cl.params import COMPONENTS
 
-from conftest import LOG_EDGES
-
-
-def synthetic_surface(diffuse_integral=0.0, tau=5.0, f_spec=0.0, f_bf=0.0, t_bf=14.0357,
-                      wavelength="1064 nm", photons=10**6, seed=3, scenarios=None):
-    """A surface result: R_d(t) = diffuse_integral · exp(−t/τ)/τ in the scattering component
-    (sr⁻¹ ns⁻¹), specular and BF-direct fractions as ray counts."""
-    edges = LOG_EDGES
-    cdf = 1.0 - np.exp(-edges / tau)
-    refl = np.zeros((4, edges.size - 1))
-    refl[3] = diffuse_integral * np.diff(cdf) / (cdf[-1] - cdf[0]) / np.diff(edges)
-    counts = np.zeros((4, edges.size - 1), np.int64)
-    counts[0, 0] = round(f_spec * photons)
-    counts[1, np.searchsorted(edges, t_bf) - 1] = round(f_bf * photons)
-    ds = xr.Dataset(
-        {"time_edges": ("time_edge", edges), "reflectance": (("component", "time"), refl),
-         "ray_count": (("component", "time"), counts), "photons": ((), np.int64(photons))},
-        coords={"component": list(COMPONENTS), "time": np.sqrt(edges[:-1] * edges[1:])},
-        attrs={"config": f"wavelength: {wavelength}\n", "seed": seed, "first_bf_time_ns": t_bf,
-               "name": "synthetic"})
-    if scenarios:
-        ds = xr.concat([ds] * scenarios, dim="scenario")
-        ds["time_edges"] = ("time_edge", edges)
-        ds["scenario_key"] = ("scenario", np.arange(scenarios) + 11)
-    return ds
-
+from conftest import LOG_EDGES, synthetic_surface
 
 QUIET = {"electronics.current_noise": "0 pA/rtHz", "detector.bulk_dark_current": "0 nA",
          "detector.surface_dark_current": "0 nA", "speckle.modes": 0}

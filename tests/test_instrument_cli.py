@@ -9,7 +9,7 @@ import pytest
 import xarray as xr
 
 from warpe_cl.cli import main
-from test_instrument import synthetic_surface
+from conftest import synthetic_surface
 
 LAMBERT = """\
 name: lambert
@@ -355,3 +355,15 @@ def test_combined_scenarios_pad_photon_time_tags():
     assert out["photon_time"].shape == (2, 2, 5) and out["photon_time"].dtype == np.float32
     assert np.isnan(out["photon_time"].values[0, :, 3:]).all()
     assert (out["photon_time"].values[1] == 2.0).all()
+
+
+def test_swept_altitude_is_reported_per_scenario(tmp_path, capsys):
+    preset = tmp_path / "swept.yaml"
+    preset.write_text('name: swept\nmedium: {texture: granular, thickness: "10 mm", '
+                      'radiative: {tau0: 1.0, omega: 0.9, n: 1.3}}\nsimulation: {photons: 500}\n'
+                      'instrument: {name: bela, shots: 2}\n'
+                      'sweep: {instrument.altitude: ["400 km", "500 km"]}\n')
+    assert main(["run", str(preset), "--out", str(tmp_path / "s.nc")]) == 0
+    out = capsys.readouterr().out
+    assert "instrument bela: altitude per scenario, roughness 0.1 deg, 2 shots" in out
+    assert "None" not in out

@@ -98,9 +98,10 @@ def instrument_lines(ds) -> list:
     """
     import numpy as np
     from .instrument.plot import cases_of
-    lines = [f"instrument {ds.attrs.get('instrument_name')}: altitude "
-             f"{ds.attrs.get('instrument_geometry_altitude')}, roughness "
-             f"{ds.attrs.get('instrument_geometry_roughness')}, {ds.sizes.get('shot', 0)} shots"]
+    def attr(key):   # a value that differs between scenarios is dropped from a combined file
+        return ds.attrs.get(f"instrument_{key}", "per scenario")
+    lines = [f"instrument {attr('name')}: altitude {attr('geometry_altitude')}, roughness "
+             f"{attr('geometry_roughness')}, {ds.sizes.get('shot', 0)} shots"]
     for label, sc in cases_of(ds):
         parts = "  ".join(f"{p} {v:.3g}" for p, v in zip(sc["part"].values,
                                                        sc["photons_at_aperture"].values))
