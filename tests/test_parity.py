@@ -15,6 +15,7 @@ import pytest
 from scipy import stats
 
 from conftest import medium
+from warpe_cl.params import RECORD_INT_COLUMNS
 from warpe_cl.reference import simulate_reference
 
 MEDIA = {
@@ -29,8 +30,7 @@ MEDIA = {
     "granular_time_window": dict(texture="granular", extinction=150.0, omega=0.99, g=0.8,
                                  n=1.27, k=0.0, albedo=0.3, rule="time_window"),
 }
-EXACT_FIELDS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
-                "emergence_bin")
+EXACT_FIELDS = RECORD_INT_COLUMNS    # every integer column of a ray's record
 
 
 @pytest.mark.parametrize("lanes", [1, 8])

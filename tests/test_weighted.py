@@ -11,14 +11,13 @@ import pytest
 
 from conftest import LAMBDA, SCATTERING, medium
 from warpe_cl import radiative
-from warpe_cl.params import C_M_PER_NS, fixed_point, fixed_to_float
+from warpe_cl.params import C_M_PER_NS, RECORD_INT_COLUMNS, fixed_point, fixed_to_float
 from warpe_cl.reference import simulate_reference
 from warpe_cl.tally import reduce_counts
 
 CO2 = dict(n=1.4026, k=8.47e-10)
 H2O = dict(n=1.30042, k=1.272e-6)
-EXACT_FIELDS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
-                "emergence_bin")
+EXACT_FIELDS = RECORD_INT_COLUMNS    # every integer column of a ray's record
 
 
 def test_fixed_point_is_exact_and_ordered():

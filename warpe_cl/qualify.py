@@ -43,6 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .params import RECORD_INT_COLUMNS, TEXTURES
+
 #: bump when the check itself changes meaning (the hash of this file is in the key as well)
 QUALIFY_VERSION = 1
 #: the lane widths a CPU falls back through (docs/walk.md §5); GPUs walk one ray per work-item
@@ -71,9 +73,10 @@ class Combo:
 
     @classmethod
     def parse(cls, text: str) -> "Combo":
+        from .config.schema import FIELDS
         texture, precision, mode = text.split(":")
-        if texture not in ("slab", "granular") or precision not in ("single", "double") \
-                or mode not in ("analog", "weighted"):
+        if texture not in TEXTURES or precision not in FIELDS["simulation.precision"].choices \
+                or mode not in FIELDS["simulation.mode"].choices:
             raise ValueError(f"bad combination {text!r}")
         return cls(texture, precision, mode == "weighted")
 
@@ -85,7 +88,7 @@ RANK_COMBO = Combo("slab", "single", False)
 def all_combos(fp64: bool) -> list:
     """Every combination a device can be asked for."""
     return [Combo(t, p, w) for p in (("single", "double") if fp64 else ("single",))
-            for t in ("slab", "granular") for w in (False, True)]
+            for t in TEXTURES for w in (False, True)]
 
 
 # --------------------------------------------------------------------------------------------
@@ -124,8 +127,7 @@ def _scenes(combo: Combo) -> dict:
     return out
 
 
-EXACT_FIELDS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
-                "emergence_bin")
+EXACT_FIELDS = RECORD_INT_COLUMNS
 HIST_FIELDS = ("fates", "total", "early", "time_any", "time_in_fov", "angular")
 
 
