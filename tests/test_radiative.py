@@ -221,3 +221,20 @@ def test_several_species_with_their_own_grain_sizes():
     assert r["omega"] == pytest.approx(c_gamma * sca / (c_gamma * ext + a_m), rel=1e-12)
     assert r["n_eff"] == pytest.approx(1.30042 * 0.8 + (0.75 * 1.4026 + 0.25 * 1.92) * 0.2)
     assert r["tau0"] == pytest.approx(0.5 * r["extinction_per_m"])
+
+
+def test_equivalent_slab_absorbs_more_than_a_single_pass():
+    """docs/physics.md §4.4, decision A16: for 100 um ice at compacity 0.4, (1 - omega) E =
+    16.2 m-1 where a single pass per grain, E alpha <D>, gives 9.6 m-1; the ratio is the
+    internal-reflection factor (1 - S_e)/(1 - S_i) to O(alpha <D>) = 1.3e-3."""
+    from warpe_cl import load_preset, radiative_parameters
+    cfg = load_preset({"medium": {"texture": "granular", "thickness": "1000 mm", "compacity": 0.4,
+                                  "inclusions": [{"material": "H2O", "proportion": 1.0,
+                                                  "grain_size": "100 um"}]}})
+    d = radiative_parameters(cfg)
+    sp = d["species"][0]
+    alpha = 4 * np.pi * 1.272e-6 / 1064e-9
+    hapke = (1 - d["omega"]) * d["extinction_per_m"]
+    single = d["extinction_per_m"] * alpha * sp["mean_path_m"]
+    assert hapke == pytest.approx(16.19, abs=0.01) and single == pytest.approx(9.59, abs=0.01)
+    assert hapke / single == pytest.approx((1 - sp["s_e"]) / (1 - sp["s_i"]), rel=3e-3)
