@@ -161,6 +161,13 @@ def _template(kernel, k_origin, h, h_origin, step, interval):
     return np.interp(at, t, shape, left=0.0, right=0.0), peak, width
 
 
+def _continuous_template(kernel, k_origin, h, h_origin, step):
+    """p ⊗ g ⊗ h_e on the fine grid as a :class:`detection.Template` (time from the arrival)."""
+    shape = np.convolve(kernel, h)
+    t = (np.arange(shape.size) - (k_origin + h_origin)) * step
+    return detection.Template(shape, t)
+
+
 def _linear_mode(p, grid, amounts, kernel, k_origin, h, h_origin, signal_rate, dc_rate, modes,
                  shots, seed, scenario_key, geo, eta, per_reflectance):
     """§3.6–3.8: APD, electronics, ADC, detection."""
@@ -187,6 +194,7 @@ def _linear_mode(p, grid, amounts, kernel, k_origin, h, h_origin, signal_rate, d
                                            adc.lsb(full_scale, bits)) * 1e3          # mV
     baseline_mv = (g_t * detector.expected_current(dc_rate, gain, i_ds) + offset) * 1e3
     template, t_peak, t_width = _template(kernel, k_origin, h, h_origin, step, interval)
+    model = _continuous_template(kernel, k_origin, h, h_origin, step)
     m = p["detection.threshold_sigma"]
     threshold = m * sigma_n
     y_exp = detection.matched_filter(expected_mv - baseline_mv, template)
@@ -221,7 +229,7 @@ def _linear_mode(p, grid, amounts, kernel, k_origin, h, h_origin, signal_rate, d
         signal[s] = adc.quantise(adc.sample(t_fine, volts, at) * 1e3, full_scale * 1e3, bits)
         saturated[s] = bool(np.any(signal[s] >= top - 1e-9))
         det[s], arrival[s], width[s], peak[s] = detection.estimate(
-            at, signal[s] - baseline_mv, template, t_peak, threshold, t_width)
+            at, signal[s] - baseline_mv, template, t_peak, threshold, t_width, model)
     return {
         "sample_time": ts,
         "signal_mv": signal,

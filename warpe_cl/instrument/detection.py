@@ -1,12 +1,21 @@
-"""Per-shot detection, range and width: a matched-filter stand-in for BELA's unknown onboard
-algorithm [A], docs/instrument.md §3.8.
+"""Per-shot detection, range and width: a matched-filter detector with a least-squares template
+fit, a stand-in for BELA's unknown onboard algorithm [A], docs/instrument.md §3.8.
 
-The sampled waveform minus its known baseline is correlated with the expected pulse template
-(p ⊗ g ⊗ h_e, sampled at the shot's phase, unit norm); a shot is detected when the correlation
-peak exceeds m σ_n, σ_n being the per-sample noise (electronic, background and dark shot noise,
-quantisation). The range is the correlation peak refined by a parabola through its neighbours,
-minus the template's own peak time; the width is the rms width of the baseline-subtracted
-samples within ±3 template widths of it.
+Detection: the sampled waveform minus its known baseline is correlated with the expected pulse
+template (p ⊗ g ⊗ h_e, sampled every Δt_s around its peak, unit norm); a shot is detected when
+the correlation peak exceeds m σ_n, σ_n being the per-sample noise (electronic, background and
+dark shot noise, quantisation).
+
+Range: the correlation peak gives a coarse arrival (to ±Δt_s); the arrival τ is then the
+least-squares fit of A T(t_k − τ) to the samples within ±(3 σ_T + Δt_s), with T the template
+evaluated at continuous shifts on the fine grid (:class:`Template`), A solved in closed form and
+τ refined by bounded Brent minimisation. Unlike a parabola through the sampled correlation,
+this is unbiased whatever the sampling phase, and its spread reaches the Cramér–Rao bound
+σ_τ ≈ σ_n / (A √Σ T'(t_k − τ)²) of a known-shape fit.
+
+Width: with τ fixed, the same fit of A T_v(t_k − τ), the template with its variance changed by
+v (Gaussian broadening for v > 0), gives the rms width √(σ_T² + v) of the fitted model: it
+does not depend on the phase nor, unlike the rms of the noisy samples, on the SNR.
 
 Closed forms reported alongside: false-alarm probability per range gate N_gate ½erfc(m/√2) and
 P_D = ½erfc((V_th − V_peak)/(√2 σ_n)).
@@ -16,6 +25,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 from scipy.special import erfc
 
 from .radiometry import ELEMENTARY_CHARGE
@@ -49,30 +59,149 @@ def matched_filter(samples: np.ndarray, template: np.ndarray) -> np.ndarray:
     return np.correlate(padded, w, mode="valid")
 
 
+class Template:
+    """The expected pulse p ⊗ g ⊗ h_e as a continuous function of time, optionally with its
+    variance changed by v (ns²): broadened (v > 0) or narrowed (v < 0), docs/instrument.md §3.8.
+
+    Parameters
+    ----------
+    shape : array
+        The pulse shape on the fine grid (any unit; only its shape matters).
+    times : array
+        Times of ``shape``'s bins relative to the arrival it represents, ns (uniform, step δt).
+
+    Notes
+    -----
+    T(t − τ) is evaluated at any continuous shift τ by linear interpolation on the fine grid
+    (δt ≤ σ_T/10, so the interpolation error is O(δt² T'') ≪ 1e-3 of the peak and does not
+    depend on the sampling phase). v > 0: the shape convolved with a unit-area Gaussian of
+    variance v (its zero-padded spectrum times exp(−2π²f²v)); v < 0: the first-order
+    continuation T + (v/2) T'' of the same family (∂T/∂v = ½ T'', the heat equation), so that
+    narrower-than-template returns (noise) are not clipped to v = 0 and the estimate of v stays
+    unbiased around 0. The rms width of T_v is √(σ_T² + v) exactly for v ≥ 0 and to first
+    order for v < 0 (the second moment of T + (v/2)T'' is σ_T² + v).
+    """
+
+    def __init__(self, shape: np.ndarray, times: np.ndarray):
+        shape = np.asarray(shape, float)
+        self.step = float(times[1] - times[0])
+        self.mean = float(np.sum(shape * times) / shape.sum())
+        self.width = math.sqrt(float(np.sum(shape * (times - self.mean) ** 2) / shape.sum()))
+        pad = int(math.ceil(8.0 * self.width / self.step)) + 2   # room for v ≤ 4 σ_T²
+        self.times = times[0] + self.step * (np.arange(shape.size + 2 * pad) - pad)
+        self.shape = np.concatenate([np.zeros(pad), shape, np.zeros(pad)])
+        self._spectrum = np.fft.rfft(self.shape)
+        self._freq = np.fft.rfftfreq(self.shape.size, self.step)
+        self._curvature = np.fft.irfft(self._spectrum * -(2.0 * math.pi * self._freq) ** 2,
+                                       self.shape.size)
+        self._cache: dict[float, np.ndarray] = {0.0: self.shape}
+
+    def shaped(self, v: float) -> np.ndarray:
+        """The fine-grid shape with its variance changed by ``v`` (ns²), see the class notes."""
+        key = round(float(v), 9)
+        if key not in self._cache:
+            if len(self._cache) > 256:
+                self._cache = {0.0: self.shape}
+            if key > 0.0:
+                gain = np.exp(-2.0 * math.pi ** 2 * self._freq ** 2 * key)
+                self._cache[key] = np.fft.irfft(self._spectrum * gain, self.shape.size)
+            else:
+                self._cache[key] = self.shape + 0.5 * key * self._curvature
+        return self._cache[key]
+
+    def __call__(self, t: np.ndarray, tau: float, v: float = 0.0) -> np.ndarray:
+        """T_v(t − τ), ``t`` and τ in ns, ``v`` in ns²."""
+        return np.interp(np.asarray(t, float) - tau, self.times, self.shaped(v),
+                         left=0.0, right=0.0)
+
+
+def _profile_chi2(samples: np.ndarray, model: np.ndarray) -> tuple[float, float]:
+    """Least squares over the amplitude alone: (χ² minus Σs², best amplitude)."""
+    norm = float(model @ model)
+    if norm <= 0.0:
+        return 0.0, 0.0
+    proj = float(samples @ model)
+    return -proj * proj / norm, proj / norm
+
+
+def fit_arrival(times: np.ndarray, samples: np.ndarray, template: Template, coarse: float,
+                step: float) -> tuple[float, float]:
+    """Least-squares arrival τ (ns) and amplitude of ``samples`` ≈ A T(t − τ).
+
+    The amplitude is solved in closed form at each τ (profile χ²(τ) = Σs² − (Σ s T)²/Σ T²);
+    τ is refined by bounded Brent minimisation within ``coarse`` ± one sample interval, on the
+    continuously shifted template (not by interpolating the sampled correlation, whose bias
+    depends on the sampling phase when Δt_s is comparable to the pulse width).
+    """
+    def chi2(tau):
+        return _profile_chi2(samples, template(times, tau))[0]
+
+    res = minimize_scalar(chi2, bounds=(coarse - step, coarse + step), method="bounded",
+                          options={"xatol": 1e-5 * step})
+    tau = float(res.x)
+    return tau, _profile_chi2(samples, template(times, tau))[1]
+
+
+def fit_width(times: np.ndarray, samples: np.ndarray, template: Template, tau: float) -> float:
+    """rms width (ns) of the best-fitting reshaped template A T_v(t − τ), τ fixed:
+    √(σ_T² + v), v ∈ [−σ_T²/2, 4 σ_T²] (ns²) by bounded Brent minimisation of the profile χ²
+    (amplitude in closed form)."""
+    var = template.width ** 2
+
+    def chi2(v):
+        return _profile_chi2(samples, template(times, tau, v))[0]
+
+    res = minimize_scalar(chi2, bounds=(-0.5 * var, 4.0 * var), method="bounded",
+                          options={"xatol": 1e-5 * var})
+    return math.sqrt(var + float(res.x))
+
+
 def estimate(times: np.ndarray, samples: np.ndarray, template: np.ndarray, template_peak: float,
-             threshold: float, width_hint: float) -> tuple[bool, float, float, float]:
+             threshold: float, width_hint: float,
+             model: Template | None = None) -> tuple[bool, float, float, float]:
     """Detection, arrival time (ns), rms width (ns) and peak value of one baseline-subtracted
     sampled waveform.
 
     Parameters
     ----------
     times : array
-        Sample times of this shot, ns (uniform spacing).
+        Sample times of this shot, ns (uniform spacing Δt_s).
     samples : array
         Samples minus the baseline, V (or mV: ``threshold`` in the same unit).
     template : array
-        Expected pulse sampled on the same spacing, centred on its middle element.
+        Expected pulse sampled on the same spacing, centred on its middle element (matched
+        filter: detection and the coarse arrival).
     template_peak : float
         Time of the template's middle element relative to the arrival it represents, ns.
     threshold : float
         m σ_n in the unit of the samples × unit-norm template.
     width_hint : float
-        rms width of the template, ns (sets the width window).
+        rms width of the template, ns (sets the fit window: ±(3 σ_T + Δt_s) around the coarse
+        arrival).
+    model : Template, optional
+        The continuous template. Given: the arrival is the least-squares fit of A T(t − τ) and
+        the width that of A T_σx(t − τ) (phase-independent, §3.8). Not given: the old
+        estimators (parabola through the correlation peak, rms of the samples), kept only for
+        comparison.
+
+    Returns
+    -------
+    (detected, arrival_ns, width_ns, peak)
+        Arrival and width are NaN when the shot is not detected.
     """
     y = matched_filter(samples, template)
     k = int(np.argmax(y))
     detected = bool(y[k] > threshold)
     step = times[1] - times[0] if len(times) > 1 else 1.0
+    if not detected:
+        return False, math.nan, math.nan, float(samples.max())
+    if model is not None and len(times) > 2:
+        coarse = times[k] - template_peak
+        near = np.abs(times - (coarse + model.mean)) <= 3.0 * width_hint + step
+        if np.count_nonzero(near) >= 3:
+            arrival, _ = fit_arrival(times[near], samples[near], model, coarse, step)
+            width = fit_width(times[near], samples[near], model, arrival)
+            return True, float(arrival), float(width), float(samples.max())
     shift = 0.0
     if 0 < k < len(y) - 1:
         denom = y[k - 1] - 2.0 * y[k] + y[k + 1]
@@ -86,6 +215,4 @@ def estimate(times: np.ndarray, samples: np.ndarray, template: np.ndarray, templ
         width = math.sqrt(max(np.sum(w * (times[near] - mean) ** 2) / w.sum(), 0.0))
     else:
         width = math.nan
-    if not detected:
-        return False, math.nan, math.nan, float(samples.max())
     return True, float(arrival), float(width), float(samples.max())
