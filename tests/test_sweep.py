@@ -123,8 +123,12 @@ def test_local_sweep_equals_run(reference):
     tmp, _, run, local = reference
     _assert_same_bits(local, run)
     assert list(local["scenario"].values) == [0, 1, 2, 3]
-    assert list(local["medium.thickness"].values) == THICKNESS
-    assert list(local["medium.radiative.tau0"].values) == TAU0
+    assert list(local["medium.thickness_text"].values) == THICKNESS
+    assert list(local["medium.thickness"].values) == [0.005, 0.005, 0.01, 0.01]
+    assert local["medium.thickness"].attrs["units"] == "m"
+    assert list(local["medium.radiative.tau0"].values) == [float(t) for t in TAU0]
+    assert run["medium.thickness"].dtype.kind == "f" and run["medium.thickness"].attrs == \
+        local["medium.thickness"].attrs
     assert np.allclose(local["thickness_m"], [0.005, 0.005, 0.01, 0.01], rtol=1e-12)
     assert set(local.coords) == set(run.coords) and set(local.dims) == set(run.dims)
     manifest = _manifest(tmp / "local")
@@ -135,6 +139,41 @@ def test_local_sweep_equals_run(reference):
         assert rec["photons"] == 3000 and rec["wall_time_s"] > 0
     assert manifest["versions"]["warpe_cl"] and manifest["keys"] == ["medium.thickness",
                                                                       "medium.radiative.tau0"]
+
+
+def test_grid_unstacks_numerically(reference):
+    """open_database(grid=True) and as_grid: one dimension per swept key, sorted by value
+    (10 mm after 5 mm, not before it as text), the same from a run's file and a database."""
+    tmp, _, run, local = reference
+    for ds in (warpe_cl.open_database(tmp / "local", grid=True), warpe_cl.as_grid(run)):
+        assert ds["reflectance"].dims[:2] == ("thickness", "radiative_tau0")
+        assert list(ds["thickness"].values) == [0.005, 0.01]
+        assert list(ds["thickness_text"].values) == ["5 mm", "10 mm"]
+        assert ds["thickness"].attrs["sweep_key"] == "medium.thickness"
+        assert ds["thickness"].attrs["units"] == "m"
+        assert list(ds["radiative_tau0"].values) == [0.5, 2.0]   # tau0: the derived one
+        assert ds["scenario"].values.tolist() == [[0, 1], [2, 3]]
+        flat = run["reflectance"].values.reshape(2, 2, *run["reflectance"].shape[1:])
+        assert np.array_equal(ds["reflectance"].values, flat)
+
+
+def test_grid_names_and_order():
+    """Swept text sorts as numbers; a dotted key's last part names its dimension when unique."""
+    from warpe_cl import io
+    ds = [xr.Dataset({"a": ("t", np.arange(3.0) + i), "time_edges": ("e", [1.0, 2.0])})
+          for i in range(4)]
+    points = [{"medium.inclusions[0].grain_size": g, "medium.compacity": c}
+              for g in ("50 um", "1 cm") for c in (0.3, 0.25)]
+    out = io.as_grid(io.combine_scenarios(ds, points))
+    assert list(out["grain_size"].values) == [5e-5, 0.01]
+    assert list(out["grain_size_text"].values) == ["50 um", "1 cm"]
+    assert list(out["compacity"].values) == [0.25, 0.3]
+    assert out["scenario"].values.tolist() == [[1, 0], [3, 2]]
+    assert io.grid_name("medium.inclusions[1].grain_size",
+                        ["medium.inclusions[0].grain_size", "medium.inclusions[1].grain_size"]
+                        ) == "inclusions_1_grain_size"
+    part = io.as_grid(io.combine_scenarios(ds, points).isel(scenario=[0, 1, 3]))
+    assert np.isnan(part["a"].values[1, 1, 0]) and part["scenario"].values[0, 1] == 0
 
 
 def test_fast_scenario_reader_matches_xarray(reference):
@@ -171,7 +210,7 @@ def test_shards_in_one_folder_and_in_separate_folders(reference, tmp_path, capsy
                      "--quiet"]) == 0
     half = warpe_cl.open_database(parts[0])
     assert list(half["scenario"].values) == [0, 2]
-    assert list(half["medium.thickness"].values) == ["5 mm", "10 mm"]
+    assert list(half["medium.thickness_text"].values) == ["5 mm", "10 mm"]
     _assert_same_bits(warpe_cl.open_database(parts), run)
 
 
@@ -294,7 +333,7 @@ def test_a_bad_point_is_recorded_and_the_rest_completes(tmp_path, capsys):
     assert "not allowed for a granular medium" in records[2]["error"]   # found at run time
     db = warpe_cl.open_database(folder)
     assert list(db["scenario"].values) == [0, 3]
-    assert list(db["medium.compacity"].values) == ["0.5", "0.3"]
+    assert list(db["medium.compacity"].values) == [0.5, 0.3]
     assert sorted(json.loads(db.attrs["sweep_failed"])) == ["1", "2"]
     assert db.attrs["sweep_scenarios_total"] == 4
     # resume retries the failed points (they fail again) and recomputes none of the others

@@ -181,7 +181,8 @@ def _pad(ds, longest: dict):
 def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     """Stack scenario Datasets along ``scenario``.
 
-    The swept values become coordinates, the per-scenario derived parameters (tau0, omega, ...)
+    The swept values become coordinates (:func:`sweep_coordinates`: numbers in the canonical
+    unit, the written text beside them), the per-scenario derived parameters (tau0, omega, ...)
     and Philox scenario keys become variables, attributes shared by every scenario stay
     attributes, and ``attrs`` (e.g. the whole preset with its sweep block) is added last.
     A dimension without coordinate whose length differs between scenarios (``photon``, the
@@ -213,12 +214,136 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
         if all(v is not None for v in values):
             out[k] = ("scenario", np.asarray(values))
     for key in points[0]:
-        labels = [json.dumps(p[key], sort_keys=True) if isinstance(p[key], (dict, list))
-                  else str(p[key]) for p in points]
-        out = out.assign_coords({key: ("scenario", np.asarray(labels))})
+        out = out.assign_coords(sweep_coordinates(key, [p[key] for p in points]))
     out = out.assign_coords(scenario=np.arange(len(datasets)))
     out.attrs.update(attrs or {})
     return out
+
+
+def _field_kind(key: str):
+    """The schema kind of a swept dotted key (``"length"``, ``"float"``, ``"choice"`` ...;
+    an instrument key's from the instrument table), or None for a key the tables lack
+    (``medium``: whole media)."""
+    from .config.keys import schema_key, split_key
+    from .config.schema import FIELDS
+    field = FIELDS.get(schema_key(split_key(key)))
+    if field is None and key.startswith("instrument."):
+        from .instrument.params import SCHEMA
+        field = {f.key: f for f in SCHEMA}.get(key[len("instrument."):])
+    return None if field is None else field.kind
+
+
+def sweep_coordinates(key: str, values: list) -> dict:
+    """The coordinates of one swept key along ``scenario``.
+
+    Parameters
+    ----------
+    key : str
+        The swept dotted key (``medium.inclusions[0].grain_size``).
+    values : list
+        Its value at each scenario, as the preset writes it (``"50 um"``, ``0.3``, a list).
+
+    Returns
+    -------
+    dict
+        ``{key: ("scenario", values, attrs)}``. A quantity (schema kind ``length``, ``time``,
+        ``angle``, or an instrument dimension) is a float in the canonical unit of
+        :mod:`warpe_cl.units` (m, ns, deg, J ...), with ``units`` and a second coordinate
+        ``<key>_text`` holding the values as written (``"50 um"``); a ``float`` or ``int`` is a
+        float (``units`` "1"); anything else (choices, whole media, lists) stays text, lists
+        and mappings as JSON. Every one has the attribute ``sweep_key`` (the dotted key),
+        which :func:`as_grid` looks for.
+    """
+    from .units import DIMENSIONS, canonical_unit, parse_quantity
+    kind = _field_kind(key)
+    text = [json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else str(v)
+            for v in values]
+    attrs = {"sweep_key": key, "long_name": f"swept {key}"}
+    if kind in DIMENSIONS:
+        numbers = [float(parse_quantity(v, kind)) if isinstance(v, str) else float(v)
+                   for v in values]
+        attrs["units"] = canonical_unit(kind)
+        return {key: ("scenario", np.asarray(numbers, dtype=float), attrs),
+                f"{key}_text": ("scenario", np.asarray(text), {
+                    "long_name": f"swept {key}, as written in the preset"})}
+    if kind in ("float", "int") and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                        for v in values):
+        attrs["units"] = "1"
+        return {key: ("scenario", np.asarray(values, dtype=float), attrs)}
+    return {key: ("scenario", np.asarray(text), attrs)}
+
+
+def grid_name(key: str, keys, taken=()) -> str:
+    """The dimension name of swept ``key`` in :func:`as_grid`.
+
+    The shortest tail of the key's parts, joined by ``_``, that no other key of ``keys``
+    shares and that names no variable of ``taken``: ``medium.inclusions[0].grain_size`` ->
+    ``grain_size``; ``medium.radiative.tau0`` -> ``radiative_tau0`` (``tau0`` is a derived
+    variable); two inclusions' grain sizes -> ``inclusions_0_grain_size`` and
+    ``inclusions_1_grain_size``.
+    """
+    def parts(k):
+        return [str(p) for p in k.replace("[", ".").replace("]", "").split(".")]
+
+    def tail(k, n):
+        return "_".join(parts(k)[-n:])
+    reserved = set(taken) | {"scenario"}
+    for n in range(1, len(parts(key)) + 1):
+        name = tail(key, n)
+        if not name[0].isdigit() and name not in reserved and all(tail(k, n) != name for k in keys if k != key):
+            return name
+    return "_".join(parts(key)) + "_swept"
+
+
+def as_grid(ds):
+    """A sweep's ``scenario`` dimension unstacked into one dimension per swept key.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A sweep (``warpe-cl run`` of a preset with a ``sweep:`` block, or
+        :func:`warpe_cl.open_database`), whose swept coordinates carry ``sweep_key``.
+
+    Returns
+    -------
+    xarray.Dataset
+        One dimension per swept key, named by :func:`grid_name` (``grain_size``, with the
+        dotted key as its ``sweep_key`` attribute), in the order the keys are written, each
+        sorted in increasing value (numbers in their canonical unit). ``scenario`` becomes a
+        variable over those dimensions (the grid index; NaN where a database lacks the
+        scenario, as every other variable), and ``<key>_text`` too.
+
+    Raises
+    ------
+    ValueError
+        ``ds`` has no swept coordinate.
+    """
+    keys = [name for name, c in ds.coords.items()
+            if c.dims == ("scenario",) and "sweep_key" in c.attrs]
+    if not keys:
+        raise ValueError("not a sweep: no coordinate along scenario has a sweep_key attribute")
+    taken = set(ds.variables) - set(keys)
+    names = {k: grid_name(k, keys, taken) for k in keys}
+    texts = [f"{k}_text" for k in keys if f"{k}_text" in ds.coords]
+    out = ds.drop_vars(texts).reset_index("scenario").reset_coords("scenario")
+    out = out.rename_vars({"scenario": "_grid_index", **names})
+    if len(keys) == 1:
+        out = out.swap_dims(scenario=names[keys[0]])
+    else:
+        out = out.set_index(scenario=[names[k] for k in keys]).unstack("scenario")
+    dims = [names[k] for k in keys]
+    out = out.rename_vars({"_grid_index": "scenario"})
+    out["scenario"].attrs = dict(ds["scenario"].attrs, long_name="index of the scenario in "
+                                 "the sweep grid (outer product order)")
+    for k in keys:
+        out = out.sortby(names[k])
+        out[names[k]].attrs.update(ds[k].attrs)
+        if f"{k}_text" in texts:        # one written form per value, along the new dimension
+            written = dict(zip(ds[k].values.tolist(), ds[f"{k}_text"].values.tolist()))
+            out = out.assign_coords({f"{names[k]}_text": (names[k], np.asarray(
+                [written[v] for v in out[names[k]].values.tolist()]),
+                ds[f"{k}_text"].attrs)})
+    return out.transpose(*dims, ...)
 
 
 def write_netcdf(ds, path) -> Path:
