@@ -388,3 +388,57 @@ def test_worker_environment_from_slurm_and_tmpdir(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True).stdout.split()
     assert out[0] == "3"
+
+
+# --------------------------------------------------------------------------- derived variables
+
+GRAINS = """\
+name: tiny_grains
+medium:
+  texture: granular
+  thickness: "2 cm"
+  compacity: 0.5
+  inclusions:
+    - {material: H2O, proportion: 1.0, grain_size: "100 um"}
+simulation:
+  photons: 300
+  seed: 5
+  time_bins: {start: "1e-3 ns", stop: "1e3 ns", per_decade: 5}
+sweep:
+  medium.inclusions[0].grain_size: ["1 mm", "50 um", "200 um"]
+"""
+
+
+@pytest.fixture(scope="module")
+def grains(tmp_path_factory):
+    """A physical medium swept over three grain sizes: `run`'s file and a database."""
+    tmp = tmp_path_factory.mktemp("grains")
+    preset = _preset(tmp, GRAINS, "grains.yaml")
+    assert main(["run", str(preset), "--out", str(tmp / "run.nc"), "--quiet"]) == 0
+    assert main(["sweep", str(preset), "--out", str(tmp / "db"), "--quiet"]) == 0
+    return tmp, xr.load_dataset(tmp / "run.nc"), warpe_cl.open_database(tmp / "db")
+
+
+def test_derived_parameters_are_variables_with_units(grains):
+    """tau0 ... and the per-species w and N: variables with units, the same in one scenario's
+    file, a run of the grid and a database; one scenario keeps them as attributes too."""
+    tmp, run, db = grains
+    _assert_same_bits(db, run)
+    units = {"tau0": "1", "omega": "1", "n_eff": "1", "k_eff": "1", "extinction_per_m": "m-1",
+             "first_bf_time_ns": "ns", "thickness_m": "m", "species_w": "1",
+             "species_number_density_per_m3": "m-3"}
+    for ds in (run, db):
+        for name, unit in units.items():
+            assert ds[name].attrs["units"] == unit, name
+        assert ds["tau0"].dims == ("scenario",)
+        assert ds["species_w"].dims == ("scenario", "species")
+    one = xr.load_dataset(sorted((tmp / "db").glob("s00001_*.nc"))[0])
+    for name in ("tau0", "n_eff", "k_eff", "first_bf_time_ns"):
+        assert one[name].values == one.attrs[name] == run[name].values[1], name
+    assert np.array_equal(one["species_w"].values, np.atleast_1d(one.attrs["species_w"]))
+    cfg = load_preset(tmp / "grains.yaml", overrides={"sweep": None})
+    rp = warpe_cl.radiative_parameters(cfg)
+    single = warpe_cl.simulate(cfg, progress=False, device="numpy")
+    assert single["tau0"].values == rp["tau0"] == single.attrs["tau0"]
+    assert single["species_number_density_per_m3"].values[0] == \
+        rp["species"][0]["number_density_per_m3"]

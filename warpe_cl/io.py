@@ -25,6 +25,57 @@ from .params import COMPONENTS, FATES, N_EMERGENCE
 DERIVED = ("tau0", "omega", "extinction_per_m", "n_eff", "k_eff", "first_bf_time_ns",
            "specular_r0", "thickness_m", "porosity_factor", "matrix_absorption_per_m")
 
+#: Units and meanings of the derived parameters (docs/physics.md §4.5), which a result holds
+#: as variables (and, for one scenario, as attributes of the same name too).
+DERIVED_META = {
+    "tau0": ("1", "optical thickness of the layer"),
+    "omega": ("1", "single-scattering albedo"),
+    "extinction_per_m": ("m-1", "extinction coefficient"),
+    "n_eff": ("1", "effective refractive index of the medium"),
+    "k_eff": ("1", "effective absorption index of the medium"),
+    "first_bf_time_ns": ("ns", "time of the first back-and-forth (floor) return"),
+    "specular_r0": ("1", "Fresnel reflectance of the top interface at the incidence"),
+    "thickness_m": ("m", "layer thickness"),
+    "porosity_factor": ("1", "porosity factor of the granular medium"),
+    "matrix_absorption_per_m": ("m-1", "absorption coefficient of the matrix"),
+}
+#: The per-species derived parameters kept, as variables along ``species``: key in
+#: :func:`warpe_cl.radiative.radiative_parameters`'s ``species`` -> (units, meaning).
+SPECIES_META = {
+    "w": ("1", "single-scattering albedo of the species' grains"),
+    "number_density_per_m3": ("m-3", "number density of the species' grains"),
+    "n_rel": ("1", "refractive index of the species relative to the matrix"),
+}
+
+
+def derived_variables(derived: dict) -> dict:
+    """The derived parameters as Dataset variables with units.
+
+    Parameters
+    ----------
+    derived : dict
+        :func:`warpe_cl.radiative.radiative_parameters` of one scenario.
+
+    Returns
+    -------
+    dict
+        ``{name: (dims, value, attrs)}``: each of :data:`DERIVED` present, a scalar with
+        ``units`` (m, m-1, ns or 1) and ``long_name``; for a physical medium
+        ``species_w``, ``species_number_density_per_m3`` (m-3) and ``species_n_rel`` along
+        ``species`` (one value per inclusion species, in the preset's order).
+    """
+    out = {}
+    for k in DERIVED:
+        if derived.get(k) is not None:
+            units, meaning = DERIVED_META[k]
+            out[k] = ((), float(derived[k]), {"units": units, "long_name": meaning})
+    species = derived.get("species") or []
+    for key, (units, meaning) in SPECIES_META.items():
+        if species and all(sp.get(key) is not None for sp in species):
+            out[f"species_{key}"] = ("species", np.asarray([float(sp[key]) for sp in species]),
+                                     {"units": units, "long_name": meaning})
+    return out
+
 
 def package_version() -> str:
     """The installed version of warpe-cl ("unknown" in a bare checkout)."""
@@ -102,6 +153,7 @@ def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
                 "units": "deg", "long_name": "emergence angle in vacuum, bin centre"}),
         },
     )
+    ds = ds.assign(derived_variables(derived))
     ds.attrs.update({k: derived[k] for k in DERIVED if k in derived})
     for key in ("material", "w", "number_density_per_m3", "n_rel"):
         values = [sp[key] for sp in derived.get("species", [])]
@@ -182,8 +234,9 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     """Stack scenario Datasets along ``scenario``.
 
     The swept values become coordinates (:func:`sweep_coordinates`: numbers in the canonical
-    unit, the written text beside them), the per-scenario derived parameters (tau0, omega, ...)
-    and Philox scenario keys become variables, attributes shared by every scenario stay
+    unit, the written text beside them), the per-scenario derived parameters (tau0, omega, ...,
+    :func:`derived_variables`, stacked as every variable; from the attributes of a file written
+    before they were variables) and Philox scenario keys become variables, attributes shared by every scenario stay
     attributes, and ``attrs`` (e.g. the whole preset with its sweep block) is added last.
     A dimension without coordinate whose length differs between scenarios (``photon``, the
     time tags of a photon-counting instrument) is padded at its end to the longest with NaN,
@@ -209,10 +262,13 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     out["time_edges"] = datasets[0]["time_edges"]   # shared by every scenario of a sweep
     out.attrs.update({k: v for k, v in datasets[0].attrs.items()
                       if k not in varying and k not in DERIVED})
-    for k in DERIVED + ("scenario_key",):
+    for k in DERIVED + ("scenario_key",):      # files written before they were variables
         values = [ds.attrs.get(k) for ds in datasets]
-        if all(v is not None for v in values):
-            out[k] = ("scenario", np.asarray(values))
+        if k not in out.variables and all(v is not None for v in values):
+            units, meaning = DERIVED_META.get(k, (None, "Philox key of the scenario's random "
+                                                        "streams (16 hexadecimal digits)"))
+            out[k] = ("scenario", np.asarray(values),
+                      {"long_name": meaning, **({"units": units} if units else {})})
     for key in points[0]:
         out = out.assign_coords(sweep_coordinates(key, [p[key] for p in points]))
     out = out.assign_coords(scenario=np.arange(len(datasets)))
