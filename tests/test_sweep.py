@@ -442,3 +442,30 @@ def test_derived_parameters_are_variables_with_units(grains):
     assert single["tau0"].values == rp["tau0"] == single.attrs["tau0"]
     assert single["species_number_density_per_m3"].values[0] == \
         rp["species"][0]["number_density_per_m3"]
+
+
+def test_readme_delay_vs_grain_size(grains, tmp_path, monkeypatch):
+    """The README's figure from a sweep, its five lines as written (the database path aside),
+    on the tiny grain-size sweep: the plotted points are the three grain sizes in order."""
+    import re
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    tmp, run, _ = grains
+    readme = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
+    code = re.search(r"<!-- delay-vs-grain-size[^>]*-->\n```python\n(.*?)```", readme,
+                     re.S).group(1)
+    assert len(code.strip().splitlines()) <= 5
+    monkeypatch.chdir(tmp_path)
+    plt.close("all")
+    namespace = {}
+    exec(code.replace('"db/"', repr(str(tmp / "db"))), namespace)
+    assert (tmp_path / "delay_vs_grain_size.png").stat().st_size > 0
+    m = namespace["m"]
+    assert list(m["grain_size"].values) == [5e-5, 2e-4, 1e-3]
+    assert list(m["grain_size_text"].values) == ["50 um", "200 um", "1 mm"]
+    expected = warpe_cl.metrics(run).sel(component="scattering")["mean_delay"].values
+    assert np.array_equal(m["mean_delay"].values, expected[[1, 2, 0]])
+    x = plt.gca().lines[0].get_xdata()
+    assert np.allclose(x, [50, 200, 1000])
+    plt.close("all")

@@ -22,7 +22,8 @@ from .radiative import radiative_parameters
 from .api import simulate
 from .io import package_version, as_grid
 from .database import open_database
+from .metrics import metrics
 
 __version__ = package_version()
-__all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "as_grid",
+__all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "as_grid", "metrics",
            "__version__"]
