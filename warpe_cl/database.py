@@ -153,7 +153,8 @@ def open_database(paths, grid: bool = False):
         The layout ``warpe-cl run`` writes for a sweep (docs/interface.md §5): a leading
         ``scenario`` dimension whose coordinate is the grid index, the swept values as
         coordinates along it (numbers in the canonical unit, with ``units``, and the
-        written text as ``<key>_text``: :func:`warpe_cl.io.sweep_coordinates`), the derived parameters and ``scenario_key`` as variables.
+        written text as ``<key>_text``: :func:`warpe_cl.io.sweep_coordinates`), the derived
+        parameters and ``scenario_key`` as variables.
         Unfinished scenarios are absent; the attributes ``sweep_scenarios_total``,
         ``sweep_failed`` (JSON: index -> error) and ``sweep_fingerprint`` say what the grid
         holds.

@@ -236,8 +236,8 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     The swept values become coordinates (:func:`sweep_coordinates`: numbers in the canonical
     unit, the written text beside them), the per-scenario derived parameters (tau0, omega, ...,
     :func:`derived_variables`, stacked as every variable; from the attributes of a file written
-    before they were variables) and Philox scenario keys become variables, attributes shared by every scenario stay
-    attributes, and ``attrs`` (e.g. the whole preset with its sweep block) is added last.
+    before they were variables) and Philox scenario keys become variables, attributes shared
+    by every scenario stay attributes, and ``attrs`` (e.g. the whole preset with its sweep block) is added last.
     A dimension without coordinate whose length differs between scenarios (``photon``, the
     time tags of a photon-counting instrument) is padded at its end to the longest with NaN,
     as :func:`warpe_cl.instrument.output.build` pads it.
@@ -346,7 +346,8 @@ def grid_name(key: str, keys, taken=()) -> str:
     reserved = set(taken) | {"scenario"}
     for n in range(1, len(parts(key)) + 1):
         name = tail(key, n)
-        if not name[0].isdigit() and name not in reserved and all(tail(k, n) != name for k in keys if k != key):
+        if (not name[0].isdigit() and name not in reserved
+                and all(tail(k, n) != name for k in keys if k != key)):
             return name
     return "_".join(parts(key)) + "_swept"
 
