@@ -367,3 +367,6 @@ def test_swept_altitude_is_reported_per_scenario(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "instrument bela: altitude per scenario, roughness 0.1 deg, 2 shots" in out
     assert "None" not in out
+    ds = xr.load_dataset(tmp_path / "s.nc")          # a swept instrument key is numeric too
+    assert list(ds["instrument.altitude"].values) == [4e5, 5e5]
+    assert ds["instrument.altitude"].attrs["units"] == "m"

@@ -123,8 +123,12 @@ def test_local_sweep_equals_run(reference):
     tmp, _, run, local = reference
     _assert_same_bits(local, run)
     assert list(local["scenario"].values) == [0, 1, 2, 3]
-    assert list(local["medium.thickness"].values) == THICKNESS
-    assert list(local["medium.radiative.tau0"].values) == TAU0
+    assert list(local["medium.thickness_text"].values) == THICKNESS
+    assert list(local["medium.thickness"].values) == [0.005, 0.005, 0.01, 0.01]
+    assert local["medium.thickness"].attrs["units"] == "m"
+    assert list(local["medium.radiative.tau0"].values) == [float(t) for t in TAU0]
+    assert run["medium.thickness"].dtype.kind == "f" and run["medium.thickness"].attrs == \
+        local["medium.thickness"].attrs
     assert np.allclose(local["thickness_m"], [0.005, 0.005, 0.01, 0.01], rtol=1e-12)
     assert set(local.coords) == set(run.coords) and set(local.dims) == set(run.dims)
     manifest = _manifest(tmp / "local")
@@ -135,6 +139,41 @@ def test_local_sweep_equals_run(reference):
         assert rec["photons"] == 3000 and rec["wall_time_s"] > 0
     assert manifest["versions"]["warpe_cl"] and manifest["keys"] == ["medium.thickness",
                                                                       "medium.radiative.tau0"]
+
+
+def test_grid_unstacks_numerically(reference):
+    """open_database(grid=True) and as_grid: one dimension per swept key, sorted by value
+    (10 mm after 5 mm, not before it as text), the same from a run's file and a database."""
+    tmp, _, run, local = reference
+    for ds in (warpe_cl.open_database(tmp / "local", grid=True), warpe_cl.as_grid(run)):
+        assert ds["reflectance"].dims[:2] == ("thickness", "radiative_tau0")
+        assert list(ds["thickness"].values) == [0.005, 0.01]
+        assert list(ds["thickness_text"].values) == ["5 mm", "10 mm"]
+        assert ds["thickness"].attrs["sweep_key"] == "medium.thickness"
+        assert ds["thickness"].attrs["units"] == "m"
+        assert list(ds["radiative_tau0"].values) == [0.5, 2.0]   # tau0: the derived one
+        assert ds["scenario"].values.tolist() == [[0, 1], [2, 3]]
+        flat = run["reflectance"].values.reshape(2, 2, *run["reflectance"].shape[1:])
+        assert np.array_equal(ds["reflectance"].values, flat)
+
+
+def test_grid_names_and_order():
+    """Swept text sorts as numbers; a dotted key's last part names its dimension when unique."""
+    from warpe_cl import io
+    ds = [xr.Dataset({"a": ("t", np.arange(3.0) + i), "time_edges": ("e", [1.0, 2.0])})
+          for i in range(4)]
+    points = [{"medium.inclusions[0].grain_size": g, "medium.compacity": c}
+              for g in ("50 um", "1 cm") for c in (0.3, 0.25)]
+    out = io.as_grid(io.combine_scenarios(ds, points))
+    assert list(out["grain_size"].values) == [5e-5, 0.01]
+    assert list(out["grain_size_text"].values) == ["50 um", "1 cm"]
+    assert list(out["compacity"].values) == [0.25, 0.3]
+    assert out["scenario"].values.tolist() == [[1, 0], [3, 2]]
+    assert io.grid_name("medium.inclusions[1].grain_size",
+                        ["medium.inclusions[0].grain_size", "medium.inclusions[1].grain_size"]
+                        ) == "inclusions_1_grain_size"
+    part = io.as_grid(io.combine_scenarios(ds, points).isel(scenario=[0, 1, 3]))
+    assert np.isnan(part["a"].values[1, 1, 0]) and part["scenario"].values[0, 1] == 0
 
 
 def test_fast_scenario_reader_matches_xarray(reference):
@@ -171,7 +210,7 @@ def test_shards_in_one_folder_and_in_separate_folders(reference, tmp_path, capsy
                      "--quiet"]) == 0
     half = warpe_cl.open_database(parts[0])
     assert list(half["scenario"].values) == [0, 2]
-    assert list(half["medium.thickness"].values) == ["5 mm", "10 mm"]
+    assert list(half["medium.thickness_text"].values) == ["5 mm", "10 mm"]
     _assert_same_bits(warpe_cl.open_database(parts), run)
 
 
@@ -294,7 +333,7 @@ def test_a_bad_point_is_recorded_and_the_rest_completes(tmp_path, capsys):
     assert "not allowed for a granular medium" in records[2]["error"]   # found at run time
     db = warpe_cl.open_database(folder)
     assert list(db["scenario"].values) == [0, 3]
-    assert list(db["medium.compacity"].values) == ["0.5", "0.3"]
+    assert list(db["medium.compacity"].values) == [0.5, 0.3]
     assert sorted(json.loads(db.attrs["sweep_failed"])) == ["1", "2"]
     assert db.attrs["sweep_scenarios_total"] == 4
     # resume retries the failed points (they fail again) and recomputes none of the others
@@ -349,3 +388,84 @@ def test_worker_environment_from_slurm_and_tmpdir(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True).stdout.split()
     assert out[0] == "3"
+
+
+# --------------------------------------------------------------------------- derived variables
+
+GRAINS = """\
+name: tiny_grains
+medium:
+  texture: granular
+  thickness: "2 cm"
+  compacity: 0.5
+  inclusions:
+    - {material: H2O, proportion: 1.0, grain_size: "100 um"}
+simulation:
+  photons: 300
+  seed: 5
+  time_bins: {start: "1e-3 ns", stop: "1e3 ns", per_decade: 5}
+sweep:
+  medium.inclusions[0].grain_size: ["1 mm", "50 um", "200 um"]
+"""
+
+
+@pytest.fixture(scope="module")
+def grains(tmp_path_factory):
+    """A physical medium swept over three grain sizes: `run`'s file and a database."""
+    tmp = tmp_path_factory.mktemp("grains")
+    preset = _preset(tmp, GRAINS, "grains.yaml")
+    assert main(["run", str(preset), "--out", str(tmp / "run.nc"), "--quiet"]) == 0
+    assert main(["sweep", str(preset), "--out", str(tmp / "db"), "--quiet"]) == 0
+    return tmp, xr.load_dataset(tmp / "run.nc"), warpe_cl.open_database(tmp / "db")
+
+
+def test_derived_parameters_are_variables_with_units(grains):
+    """tau0 ... and the per-species w and N: variables with units, the same in one scenario's
+    file, a run of the grid and a database; one scenario keeps them as attributes too."""
+    tmp, run, db = grains
+    _assert_same_bits(db, run)
+    units = {"tau0": "1", "omega": "1", "n_eff": "1", "k_eff": "1", "extinction_per_m": "m-1",
+             "first_bf_time_ns": "ns", "thickness_m": "m", "species_w": "1",
+             "species_number_density_per_m3": "m-3"}
+    for ds in (run, db):
+        for name, unit in units.items():
+            assert ds[name].attrs["units"] == unit, name
+        assert ds["tau0"].dims == ("scenario",)
+        assert ds["species_w"].dims == ("scenario", "species")
+    one = xr.load_dataset(sorted((tmp / "db").glob("s00001_*.nc"))[0])
+    for name in ("tau0", "n_eff", "k_eff", "first_bf_time_ns"):
+        assert one[name].values == one.attrs[name] == run[name].values[1], name
+    assert np.array_equal(one["species_w"].values, np.atleast_1d(one.attrs["species_w"]))
+    cfg = load_preset(tmp / "grains.yaml", overrides={"sweep": None})
+    rp = warpe_cl.radiative_parameters(cfg)
+    single = warpe_cl.simulate(cfg, progress=False, device="numpy")
+    assert single["tau0"].values == rp["tau0"] == single.attrs["tau0"]
+    assert single["species_number_density_per_m3"].values[0] == \
+        rp["species"][0]["number_density_per_m3"]
+
+
+def test_readme_delay_vs_grain_size(grains, tmp_path, monkeypatch):
+    """The README's figure from a sweep, its five lines as written (the database path aside),
+    on the tiny grain-size sweep: the plotted points are the three grain sizes in order."""
+    import re
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    tmp, run, _ = grains
+    readme = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
+    code = re.search(r"<!-- delay-vs-grain-size[^>]*-->\n```python\n(.*?)```", readme,
+                     re.S).group(1)
+    assert len(code.strip().splitlines()) <= 5
+    monkeypatch.chdir(tmp_path)
+    plt.close("all")
+    namespace = {}
+    exec(code.replace('"db/"', repr(str(tmp / "db"))), namespace)
+    assert (tmp_path / "delay_vs_grain_size.png").stat().st_size > 0
+    m = namespace["m"]
+    assert list(m["grain_size"].values) == [5e-5, 2e-4, 1e-3]
+    assert list(m["grain_size_text"].values) == ["50 um", "200 um", "1 mm"]
+    expected = warpe_cl.metrics(run).sel(component="scattering")["mean_delay"].values
+    assert np.array_equal(m["mean_delay"].values, expected[[1, 2, 0]])
+    x = plt.gca().lines[0].get_xdata()
+    assert np.allclose(x, [50, 200, 1000])
+    plt.close("all")

@@ -20,8 +20,10 @@ The command line does the same: ``warpe-cl run PRESET.yaml --out result.nc --plo
 from .config import load_preset
 from .radiative import radiative_parameters
 from .api import simulate
-from .io import package_version
+from .io import package_version, as_grid
 from .database import open_database
+from .metrics import metrics
 
 __version__ = package_version()
-__all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "__version__"]
+__all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "as_grid", "metrics",
+           "__version__"]

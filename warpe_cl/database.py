@@ -132,7 +132,7 @@ def _finished(folders: list) -> tuple:
     return grid, fingerprint, failed, found
 
 
-def open_database(paths):
+def open_database(paths, grid: bool = False):
     """One Dataset of every finished scenario of a sweep database.
 
     Parameters
@@ -141,13 +141,20 @@ def open_database(paths):
         Database folders (``warpe-cl sweep --out``; for ``--out X.nc`` the folder is
         ``X.sweep``). Several folders of the same grid (shards written to separate folders)
         are merged; a scenario found in several is read once.
+    grid : bool
+        Unstack ``scenario`` into one dimension per swept key, each sorted in increasing
+        value (:func:`warpe_cl.as_grid`; ``grain_size`` for
+        ``medium.inclusions[0].grain_size``): ``open_database(DIR, grid=True)`` is
+        ``as_grid(open_database(DIR))``.
 
     Returns
     -------
     xarray.Dataset
         The layout ``warpe-cl run`` writes for a sweep (docs/interface.md §5): a leading
         ``scenario`` dimension whose coordinate is the grid index, the swept values as
-        coordinates along it, the derived parameters and ``scenario_key`` as variables.
+        coordinates along it (numbers in the canonical unit, with ``units``, and the
+        written text as ``<key>_text``: :func:`warpe_cl.io.sweep_coordinates`), the derived
+        parameters and ``scenario_key`` as variables.
         Unfinished scenarios are absent; the attributes ``sweep_scenarios_total``,
         ``sweep_failed`` (JSON: index -> error) and ``sweep_fingerprint`` say what the grid
         holds.
@@ -158,9 +165,10 @@ def open_database(paths):
         A path that is not a database, folders of different grids, or no finished scenario.
     """
     import xarray as xr
-    from .io import combine_scenarios
+    from .io import as_grid, combine_scenarios
 
     folders = [Path(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
+    unstack = grid
     grid, fingerprint, failed, found = _finished(folders)
     rows = {rec["index"]: rec for rec in grid["scenarios"]}
     indices = sorted(found)
@@ -178,4 +186,4 @@ def open_database(paths):
         "sweep_failed": json.dumps({str(i): e for i, e in sorted(failed.items())
                                     if i not in found}),
     })
-    return out
+    return as_grid(out) if unstack else out

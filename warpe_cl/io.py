@@ -25,6 +25,57 @@ from .params import COMPONENTS, FATES, N_EMERGENCE
 DERIVED = ("tau0", "omega", "extinction_per_m", "n_eff", "k_eff", "first_bf_time_ns",
            "specular_r0", "thickness_m", "porosity_factor", "matrix_absorption_per_m")
 
+#: Units and meanings of the derived parameters (docs/physics.md §4.5), which a result holds
+#: as variables (and, for one scenario, as attributes of the same name too).
+DERIVED_META = {
+    "tau0": ("1", "optical thickness of the layer"),
+    "omega": ("1", "single-scattering albedo"),
+    "extinction_per_m": ("m-1", "extinction coefficient"),
+    "n_eff": ("1", "effective refractive index of the medium"),
+    "k_eff": ("1", "effective absorption index of the medium"),
+    "first_bf_time_ns": ("ns", "time of the first back-and-forth (floor) return"),
+    "specular_r0": ("1", "Fresnel reflectance of the top interface at the incidence"),
+    "thickness_m": ("m", "layer thickness"),
+    "porosity_factor": ("1", "porosity factor of the granular medium"),
+    "matrix_absorption_per_m": ("m-1", "absorption coefficient of the matrix"),
+}
+#: The per-species derived parameters kept, as variables along ``species``: key in
+#: :func:`warpe_cl.radiative.radiative_parameters`'s ``species`` -> (units, meaning).
+SPECIES_META = {
+    "w": ("1", "single-scattering albedo of the species' grains"),
+    "number_density_per_m3": ("m-3", "number density of the species' grains"),
+    "n_rel": ("1", "refractive index of the species relative to the matrix"),
+}
+
+
+def derived_variables(derived: dict) -> dict:
+    """The derived parameters as Dataset variables with units.
+
+    Parameters
+    ----------
+    derived : dict
+        :func:`warpe_cl.radiative.radiative_parameters` of one scenario.
+
+    Returns
+    -------
+    dict
+        ``{name: (dims, value, attrs)}``: each of :data:`DERIVED` present, a scalar with
+        ``units`` (m, m-1, ns or 1) and ``long_name``; for a physical medium
+        ``species_w``, ``species_number_density_per_m3`` (m-3) and ``species_n_rel`` along
+        ``species`` (one value per inclusion species, in the preset's order).
+    """
+    out = {}
+    for k in DERIVED:
+        if derived.get(k) is not None:
+            units, meaning = DERIVED_META[k]
+            out[k] = ((), float(derived[k]), {"units": units, "long_name": meaning})
+    species = derived.get("species") or []
+    for key, (units, meaning) in SPECIES_META.items():
+        if species and all(sp.get(key) is not None for sp in species):
+            out[f"species_{key}"] = ("species", np.asarray([float(sp[key]) for sp in species]),
+                                     {"units": units, "long_name": meaning})
+    return out
+
 
 def package_version() -> str:
     """The installed version of warpe-cl ("unknown" in a bare checkout)."""
@@ -102,6 +153,7 @@ def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
                 "units": "deg", "long_name": "emergence angle in vacuum, bin centre"}),
         },
     )
+    ds = ds.assign(derived_variables(derived))
     ds.attrs.update({k: derived[k] for k in DERIVED if k in derived})
     for key in ("material", "w", "number_density_per_m3", "n_rel"):
         values = [sp[key] for sp in derived.get("species", [])]
@@ -181,9 +233,12 @@ def _pad(ds, longest: dict):
 def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     """Stack scenario Datasets along ``scenario``.
 
-    The swept values become coordinates, the per-scenario derived parameters (tau0, omega, ...)
-    and Philox scenario keys become variables, attributes shared by every scenario stay
-    attributes, and ``attrs`` (e.g. the whole preset with its sweep block) is added last.
+    The swept values become coordinates (:func:`sweep_coordinates`: numbers in the canonical
+    unit, the written text beside them), the per-scenario derived parameters (tau0, omega, ...,
+    :func:`derived_variables`, stacked as every variable; from the attributes of a file written
+    before they were variables) and Philox scenario keys become variables, attributes shared
+    by every scenario stay attributes, and ``attrs`` (e.g. the whole preset with its sweep
+    block) is added last.
     A dimension without coordinate whose length differs between scenarios (``photon``, the
     time tags of a photon-counting instrument) is padded at its end to the longest with NaN,
     as :func:`warpe_cl.instrument.output.build` pads it.
@@ -208,17 +263,145 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     out["time_edges"] = datasets[0]["time_edges"]   # shared by every scenario of a sweep
     out.attrs.update({k: v for k, v in datasets[0].attrs.items()
                       if k not in varying and k not in DERIVED})
-    for k in DERIVED + ("scenario_key",):
+    for k in DERIVED + ("scenario_key",):      # files written before they were variables
         values = [ds.attrs.get(k) for ds in datasets]
-        if all(v is not None for v in values):
-            out[k] = ("scenario", np.asarray(values))
+        if k not in out.variables and all(v is not None for v in values):
+            units, meaning = DERIVED_META.get(k, (None, "Philox key of the scenario's random "
+                                                        "streams (16 hexadecimal digits)"))
+            out[k] = ("scenario", np.asarray(values),
+                      {"long_name": meaning, **({"units": units} if units else {})})
     for key in points[0]:
-        labels = [json.dumps(p[key], sort_keys=True) if isinstance(p[key], (dict, list))
-                  else str(p[key]) for p in points]
-        out = out.assign_coords({key: ("scenario", np.asarray(labels))})
+        out = out.assign_coords(sweep_coordinates(key, [p[key] for p in points]))
     out = out.assign_coords(scenario=np.arange(len(datasets)))
     out.attrs.update(attrs or {})
     return out
+
+
+def _field_kind(key: str):
+    """The schema kind of a swept dotted key (``"length"``, ``"float"``, ``"choice"`` ...;
+    an instrument key's from the instrument table), or None for a key the tables lack
+    (``medium``: whole media)."""
+    from .config.keys import schema_key, split_key
+    from .config.schema import FIELDS
+    field = FIELDS.get(schema_key(split_key(key)))
+    if field is None and key.startswith("instrument."):
+        from .instrument.params import SCHEMA
+        field = {f.key: f for f in SCHEMA}.get(key[len("instrument."):])
+    return None if field is None else field.kind
+
+
+def sweep_coordinates(key: str, values: list) -> dict:
+    """The coordinates of one swept key along ``scenario``.
+
+    Parameters
+    ----------
+    key : str
+        The swept dotted key (``medium.inclusions[0].grain_size``).
+    values : list
+        Its value at each scenario, as the preset writes it (``"50 um"``, ``0.3``, a list).
+
+    Returns
+    -------
+    dict
+        ``{key: ("scenario", values, attrs)}``. A quantity (schema kind ``length``, ``time``,
+        ``angle``, or an instrument dimension) is a float in the canonical unit of
+        :mod:`warpe_cl.units` (m, ns, deg, J ...), with ``units`` and a second coordinate
+        ``<key>_text`` holding the values as written (``"50 um"``); a ``float`` or ``int`` is a
+        float (``units`` "1"); anything else (choices, whole media, lists) stays text, lists
+        and mappings as JSON. Every one has the attribute ``sweep_key`` (the dotted key),
+        which :func:`as_grid` looks for.
+    """
+    from .units import DIMENSIONS, canonical_unit, parse_quantity
+    kind = _field_kind(key)
+    text = [json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else str(v)
+            for v in values]
+    attrs = {"sweep_key": key, "long_name": f"swept {key}"}
+    if kind in DIMENSIONS:
+        numbers = [float(parse_quantity(v, kind)) if isinstance(v, str) else float(v)
+                   for v in values]
+        attrs["units"] = canonical_unit(kind)
+        return {key: ("scenario", np.asarray(numbers, dtype=float), attrs),
+                f"{key}_text": ("scenario", np.asarray(text), {
+                    "long_name": f"swept {key}, as written in the preset"})}
+    if kind in ("float", "int") and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                        for v in values):
+        attrs["units"] = "1"
+        return {key: ("scenario", np.asarray(values, dtype=float), attrs)}
+    return {key: ("scenario", np.asarray(text), attrs)}
+
+
+def grid_name(key: str, keys, taken=()) -> str:
+    """The dimension name of swept ``key`` in :func:`as_grid`.
+
+    The shortest tail of the key's parts, joined by ``_``, that no other key of ``keys``
+    shares and that names no variable of ``taken``: ``medium.inclusions[0].grain_size`` ->
+    ``grain_size``; ``medium.radiative.tau0`` -> ``radiative_tau0`` (``tau0`` is a derived
+    variable); two inclusions' grain sizes -> ``inclusions_0_grain_size`` and
+    ``inclusions_1_grain_size``.
+    """
+    def parts(k):
+        return [str(p) for p in k.replace("[", ".").replace("]", "").split(".")]
+
+    def tail(k, n):
+        return "_".join(parts(k)[-n:])
+    reserved = set(taken) | {"scenario"}
+    for n in range(1, len(parts(key)) + 1):
+        name = tail(key, n)
+        if (not name[0].isdigit() and name not in reserved
+                and all(tail(k, n) != name for k in keys if k != key)):
+            return name
+    return "_".join(parts(key)) + "_swept"
+
+
+def as_grid(ds):
+    """A sweep's ``scenario`` dimension unstacked into one dimension per swept key.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A sweep (``warpe-cl run`` of a preset with a ``sweep:`` block, or
+        :func:`warpe_cl.open_database`), whose swept coordinates carry ``sweep_key``.
+
+    Returns
+    -------
+    xarray.Dataset
+        One dimension per swept key, named by :func:`grid_name` (``grain_size``, with the
+        dotted key as its ``sweep_key`` attribute), in the order the keys are written, each
+        sorted in increasing value (numbers in their canonical unit). ``scenario`` becomes a
+        variable over those dimensions (the grid index; NaN where a database lacks the
+        scenario, as every other variable), and ``<key>_text`` too.
+
+    Raises
+    ------
+    ValueError
+        ``ds`` has no swept coordinate.
+    """
+    keys = [name for name, c in ds.coords.items()
+            if c.dims == ("scenario",) and "sweep_key" in c.attrs]
+    if not keys:
+        raise ValueError("not a sweep: no coordinate along scenario has a sweep_key attribute")
+    taken = set(ds.variables) - set(keys)
+    names = {k: grid_name(k, keys, taken) for k in keys}
+    texts = [f"{k}_text" for k in keys if f"{k}_text" in ds.coords]
+    out = ds.drop_vars(texts).reset_index("scenario").reset_coords("scenario")
+    out = out.rename_vars({"scenario": "_grid_index", **names})
+    if len(keys) == 1:
+        out = out.swap_dims(scenario=names[keys[0]])
+    else:
+        out = out.set_index(scenario=[names[k] for k in keys]).unstack("scenario")
+    dims = [names[k] for k in keys]
+    out = out.rename_vars({"_grid_index": "scenario"})
+    out["scenario"].attrs = dict(ds["scenario"].attrs, long_name="index of the scenario in "
+                                 "the sweep grid (outer product order)")
+    for k in keys:
+        out = out.sortby(names[k])
+        out[names[k]].attrs.update(ds[k].attrs)
+        if f"{k}_text" in texts:        # one written form per value, along the new dimension
+            written = dict(zip(ds[k].values.tolist(), ds[f"{k}_text"].values.tolist()))
+            out = out.assign_coords({f"{names[k]}_text": (names[k], np.asarray(
+                [written[v] for v in out[names[k]].values.tolist()]),
+                ds[f"{k}_text"].attrs)})
+    return out.transpose(*dims, ...)
 
 
 def write_netcdf(ds, path) -> Path:
