@@ -16,6 +16,12 @@ from . import report
 from .errors import ConfigError, DeviceError, WarpeError
 
 EXIT_OK, EXIT_OTHER, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
+EXIT_SIGINT, EXIT_SIGTERM = 130, 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (Slurm's time limit, ``kill``), handled as Ctrl-C is: outputs all or nothing,
+    a sweep's manifest flushed; exit 143 with one line."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -351,6 +357,7 @@ def main(argv=None) -> int:
     if os.environ.get("WARPE_CL_DEBUG", "") != "1":
         warnings.filterwarnings("ignore", message="Non-empty compiler output")
     parser = make_parser()
+    previous = _catch_sigterm()
     try:
         args = parser.parse_args(argv)
         if not getattr(args, "verb", None):
@@ -363,9 +370,16 @@ def main(argv=None) -> int:
     except DeviceError as err:
         print(f"warpe-cl: error: {err}", file=sys.stderr)
         return EXIT_DEVICE
+    except Terminated as err:
+        summary = getattr(err, "summary", None)
+        print("warpe-cl: stopped by SIGTERM" + (
+            "" if summary is None else
+            f" after {summary.done + summary.skipped} of {summary.owned} scenarios; run the "
+            "same command with --resume to go on"), file=sys.stderr)
+        return EXIT_SIGTERM
     except KeyboardInterrupt:
         print("warpe-cl: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_SIGINT
     except WarpeError as err:
         print(f"warpe-cl: error: {err}", file=sys.stderr)
         return EXIT_OTHER
@@ -375,6 +389,24 @@ def main(argv=None) -> int:
         print(f"warpe-cl: error: {type(err).__name__}: {err} (set WARPE_CL_DEBUG=1 for the traceback)",
               file=sys.stderr)
         return EXIT_OTHER
+    finally:
+        if previous is not None:
+            import signal
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _catch_sigterm():
+    """SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main thread; returns the
+    handler it replaced (None where one cannot be set: not the main thread)."""
+    import signal
+    try:
+        return signal.signal(signal.SIGTERM, _raise_terminated)
+    except (ValueError, OSError):
+        return None
 
 
 if __name__ == "__main__":
