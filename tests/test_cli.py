@@ -265,3 +265,16 @@ def test_ctrl_c_during_the_walk_exits_130_and_writes_nothing(tmp_path, signame, 
     assert said == [line], err                                    # one line, no traceback
     assert list(folder.iterdir()) == []                           # no .nc, .png or temp file
     assert elapsed < 5                                            # stops within a launch
+
+
+@pytest.mark.parametrize("verb", ["run", "instrument"])
+def test_out_must_be_a_netcdf_name(tmp_path, capsys, verb):
+    """`run --out x.png` used to write NetCDF into x.png and exit 0."""
+    out = tmp_path / "x.png"
+    args = (["run", str(PRESET), "--device", "numpy"] if verb == "run" else
+            ["instrument", str(tmp_path / "surface.nc"), "--instrument", "bela"])
+    assert main([*args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"warpe-cl: error: --out: {out} is not a NetCDF file name; give a name " \
+                  "ending in .nc", err
+    assert not list(tmp_path.iterdir())

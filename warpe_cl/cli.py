@@ -59,6 +59,9 @@ def _check_outputs(args) -> Path:
     """``--out`` (returned) and ``--plot``, if given, can be written: bad input (exit 2)
     before any work."""
     out = Path(args.out)
+    if out.suffix.lower() != ".nc":
+        raise ConfigError(f"{out} is not a NetCDF file name; give a name ending in .nc",
+                          key="--out")
     _check_writable(out, "--out")
     if args.plot:
         _check_writable(Path(args.plot), "--plot")
@@ -146,9 +149,9 @@ def cmd_instrument(args) -> int:
     # the instrument's own limits (shots in [1, 1e6], seed in [0, 2^63 - 1]), before reading
     shots = None if args.shots is None else check_parameter("shots", args.shots, where="--shots")
     seed = None if args.seed is None else check_parameter("seed", args.seed, where="--seed")
+    out = _check_outputs(args)
     path = Path(args.file)
     ds = _load_result(path)
-    out = _check_outputs(args)
     say = _say(args)
     ds = apply_instrument(ds, params, shots=shots, seed=seed, source=str(path))
     for line in report.instrument_lines(ds):
