@@ -40,6 +40,40 @@ def _overrides(args) -> list:
     return sets
 
 
+def _instrument_preset(text: str):
+    """The path of ``text`` when it names an instrument preset (a bundled
+    ``instruments/bela``, or a file with no medium and a base or an instrument section such as
+    transmitter), else None."""
+    from .catalog import resolve_preset
+    from .instrument.params import instruments_dir
+    path = resolve_preset(text)
+    if not path.is_file():
+        return None
+    if path.resolve().parent == instruments_dir().resolve():
+        return path
+    try:
+        import yaml
+        doc = yaml.safe_load(path.read_text())
+    except Exception:  # noqa: BLE001 - loading the preset reports it
+        return None
+    instrumental = ("base", "transmitter", "receiver", "detector", "electronics")
+    return path if isinstance(doc, dict) and "medium" not in doc \
+        and any(k in doc for k in instrumental) else None
+
+
+def _not_an_instrument(args):
+    """Bad input (exit 2) when ``run``/``sweep`` is given an instrument preset."""
+    path = _instrument_preset(args.preset)
+    if path is not None:
+        from .instrument.params import BUILTIN
+        if path.stem in BUILTIN and path.parent.name == "instruments":
+            path = path.stem                 # bundled: its short name
+        raise ConfigError(
+            "is an instrument preset, not a surface scenario; apply it to a result with "
+            f"`warpe-cl instrument RESULT.nc --instrument {path}`, or name it in a scenario "
+            "preset's instrument: block (docs/instrument.md)", key=args.preset)
+
+
 def _load(args):
     from .config import load_preset
     return load_preset(args.preset, overrides=_overrides(args))   # a path or a bundled name
@@ -98,6 +132,7 @@ def cmd_run(args) -> int:
     from .plot import plot_waveform
     from .radiative import radiative_parameters
 
+    _not_an_instrument(args)
     cfg = _load(args)
     out = _check_outputs(args)
     points = cfg.sweep_points()
@@ -140,7 +175,9 @@ def _load_result(path: Path):
 def cmd_instrument(args) -> int:
     from .instrument import apply_instrument, check_parameter, load_instrument
     from .instrument.plot import plot_instrument
-    overrides = {}
+    from .config.keys import parse_overrides
+    overrides = {k[len("instrument."):] if k.startswith("instrument.") else k: v
+                 for k, v in parse_overrides(args.set or []).items()}
     if args.altitude is not None:
         overrides["geometry.altitude"] = args.altitude
     if args.roughness is not None:
@@ -169,6 +206,7 @@ def cmd_sweep(args) -> int:
     """
     from .sweep import parse_shard, run_sweep
     from .catalog import resolve_preset
+    _not_an_instrument(args)
     shard = parse_shard(args.shard)
     say = _say(args)
     summary = run_sweep(resolve_preset(args.preset), args.out, overrides=_overrides(args),
@@ -218,6 +256,17 @@ def _print_all_verdicts(info):
 
 def cmd_show_config(args) -> int:
     from .radiative import radiative_parameters
+    instrument = _instrument_preset(args.preset)
+    if instrument is not None:     # its resolved parameters (a base: filled in), with units
+        from .config.keys import parse_overrides
+        from .instrument import load_instrument
+        over = {k[len("instrument."):] if k.startswith("instrument.") else k: v
+                for k, v in parse_overrides(args.set or []).items()}
+        params = load_instrument(str(instrument), over, override_source="command line")
+        print(f"# instrument preset {instrument}")
+        for key, value in params.readable().items():
+            print(f"{key}: {value}")
+        return EXIT_OK
     cfg = _load(args)
     print(cfg.to_yaml().rstrip())
     for point, pcfg in cfg.sweep_points():
@@ -337,6 +386,9 @@ def make_parser() -> argparse.ArgumentParser:
     ins.add_argument("file", help="a NetCDF file written by `warpe-cl run`")
     ins.add_argument("--instrument", required=True,
                      help="bela, gala, atlas, or an instrument YAML file")
+    ins.add_argument("--set", action="append", metavar="KEY=VALUE",
+                     help='override an instrument key, e.g. --set transmitter.pulse_fwhm="3 ns" '
+                          "(repeatable; dotted keys as in an instrument preset)")
     ins.add_argument("--altitude", help='spacecraft altitude, e.g. "500 km" or 500km')
     ins.add_argument("--roughness", help='facet roughness, e.g. "0.1 deg" or 0.1deg')
     ins.add_argument("--shots", help="shots to simulate (default: the instrument's)")
