@@ -278,3 +278,15 @@ def test_out_must_be_a_netcdf_name(tmp_path, capsys, verb):
     assert err == f"warpe-cl: error: --out: {out} is not a NetCDF file name; give a name " \
                   "ending in .nc", err
     assert not list(tmp_path.iterdir())
+
+
+def test_presets_show_prints_a_bundled_preset(capsys):
+    from warpe_cl.catalog import bundled_presets
+    assert main(["presets", "--show", "paper/slab_h2o_thickness"]) == 0
+    out = capsys.readouterr().out
+    assert out == bundled_presets()["paper/slab_h2o_thickness"].read_text().rstrip() + "\n"
+    assert main(["presets", "--show", "bela"]) == 0                  # a unique stem
+    assert "name: bela" in capsys.readouterr().out
+    assert main(["presets", "--show", "paper/slab_h2o_thicknes"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "did you mean paper/slab_h2o_thickness" in err, err

@@ -279,7 +279,19 @@ def cmd_show_config(args) -> int:
 def cmd_presets(args) -> int:
     import yaml
     from .catalog import bundled_presets
-    for name, path in bundled_presets().items():
+    presets = bundled_presets()
+    if args.show:        # its text, comments included, to copy and edit
+        name = args.show.removeprefix("presets/").removesuffix(".yaml")
+        by_stem = [k for k in presets if k.rsplit("/", 1)[-1] == name]
+        if name not in presets and len(by_stem) != 1:
+            import difflib
+            hint = difflib.get_close_matches(name, list(presets), n=1)
+            raise ConfigError(f"{args.show!r} is not a bundled preset"
+                              + (f" (did you mean {hint[0]}?)" if hint else "")
+                              + "; `warpe-cl presets` lists them", key="--show")
+        print(presets[name if name in presets else by_stem[0]].read_text().rstrip())
+        return EXIT_OK
+    for name, path in presets.items():
         try:
             desc = " ".join(str(yaml.safe_load(path.read_text()).get("description", "")).split())
         except Exception:  # noqa: BLE001 - a listing must not stop on one bad file
@@ -371,6 +383,8 @@ def make_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_show_config)
 
     ps = sub.add_parser("presets", help="list the bundled presets")
+    ps.add_argument("--show", metavar="NAME",
+                    help="print a bundled preset's YAML text (to copy: > my.yaml)")
     ps.set_defaults(func=cmd_presets)
 
     pl = sub.add_parser("plot", help="draw the waveform of a result file")
