@@ -290,3 +290,35 @@ def test_presets_show_prints_a_bundled_preset(capsys):
     assert main(["presets", "--show", "paper/slab_h2o_thicknes"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "did you mean paper/slab_h2o_thickness" in err, err
+
+
+def test_show_config_derived_lengths_one_minus_omega_and_what_applies(capsys):
+    """omega 0.999997 hides 1 - omega: printed, with the mean free path and the absorption
+    length; a granular medium shows no bottom_interface (it has no interfaces)."""
+    assert main(["show-config", "paper/gran_co2_thickness"]) == 0
+    out = capsys.readouterr().out
+    assert "bottom_interface" not in out
+    derived = [x[3:] for x in out.splitlines() if x.startswith("#  ")]
+    lines = {label: next(x for x in derived if x.startswith(label + " "))
+             for label in ("omega", "1 - omega", "extinction", "mean free path",
+                           "absorption length")}
+    omega = float(lines["omega"].split()[-1])
+    one_minus = float(lines["1 - omega"].split()[-1])
+    assert omega > 0.999 and 0 < one_minus < 1e-3
+    ext = float(lines["extinction"].split()[-2])
+    mfp = lines["mean free path"].split()
+    assert mfp[-2] == "um" and float(mfp[-3]) == pytest.approx(1e6 / ext, rel=1e-3)
+    absl = lines["absorption length"].split()
+    assert absl[-5] == "m" and float(absl[-6]) == pytest.approx(1 / (one_minus * ext), rel=1e-2)
+    assert main(["show-config", "paper/slab_h2o_thickness"]) == 0
+    assert "bottom_interface: fresnel" in capsys.readouterr().out       # a slab: it applies
+
+
+def test_show_config_says_when_proportions_are_rescaled(capsys):
+    inc = ('medium.inclusions=[{material: CO2, proportion: 3, grain_size: "200 um"}, '
+           '{material: H2O, proportion: 1, grain_size: "200 um"}]')
+    assert main(["show-config", "paper/gran_co2_thickness", "--set", inc]) == 0
+    out = capsys.readouterr().out
+    assert "proportions given sum to 4: rescaled to sum to 1 (3 -> 0.75, 1 -> 0.25)" in out
+    assert main(["show-config", "paper/gran_co2_thickness"]) == 0
+    assert "rescaled" not in capsys.readouterr().out

@@ -268,7 +268,9 @@ def cmd_show_config(args) -> int:
             print(f"{key}: {value}")
         return EXIT_OK
     cfg = _load(args)
-    print(cfg.to_yaml().rstrip())
+    # what does not apply is not shown: a granular medium has no interfaces
+    granular = all(pcfg.get("medium.texture") == "granular" for _, pcfg in cfg.sweep_points())
+    print(cfg.to_yaml(omit=("medium.bottom_interface",) if granular else ()).rstrip())
     for point, pcfg in cfg.sweep_points():
         print("# derived" + (" for " + report.point_text(point) if point else ""))
         for line in report.derived_lines(radiative_parameters(pcfg)):

@@ -254,7 +254,8 @@ def physical_parameters(cfg) -> dict:
         sigma = q_e * np.pi * d ** 2 / 4.0
         extinction_particles += number * sigma
         scattering += number * sigma * particle["w"]
-        species.append({"material": inc["material"], "proportion": rho, "grain_size_m": d,
+        species.append({"material": inc["material"], "proportion": rho,
+                        "proportion_given": float(inc["proportion"]), "grain_size_m": d,
                         "n_rel": n_rel, "k_rel": k_rel, "number_density_per_m3": number,
                         "cross_section_m2": sigma, **particle})
         if phi <= 0.0:

@@ -33,10 +33,16 @@ def derived_lines(d: dict) -> list:
     -------
     list of str
     """
+    omega, ext = d["omega"], d["extinction_per_m"]
     return [
         f"  tau0              {d['tau0']:.6g}",
-        f"  omega             {d['omega']:.6g}",
-        f"  extinction        {d['extinction_per_m']:.6g} m-1",
+        f"  omega             {omega:.6g}",
+    ] + ([f"  1 - omega         {1.0 - omega:.3g}"] if omega > 0.999 else []) + [
+        f"  extinction        {ext:.6g} m-1",
+        f"  mean free path    {_length(1.0 / ext) if ext > 0 else 'inf'}  (1/E)",
+        f"  absorption length "
+        f"{_length(1.0 / ((1.0 - omega) * ext)) if ext > 0 and omega < 1 else 'inf'}"
+        "  (1/((1 - omega) E))",
         f"  n_eff, k_eff      {d['n_eff']:.6g}, {d['k_eff']:.4g}",
         f"  thickness         {d['thickness_m'] * 1e3:.6g} mm",
         f"  first BF time     {d['first_bf_time_ns']:.6g} ns  (2 h n_eff / c)",
@@ -45,7 +51,24 @@ def derived_lines(d: dict) -> list:
           f"{d['matrix_absorption_per_m']:.6g} m-1"] if "porosity_factor" in d else []) + [
         f"  {sp['material']:<8s}          rho_v {sp['proportion']:.4g}  d {sp['grain_size_m'] * 1e6:.4g} um"
         f"  N {sp['number_density_per_m3']:.4g} m-3  n_rel {sp['n_rel']:.5g}  w {sp['w']:.6g}"
-        for sp in d.get("species", [])]
+        for sp in d.get("species", [])] + _rescaled(d.get("species", []))
+
+
+def _length(metres: float) -> str:
+    """A length with a readable unit: km, m, mm or um."""
+    for scale, unit in ((1e3, "km"), (1.0, "m"), (1e-3, "mm")):
+        if metres >= scale:
+            return f"{metres / scale:.4g} {unit}"
+    return f"{metres * 1e6:.4g} um"
+
+
+def _rescaled(species: list) -> list:
+    """One line when the given proportions do not sum to 1 and were rescaled."""
+    given = [sp.get("proportion_given", sp["proportion"]) for sp in species]
+    if not species or abs(sum(given) - 1.0) <= 1e-9:
+        return []
+    pairs = ", ".join(f"{g:.4g} -> {sp['proportion']:.4g}" for g, sp in zip(given, species))
+    return [f"  proportions given sum to {sum(given):.6g}: rescaled to sum to 1 ({pairs})"]
 
 
 def run_header(cfg, scenarios: int) -> str:
