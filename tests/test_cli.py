@@ -322,3 +322,32 @@ def test_show_config_says_when_proportions_are_rescaled(capsys):
     assert "proportions given sum to 4: rescaled to sum to 1 (3 -> 0.75, 1 -> 0.25)" in out
     assert main(["show-config", "paper/gran_co2_thickness"]) == 0
     assert "rescaled" not in capsys.readouterr().out
+
+
+def test_the_speed_excludes_the_kernel_build():
+    """First use: 2 s of kernel build, 0.5 s of walk for 1e6 rays: 2,000,000 photons/s,
+    not 1e6 / 2.6 s; the build is said apart."""
+    from warpe_cl import report
+    ds = xr.Dataset({"photons": ((), 1_000_000), "wall_time": ((), 2.6),
+                     "scattering_events": ((), 5_000_000),
+                     "fate_fraction": (("fate",), [1.0]), "fraction": (("component",), [1.0])},
+                    coords={"fate": ["reflected"], "component": ["diffuse"]})
+    line = report.scenario_lines(ds, build_s=2.0, walk_s=0.5)[-1]
+    assert "2.60 s, kernel build 2.0 s (first use), walk 0.50 s" in line, line
+    assert "2,000,000 photons/s" in line and "10,000,000 scattering events/s" in line, line
+    line = report.scenario_lines(ds, build_s=2.0)[-1]          # no walk time: wall less build
+    assert "1,666,667 photons/s" in line, line
+    line = report.scenario_lines(ds, build_s=0.001, walk_s=None)[-1]   # built: nothing said
+    assert "kernel build" not in line and "384,615 photons/s" in line, line
+
+
+def test_run_reports_the_walk_and_the_engine_times_it(tmp_path, capsys):
+    from warpe_cl import api
+    assert main(["run", str(PRESET), "--out", str(tmp_path / "a.nc"), "--photons", "20000"]) == 0
+    out = capsys.readouterr().out
+    engine = api.get_engine(None)
+    assert engine.last_walk_s is not None and engine.last_build_s >= 0
+    ds = xr.load_dataset(tmp_path / "a.nc")
+    assert engine.last_build_s + engine.last_walk_s <= float(ds["wall_time"])
+    time_line = next(x for x in out.splitlines() if x.startswith("  time "))
+    assert f"walk {engine.last_walk_s:.2f} s" in time_line, time_line

@@ -149,8 +149,11 @@ def cmd_run(args) -> int:
         for line in report.derived_lines(radiative_parameters(pcfg)):
             say(line)
 
+    engine = api.get_engine(args.device)
+
     def after(ds):
-        for line in report.scenario_lines(ds):
+        for line in report.scenario_lines(ds, getattr(engine, "last_build_s", 0.0),
+                                          getattr(engine, "last_walk_s", None)):
             say(line)
 
     ds = api.simulate(cfg, device=args.device, progress=None if not args.quiet else False,

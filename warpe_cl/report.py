@@ -77,13 +77,19 @@ def run_header(cfg, scenarios: int) -> str:
             f"{int(cfg.get('simulation.photons')):,} rays each, seed {cfg.get('simulation.seed')}")
 
 
-def scenario_lines(ds) -> list:
+def scenario_lines(ds, build_s: float = 0.0, walk_s: float | None = None) -> list:
     """What one simulated scenario gave: device, fates, components, wall time (s) and speed.
 
     Parameters
     ----------
     ds : xarray.Dataset
         One scenario of :func:`warpe_cl.api.simulate_point`.
+    build_s : float
+        Seconds of the wall time spent qualifying and building the kernel on its first use
+        (the engine's ``last_build_s``): said apart, and left out of the speeds.
+    walk_s : float, optional
+        Seconds of the walk itself (the engine's ``last_walk_s``): the speeds are rays and
+        scattering events per second of it. None: the wall time less ``build_s``.
 
     Returns
     -------
@@ -91,6 +97,11 @@ def scenario_lines(ds) -> list:
     """
     photons = int(ds["photons"])
     wall = float(ds["wall_time"])
+    build_s = build_s if 0.0 <= build_s < wall else 0.0
+    walk_given = walk_s is not None and 0.0 < walk_s <= wall
+    if not walk_given:
+        walk_s = wall - (build_s if build_s >= 0.05 else 0.0)
+    walk = max(walk_s, 1e-9)            # the speeds: per second of the walk, not of the build
     events = int(ds["scattering_events"])
     return [
         f"  device            {ds.attrs.get('opencl_device', '?')} ({ds.attrs.get('engine')}, "
@@ -99,8 +110,10 @@ def scenario_lines(ds) -> list:
             f"{f} {v:.5f}" for f, v in zip(ds["fate"].values, ds["fate_fraction"].values)),
         "  components        " + "  ".join(
             f"{c} {v:.5f}" for c, v in zip(ds["component"].values, ds["fraction"].values)),
-        f"  time              {wall:.2f} s   {photons / wall:,.0f} photons/s   "
-        f"{events / wall:,.0f} scattering events/s",
+        f"  time              {wall:.2f} s" + (
+            f", kernel build {build_s:.1f} s (first use)" if build_s >= 0.05 else "")
+        + (f", walk {walk:.2f} s" if walk_given else "")
+        + f"   {photons / walk:,.0f} photons/s   {events / walk:,.0f} scattering events/s",
     ]
 
 
