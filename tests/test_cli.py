@@ -219,7 +219,10 @@ def test_error_while_writing_the_plot_leaves_no_file(tmp_path, capsys, monkeypat
 
 
 @pytest.mark.slow
-def test_ctrl_c_during_the_walk_exits_130_and_writes_nothing(tmp_path):
+@pytest.mark.parametrize("signame, rc, line", [
+    ("SIGINT", 130, "warpe-cl: interrupted"),
+    ("SIGTERM", 143, "warpe-cl: stopped by SIGTERM")])
+def test_ctrl_c_during_the_walk_exits_130_and_writes_nothing(tmp_path, signame, rc, line):
     """A real `warpe-cl run` walking 1e12 rays (hours) gets SIGINT once it has printed the
     derived parameters, the last lines before the walk: exit 130, one line, no file."""
     import os
@@ -249,7 +252,7 @@ def test_ctrl_c_during_the_walk_exits_130_and_writes_nothing(tmp_path):
         time.sleep(0.5)                      # into the walk: it prints nothing more until done
         assert proc.poll() is None, "the run ended before it was interrupted"
         t0 = time.monotonic()
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(getattr(signal, signame))
         proc.wait(timeout=30)                # stdout is drained by the thread above
         err = proc.stderr.read()
         elapsed = time.monotonic() - t0
@@ -257,8 +260,94 @@ def test_ctrl_c_during_the_walk_exits_130_and_writes_nothing(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 130, err
-    said = [line for line in err.splitlines() if not line.startswith("warpe-cl: warning:")]
-    assert said == ["warpe-cl: interrupted"], err              # one line, no traceback
+    assert proc.returncode == rc, err
+    said = [x for x in err.splitlines() if not x.startswith("warpe-cl: warning:")]
+    assert said == [line], err                                    # one line, no traceback
     assert list(folder.iterdir()) == []                           # no .nc, .png or temp file
     assert elapsed < 5                                            # stops within a launch
+
+
+@pytest.mark.parametrize("verb", ["run", "instrument"])
+def test_out_must_be_a_netcdf_name(tmp_path, capsys, verb):
+    """`run --out x.png` used to write NetCDF into x.png and exit 0."""
+    out = tmp_path / "x.png"
+    args = (["run", str(PRESET), "--device", "numpy"] if verb == "run" else
+            ["instrument", str(tmp_path / "surface.nc"), "--instrument", "bela"])
+    assert main([*args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"warpe-cl: error: --out: {out} is not a NetCDF file name; give a name " \
+                  "ending in .nc", err
+    assert not list(tmp_path.iterdir())
+
+
+def test_presets_show_prints_a_bundled_preset(capsys):
+    from warpe_cl.catalog import bundled_presets
+    assert main(["presets", "--show", "paper/slab_h2o_thickness"]) == 0
+    out = capsys.readouterr().out
+    assert out == bundled_presets()["paper/slab_h2o_thickness"].read_text().rstrip() + "\n"
+    assert main(["presets", "--show", "bela"]) == 0                  # a unique stem
+    assert "name: bela" in capsys.readouterr().out
+    assert main(["presets", "--show", "paper/slab_h2o_thicknes"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "did you mean paper/slab_h2o_thickness" in err, err
+
+
+def test_show_config_derived_lengths_one_minus_omega_and_what_applies(capsys):
+    """omega 0.999997 hides 1 - omega: printed, with the mean free path and the absorption
+    length; a granular medium shows no bottom_interface (it has no interfaces)."""
+    assert main(["show-config", "paper/gran_co2_thickness"]) == 0
+    out = capsys.readouterr().out
+    assert "bottom_interface" not in out
+    derived = [x[3:] for x in out.splitlines() if x.startswith("#  ")]
+    lines = {label: next(x for x in derived if x.startswith(label + " "))
+             for label in ("omega", "1 - omega", "extinction", "mean free path",
+                           "absorption length")}
+    omega = float(lines["omega"].split()[-1])
+    one_minus = float(lines["1 - omega"].split()[-1])
+    assert omega > 0.999 and 0 < one_minus < 1e-3
+    ext = float(lines["extinction"].split()[-2])
+    mfp = lines["mean free path"].split()
+    assert mfp[-2] == "um" and float(mfp[-3]) == pytest.approx(1e6 / ext, rel=1e-3)
+    absl = lines["absorption length"].split()
+    assert absl[-5] == "m" and float(absl[-6]) == pytest.approx(1 / (one_minus * ext), rel=1e-2)
+    assert main(["show-config", "paper/slab_h2o_thickness"]) == 0
+    assert "bottom_interface: fresnel" in capsys.readouterr().out       # a slab: it applies
+
+
+def test_show_config_says_when_proportions_are_rescaled(capsys):
+    inc = ('medium.inclusions=[{material: CO2, proportion: 3, grain_size: "200 um"}, '
+           '{material: H2O, proportion: 1, grain_size: "200 um"}]')
+    assert main(["show-config", "paper/gran_co2_thickness", "--set", inc]) == 0
+    out = capsys.readouterr().out
+    assert "proportions given sum to 4: rescaled to sum to 1 (3 -> 0.75, 1 -> 0.25)" in out
+    assert main(["show-config", "paper/gran_co2_thickness"]) == 0
+    assert "rescaled" not in capsys.readouterr().out
+
+
+def test_the_speed_excludes_the_kernel_build():
+    """First use: 2 s of kernel build, 0.5 s of walk for 1e6 rays: 2,000,000 photons/s,
+    not 1e6 / 2.6 s; the build is said apart."""
+    from warpe_cl import report
+    ds = xr.Dataset({"photons": ((), 1_000_000), "wall_time": ((), 2.6),
+                     "scattering_events": ((), 5_000_000),
+                     "fate_fraction": (("fate",), [1.0]), "fraction": (("component",), [1.0])},
+                    coords={"fate": ["reflected"], "component": ["diffuse"]})
+    line = report.scenario_lines(ds, build_s=2.0, walk_s=0.5)[-1]
+    assert "2.60 s, kernel build 2.0 s (first use), walk 0.50 s" in line, line
+    assert "2,000,000 photons/s" in line and "10,000,000 scattering events/s" in line, line
+    line = report.scenario_lines(ds, build_s=2.0)[-1]          # no walk time: wall less build
+    assert "1,666,667 photons/s" in line, line
+    line = report.scenario_lines(ds, build_s=0.001, walk_s=None)[-1]   # built: nothing said
+    assert "kernel build" not in line and "384,615 photons/s" in line, line
+
+
+def test_run_reports_the_walk_and_the_engine_times_it(tmp_path, capsys):
+    from warpe_cl import api
+    assert main(["run", str(PRESET), "--out", str(tmp_path / "a.nc"), "--photons", "20000"]) == 0
+    out = capsys.readouterr().out
+    engine = api.get_engine(None)
+    assert engine.last_walk_s is not None and engine.last_build_s >= 0
+    ds = xr.load_dataset(tmp_path / "a.nc")
+    assert engine.last_build_s + engine.last_walk_s <= float(ds["wall_time"])
+    time_line = next(x for x in out.splitlines() if x.startswith("  time "))
+    assert f"walk {engine.last_walk_s:.2f} s" in time_line, time_line

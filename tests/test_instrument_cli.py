@@ -370,3 +370,57 @@ def test_swept_altitude_is_reported_per_scenario(tmp_path, capsys):
     ds = xr.load_dataset(tmp_path / "s.nc")          # a swept instrument key is numeric too
     assert list(ds["instrument.altitude"].values) == [4e5, 5e5]
     assert ds["instrument.altitude"].attrs["units"] == "m"
+
+
+# --------------------------------------------------------------------------- overrides
+
+def test_an_instrument_file_starts_from_a_bundled_one_with_base(tmp_path, capsys):
+    """`base: gala` plus a pulse width: GALA's every key, the file's on top."""
+    from warpe_cl.instrument import load_instrument
+    path = tmp_path / "short.yaml"
+    path.write_text('base: gala\nname: gala-short\ntransmitter:\n  pulse_fwhm: "3 ns"\n')
+    p, gala = load_instrument(str(path)), load_instrument("gala")
+    assert p["name"] == "gala-short" and p["transmitter.pulse_fwhm"] == 3.0
+    assert {k: v for k, v in p.items() if k not in ("name", "transmitter.pulse_fwhm")} == \
+           {k: v for k, v in gala.items() if k not in ("name", "transmitter.pulse_fwhm")}
+    # without base:, the missing key's line says how to start from one
+    path.write_text('name: gala\ntransmitter:\n  pulse_fwhm: "3 ns"\n')
+    with pytest.raises(Exception, match=r"missing; .*base: bela \| gala \| atlas"):
+        load_instrument(str(path))
+    path.write_text("base: hubble\n")
+    with pytest.raises(Exception, match="instrument.base: hubble is not a bundled"):
+        load_instrument(str(path))
+
+
+def test_instrument_set_overrides_dotted_keys(tmp_path, surface_file, capsys):
+    out = tmp_path / "o.nc"
+    assert main(["instrument", str(surface_file), "--instrument", "bela", "--shots", "2",
+                 "--set", 'transmitter.pulse_fwhm="3 ns"', "--set", "receiver.efficiency=0.4",
+                 "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
+    ds = xr.load_dataset(out, engine="h5netcdf")
+    assert ds.attrs["instrument_transmitter_pulse_fwhm"] == "3 ns"
+    assert ds.attrs["instrument_receiver_efficiency"] == 0.4
+    assert main(["instrument", str(surface_file), "--instrument", "bela", "--set",
+                 "transmitter.pulse_fwhmm=3ns", "--out", str(tmp_path / "p.nc")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "command line" in err and "pulse_fwhm" in err, err
+
+
+def test_show_config_and_run_on_an_instrument_preset(tmp_path, capsys):
+    assert main(["show-config", "instruments/bela"]) == 0
+    out = capsys.readouterr().out
+    assert "name: bela" in out and "transmitter.pulse_fwhm: 6.5 ns" in out, out
+    for verb in ("run", "sweep"):
+        assert main([verb, "instruments/bela", "--out", str(tmp_path / "x.nc")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1, err
+        assert "is an instrument preset" in err and "--instrument bela" in err, err
+    assert not list(tmp_path.glob("x*"))
+
+
+def test_show_config_of_a_partial_instrument_file(tmp_path, capsys):
+    path = tmp_path / "short.yaml"
+    path.write_text('base: gala\ntransmitter:\n  pulse_fwhm: "3 ns"\n')
+    assert main(["show-config", str(path), "--set", "shots=7"]) == 0
+    out = capsys.readouterr().out
+    assert "name: gala" in out and "transmitter.pulse_fwhm: 3 ns" in out and "shots: 7" in out

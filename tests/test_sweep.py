@@ -317,6 +317,35 @@ def test_sigkill_then_resume_recomputes_nothing(tmp_path, capsys):
     assert (db["photons"] == 2_000_000).all()
 
 
+@pytest.mark.slow
+def test_sigterm_flushes_the_manifest_and_names_resume(tmp_path):
+    """Slurm's time limit (SIGTERM) as Ctrl-C: exit 143, one line naming --resume, and the
+    manifest lists every scenario whose file is in the folder."""
+    preset = _preset(tmp_path)
+    folder = tmp_path / "db"
+    cmd = [sys.executable, "-m", "warpe_cl", "sweep", str(preset), "--out", str(folder),
+           "--photons", "2e6", "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(folder.glob("s*.nc")):
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=60)
+    err = proc.stderr.read()
+    proc.stderr.close()
+    assert proc.returncode == 143, err
+    said = [x for x in err.splitlines() if not x.startswith("warpe-cl: warning:")]
+    files = sorted(p.name for p in folder.glob("s*.nc"))
+    assert len(said) == 1 and "stopped by SIGTERM after" in said[0] \
+        and "--resume" in said[0], err
+    assert f"after {len(files)} of 4 scenarios" in said[0], (said, files)
+    done = sorted(r["file"] for r in _manifest(folder)["scenarios"] if r["status"] == "done")
+    assert done == files
+    assert not list(folder.glob(".*")), "temporary files left behind"
+
+
 # --------------------------------------------------------------------------- failures
 
 def test_a_bad_point_is_recorded_and_the_rest_completes(tmp_path, capsys):

@@ -16,6 +16,12 @@ from . import report
 from .errors import ConfigError, DeviceError, WarpeError
 
 EXIT_OK, EXIT_OTHER, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
+EXIT_SIGINT, EXIT_SIGTERM = 130, 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (Slurm's time limit, ``kill``), handled as Ctrl-C is: outputs all or nothing,
+    a sweep's manifest flushed; exit 143 with one line."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -32,6 +38,40 @@ def _overrides(args) -> list:
     if getattr(args, "seed", None) is not None:
         sets.append(f"simulation.seed={args.seed}")
     return sets
+
+
+def _instrument_preset(text: str):
+    """The path of ``text`` when it names an instrument preset (a bundled
+    ``instruments/bela``, or a file with no medium and a base or an instrument section such as
+    transmitter), else None."""
+    from .catalog import resolve_preset
+    from .instrument.params import instruments_dir
+    path = resolve_preset(text)
+    if not path.is_file():
+        return None
+    if path.resolve().parent == instruments_dir().resolve():
+        return path
+    try:
+        import yaml
+        doc = yaml.safe_load(path.read_text())
+    except Exception:  # noqa: BLE001 - loading the preset reports it
+        return None
+    instrumental = ("base", "transmitter", "receiver", "detector", "electronics")
+    return path if isinstance(doc, dict) and "medium" not in doc \
+        and any(k in doc for k in instrumental) else None
+
+
+def _not_an_instrument(args):
+    """Bad input (exit 2) when ``run``/``sweep`` is given an instrument preset."""
+    path = _instrument_preset(args.preset)
+    if path is not None:
+        from .instrument.params import BUILTIN
+        if path.stem in BUILTIN and path.parent.name == "instruments":
+            path = path.stem                 # bundled: its short name
+        raise ConfigError(
+            "is an instrument preset, not a surface scenario; apply it to a result with "
+            f"`warpe-cl instrument RESULT.nc --instrument {path}`, or name it in a scenario "
+            "preset's instrument: block (docs/instrument.md)", key=args.preset)
 
 
 def _load(args):
@@ -53,6 +93,9 @@ def _check_outputs(args) -> Path:
     """``--out`` (returned) and ``--plot``, if given, can be written: bad input (exit 2)
     before any work."""
     out = Path(args.out)
+    if out.suffix.lower() != ".nc":
+        raise ConfigError(f"{out} is not a NetCDF file name; give a name ending in .nc",
+                          key="--out")
     _check_writable(out, "--out")
     if args.plot:
         _check_writable(Path(args.plot), "--plot")
@@ -89,6 +132,7 @@ def cmd_run(args) -> int:
     from .plot import plot_waveform
     from .radiative import radiative_parameters
 
+    _not_an_instrument(args)
     cfg = _load(args)
     out = _check_outputs(args)
     points = cfg.sweep_points()
@@ -105,8 +149,11 @@ def cmd_run(args) -> int:
         for line in report.derived_lines(radiative_parameters(pcfg)):
             say(line)
 
+    engine = api.get_engine(args.device)
+
     def after(ds):
-        for line in report.scenario_lines(ds):
+        for line in report.scenario_lines(ds, getattr(engine, "last_build_s", 0.0),
+                                          getattr(engine, "last_walk_s", None)):
             say(line)
 
     ds = api.simulate(cfg, device=args.device, progress=None if not args.quiet else False,
@@ -131,7 +178,9 @@ def _load_result(path: Path):
 def cmd_instrument(args) -> int:
     from .instrument import apply_instrument, check_parameter, load_instrument
     from .instrument.plot import plot_instrument
-    overrides = {}
+    from .config.keys import parse_overrides
+    overrides = {k[len("instrument."):] if k.startswith("instrument.") else k: v
+                 for k, v in parse_overrides(args.set or []).items()}
     if args.altitude is not None:
         overrides["geometry.altitude"] = args.altitude
     if args.roughness is not None:
@@ -140,9 +189,9 @@ def cmd_instrument(args) -> int:
     # the instrument's own limits (shots in [1, 1e6], seed in [0, 2^63 - 1]), before reading
     shots = None if args.shots is None else check_parameter("shots", args.shots, where="--shots")
     seed = None if args.seed is None else check_parameter("seed", args.seed, where="--seed")
+    out = _check_outputs(args)
     path = Path(args.file)
     ds = _load_result(path)
-    out = _check_outputs(args)
     say = _say(args)
     ds = apply_instrument(ds, params, shots=shots, seed=seed, source=str(path))
     for line in report.instrument_lines(ds):
@@ -160,6 +209,7 @@ def cmd_sweep(args) -> int:
     """
     from .sweep import parse_shard, run_sweep
     from .catalog import resolve_preset
+    _not_an_instrument(args)
     shard = parse_shard(args.shard)
     say = _say(args)
     summary = run_sweep(resolve_preset(args.preset), args.out, overrides=_overrides(args),
@@ -209,8 +259,21 @@ def _print_all_verdicts(info):
 
 def cmd_show_config(args) -> int:
     from .radiative import radiative_parameters
+    instrument = _instrument_preset(args.preset)
+    if instrument is not None:     # its resolved parameters (a base: filled in), with units
+        from .config.keys import parse_overrides
+        from .instrument import load_instrument
+        over = {k[len("instrument."):] if k.startswith("instrument.") else k: v
+                for k, v in parse_overrides(args.set or []).items()}
+        params = load_instrument(str(instrument), over, override_source="command line")
+        print(f"# instrument preset {instrument}")
+        for key, value in params.readable().items():
+            print(f"{key}: {value}")
+        return EXIT_OK
     cfg = _load(args)
-    print(cfg.to_yaml().rstrip())
+    # what does not apply is not shown: a granular medium has no interfaces
+    granular = all(pcfg.get("medium.texture") == "granular" for _, pcfg in cfg.sweep_points())
+    print(cfg.to_yaml(omit=("medium.bottom_interface",) if granular else ()).rstrip())
     for point, pcfg in cfg.sweep_points():
         print("# derived" + (" for " + report.point_text(point) if point else ""))
         for line in report.derived_lines(radiative_parameters(pcfg)):
@@ -221,7 +284,19 @@ def cmd_show_config(args) -> int:
 def cmd_presets(args) -> int:
     import yaml
     from .catalog import bundled_presets
-    for name, path in bundled_presets().items():
+    presets = bundled_presets()
+    if args.show:        # its text, comments included, to copy and edit
+        name = args.show.removeprefix("presets/").removesuffix(".yaml")
+        by_stem = [k for k in presets if k.rsplit("/", 1)[-1] == name]
+        if name not in presets and len(by_stem) != 1:
+            import difflib
+            hint = difflib.get_close_matches(name, list(presets), n=1)
+            raise ConfigError(f"{args.show!r} is not a bundled preset"
+                              + (f" (did you mean {hint[0]}?)" if hint else "")
+                              + "; `warpe-cl presets` lists them", key="--show")
+        print(presets[name if name in presets else by_stem[0]].read_text().rstrip())
+        return EXIT_OK
+    for name, path in presets.items():
         try:
             desc = " ".join(str(yaml.safe_load(path.read_text()).get("description", "")).split())
         except Exception:  # noqa: BLE001 - a listing must not stop on one bad file
@@ -313,6 +388,8 @@ def make_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_show_config)
 
     ps = sub.add_parser("presets", help="list the bundled presets")
+    ps.add_argument("--show", metavar="NAME",
+                    help="print a bundled preset's YAML text (to copy: > my.yaml)")
     ps.set_defaults(func=cmd_presets)
 
     pl = sub.add_parser("plot", help="draw the waveform of a result file")
@@ -328,6 +405,9 @@ def make_parser() -> argparse.ArgumentParser:
     ins.add_argument("file", help="a NetCDF file written by `warpe-cl run`")
     ins.add_argument("--instrument", required=True,
                      help="bela, gala, atlas, or an instrument YAML file")
+    ins.add_argument("--set", action="append", metavar="KEY=VALUE",
+                     help='override an instrument key, e.g. --set transmitter.pulse_fwhm="3 ns" '
+                          "(repeatable; dotted keys as in an instrument preset)")
     ins.add_argument("--altitude", help='spacecraft altitude, e.g. "500 km" or 500km')
     ins.add_argument("--roughness", help='facet roughness, e.g. "0.1 deg" or 0.1deg')
     ins.add_argument("--shots", help="shots to simulate (default: the instrument's)")
@@ -351,6 +431,7 @@ def main(argv=None) -> int:
     if os.environ.get("WARPE_CL_DEBUG", "") != "1":
         warnings.filterwarnings("ignore", message="Non-empty compiler output")
     parser = make_parser()
+    previous = _catch_sigterm()
     try:
         args = parser.parse_args(argv)
         if not getattr(args, "verb", None):
@@ -363,9 +444,16 @@ def main(argv=None) -> int:
     except DeviceError as err:
         print(f"warpe-cl: error: {err}", file=sys.stderr)
         return EXIT_DEVICE
+    except Terminated as err:
+        summary = getattr(err, "summary", None)
+        print("warpe-cl: stopped by SIGTERM" + (
+            "" if summary is None else
+            f" after {summary.done + summary.skipped} of {summary.owned} scenarios; run the "
+            "same command with --resume to go on"), file=sys.stderr)
+        return EXIT_SIGTERM
     except KeyboardInterrupt:
         print("warpe-cl: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_SIGINT
     except WarpeError as err:
         print(f"warpe-cl: error: {err}", file=sys.stderr)
         return EXIT_OTHER
@@ -375,6 +463,24 @@ def main(argv=None) -> int:
         print(f"warpe-cl: error: {type(err).__name__}: {err} (set WARPE_CL_DEBUG=1 for the traceback)",
               file=sys.stderr)
         return EXIT_OTHER
+    finally:
+        if previous is not None:
+            import signal
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _catch_sigterm():
+    """SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main thread; returns the
+    handler it replaced (None where one cannot be set: not the main thread)."""
+    import signal
+    try:
+        return signal.signal(signal.SIGTERM, _raise_terminated)
+    except (ValueError, OSError):
+        return None
 
 
 if __name__ == "__main__":

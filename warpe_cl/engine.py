@@ -197,7 +197,13 @@ class Engine:
         self.context, self.queue = devmod.context_and_queue(self.device)
         self.target_launch_s = target_launch_s
         self.kernel_hash = None
+        #: seconds the last :meth:`run` spent before its walk: qualifying the kernel and
+        #: building it on first use, next to nothing once built (the speed report leaves it out)
+        self.last_build_s = 0.0
+        #: seconds the last :meth:`run` spent walking (its launches), what the speeds count
+        self.last_walk_s = None
         self._kernels = {}
+        self._warmed = set()
         self.qualifier = None
         if qualify:
             from .qualify import qualifier_for
@@ -326,6 +332,7 @@ class Engine:
 
         real = np.float64 if precision == "double" else np.float32
         weighted = params.weighted
+        t_build = time.perf_counter()    # first use: qualification and kernel build
         lanes = self.lanes_for(params.texture, precision, weighted, lanes, check=not qualified)
         kern = self.kernel(params.texture, precision, records, lanes, weighted)
         edges = np.asarray(params.time_edges, dtype=real)
@@ -355,6 +362,24 @@ class Engine:
                                    size=8 * FIXED_WORDS * int(np.prod(shapes[k])))
                       for k in weights}}
         zeroed = [buffers[k] for k in (*hist, *weights, "next_photon")]
+
+        warm_key = (params.texture, precision, records, lanes, weighted, local_size)
+        if warm_key not in self._warmed:
+            # PoCL compiles a kernel for its work-group size at its first launch: a launch
+            # walking no ray (n_photons 0) does that here, inside the build time; every
+            # buffer it touches is zeroed or rewritten by the launches below
+            launch = {**buffers, "first_photon": first_photon, "n_photons": 0}
+            if records:
+                launch["rec_int"] = cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * len(RECORD_INT_COLUMNS))
+                launch["rec_real"] = cl.Buffer(
+                    ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * len(RECORD_REAL_COLUMNS))
+            cl.enqueue_fill_buffer(queue, buffers["next_photon"], np.uint32(0), 0, 4)
+            kern(queue, (local_size or 1,), (local_size,) if local_size else None,
+                 *argument_values(args, params, launch, real))
+            queue.finish()
+            self._warmed.add(warm_key)
+        t_walk = time.perf_counter()
+        self.last_build_s = t_walk - t_build
 
         total = Counts(n_time=n_time, weighted=weighted)
         lost_weights = 0   # weighted exits whose weight the exact sums cannot hold
@@ -412,6 +437,7 @@ class Engine:
             raise WeightError(lost_weights)
         if records:
             total.records = _records_from_chunks(rec_chunks)
+        self.last_walk_s = time.perf_counter() - t_walk
         return total
 
 

@@ -77,11 +77,20 @@ def optical_constants(cfg) -> dict:
     return table
 
 
-def lookup(constants: dict, name: str, key: str, source) -> tuple:
+def lookup(constants: dict, name: str, key: str, source, wavelength=None) -> tuple:
     """``(n, k)`` of ``name`` (case-insensitive), or a ConfigError naming the known materials."""
     try:
         return constants[name.upper()]
     except KeyError:
+        if name.upper() in {b.upper() for b in BUILTIN_1064NM}:   # a built-in, wrong wavelength
+            raise ConfigError(
+                f"material {name!r} has built-in optical constants only at "
+                f"{BUILTIN_WAVELENGTH * 1e9:g} nm, not at "
+                + ("this wavelength" if wavelength is None else f"{wavelength * 1e9:g} nm")
+                + f"; give its constants at that wavelength under materials: "
+                f"{name}: {{n: N, k: K}} (or "
+                + "{table: FILE}, columns wavelength_nm, n, k; docs/config.md)",
+                key=key, source=source) from None
         import difflib
         known = sorted(constants)
         hint = difflib.get_close_matches(name.upper(), known, n=1)

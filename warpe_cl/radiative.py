@@ -221,7 +221,8 @@ def physical_parameters(cfg) -> dict:
                           "(0, 1) (at 1 the pores vanish: describe a compact layer as a slab)",
                           key="medium.compacity", source=source)
     if texture == "slab":
-        n_m, k_m = lookup(constants, cfg.get("medium.matrix"), "medium.matrix", source)
+        n_m, k_m = lookup(constants, cfg.get("medium.matrix"), "medium.matrix", source,
+                          cfg.get("wavelength"))
         phi = 1.0 - gamma
         a_m = 4.0 * np.pi * k_m / lam
         if cfg.get("medium.matrix_absorption") == "volume_weighted":
@@ -235,7 +236,8 @@ def physical_parameters(cfg) -> dict:
     extinction_particles = scattering = 0.0
     for i, inc in enumerate(inclusions):
         key = f"medium.inclusions[{i}]"
-        n_i, k_i = lookup(constants, inc["material"], key + ".material", source)
+        n_i, k_i = lookup(constants, inc["material"], key + ".material", source,
+                          cfg.get("wavelength"))
         rho = inc["proportion"] / total_rho
         d = inc["grain_size"]
         n_mix += n_i * rho
@@ -252,7 +254,8 @@ def physical_parameters(cfg) -> dict:
         sigma = q_e * np.pi * d ** 2 / 4.0
         extinction_particles += number * sigma
         scattering += number * sigma * particle["w"]
-        species.append({"material": inc["material"], "proportion": rho, "grain_size_m": d,
+        species.append({"material": inc["material"], "proportion": rho,
+                        "proportion_given": float(inc["proportion"]), "grain_size_m": d,
                         "n_rel": n_rel, "k_rel": k_rel, "number_density_per_m3": number,
                         "cross_section_m2": sigma, **particle})
         if phi <= 0.0:

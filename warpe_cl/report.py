@@ -33,10 +33,16 @@ def derived_lines(d: dict) -> list:
     -------
     list of str
     """
+    omega, ext = d["omega"], d["extinction_per_m"]
     return [
         f"  tau0              {d['tau0']:.6g}",
-        f"  omega             {d['omega']:.6g}",
-        f"  extinction        {d['extinction_per_m']:.6g} m-1",
+        f"  omega             {omega:.6g}",
+    ] + ([f"  1 - omega         {1.0 - omega:.3g}"] if omega > 0.999 else []) + [
+        f"  extinction        {ext:.6g} m-1",
+        f"  mean free path    {_length(1.0 / ext) if ext > 0 else 'inf'}  (1/E)",
+        f"  absorption length "
+        f"{_length(1.0 / ((1.0 - omega) * ext)) if ext > 0 and omega < 1 else 'inf'}"
+        "  (1/((1 - omega) E))",
         f"  n_eff, k_eff      {d['n_eff']:.6g}, {d['k_eff']:.4g}",
         f"  thickness         {d['thickness_m'] * 1e3:.6g} mm",
         f"  first BF time     {d['first_bf_time_ns']:.6g} ns  (2 h n_eff / c)",
@@ -45,7 +51,24 @@ def derived_lines(d: dict) -> list:
           f"{d['matrix_absorption_per_m']:.6g} m-1"] if "porosity_factor" in d else []) + [
         f"  {sp['material']:<8s}          rho_v {sp['proportion']:.4g}  d {sp['grain_size_m'] * 1e6:.4g} um"
         f"  N {sp['number_density_per_m3']:.4g} m-3  n_rel {sp['n_rel']:.5g}  w {sp['w']:.6g}"
-        for sp in d.get("species", [])]
+        for sp in d.get("species", [])] + _rescaled(d.get("species", []))
+
+
+def _length(metres: float) -> str:
+    """A length with a readable unit: km, m, mm or um."""
+    for scale, unit in ((1e3, "km"), (1.0, "m"), (1e-3, "mm")):
+        if metres >= scale:
+            return f"{metres / scale:.4g} {unit}"
+    return f"{metres * 1e6:.4g} um"
+
+
+def _rescaled(species: list) -> list:
+    """One line when the given proportions do not sum to 1 and were rescaled."""
+    given = [sp.get("proportion_given", sp["proportion"]) for sp in species]
+    if not species or abs(sum(given) - 1.0) <= 1e-9:
+        return []
+    pairs = ", ".join(f"{g:.4g} -> {sp['proportion']:.4g}" for g, sp in zip(given, species))
+    return [f"  proportions given sum to {sum(given):.6g}: rescaled to sum to 1 ({pairs})"]
 
 
 def run_header(cfg, scenarios: int) -> str:
@@ -54,13 +77,19 @@ def run_header(cfg, scenarios: int) -> str:
             f"{int(cfg.get('simulation.photons')):,} rays each, seed {cfg.get('simulation.seed')}")
 
 
-def scenario_lines(ds) -> list:
+def scenario_lines(ds, build_s: float = 0.0, walk_s: float | None = None) -> list:
     """What one simulated scenario gave: device, fates, components, wall time (s) and speed.
 
     Parameters
     ----------
     ds : xarray.Dataset
         One scenario of :func:`warpe_cl.api.simulate_point`.
+    build_s : float
+        Seconds of the wall time spent qualifying and building the kernel on its first use
+        (the engine's ``last_build_s``): said apart, and left out of the speeds.
+    walk_s : float, optional
+        Seconds of the walk itself (the engine's ``last_walk_s``): the speeds are rays and
+        scattering events per second of it. None: the wall time less ``build_s``.
 
     Returns
     -------
@@ -68,6 +97,11 @@ def scenario_lines(ds) -> list:
     """
     photons = int(ds["photons"])
     wall = float(ds["wall_time"])
+    build_s = build_s if 0.0 <= build_s < wall else 0.0
+    walk_given = walk_s is not None and 0.0 < walk_s <= wall
+    if not walk_given:
+        walk_s = wall - (build_s if build_s >= 0.05 else 0.0)
+    walk = max(walk_s, 1e-9)            # the speeds: per second of the walk, not of the build
     events = int(ds["scattering_events"])
     return [
         f"  device            {ds.attrs.get('opencl_device', '?')} ({ds.attrs.get('engine')}, "
@@ -76,8 +110,10 @@ def scenario_lines(ds) -> list:
             f"{f} {v:.5f}" for f, v in zip(ds["fate"].values, ds["fate_fraction"].values)),
         "  components        " + "  ".join(
             f"{c} {v:.5f}" for c, v in zip(ds["component"].values, ds["fraction"].values)),
-        f"  time              {wall:.2f} s   {photons / wall:,.0f} photons/s   "
-        f"{events / wall:,.0f} scattering events/s",
+        f"  time              {wall:.2f} s" + (
+            f", kernel build {build_s:.1f} s (first use)" if build_s >= 0.05 else "")
+        + (f", walk {walk:.2f} s" if walk_given else "")
+        + f"   {photons / walk:,.0f} photons/s   {events / walk:,.0f} scattering events/s",
     ]
 
 

@@ -415,6 +415,9 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
                 progress.advance(f"scenario {s.index} failed ({where}): {rec['error']}",
                                  error=True)
             manifest.write()
+    except KeyboardInterrupt as err:   # Ctrl-C or SIGTERM: the manifest is flushed below
+        err.summary = summary          # the command line's one line counts the finished ones
+        raise
     finally:
         progress.close()
         summary.wall_time_s = time.perf_counter() - t0

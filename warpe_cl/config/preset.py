@@ -148,12 +148,21 @@ class Config:
         return Config(raw, self.source, name_default=self._name_default,
                       base_dir=self._base_dir)
 
-    def to_yaml(self) -> str:
+    def to_yaml(self, omit=()) -> str:
         """The resolved configuration as YAML text, quantities written with units.
 
-        ``load_preset(yaml.safe_load(cfg.to_yaml())).data == cfg.data``.
+        ``load_preset(yaml.safe_load(cfg.to_yaml())).data == cfg.data``. ``omit``: dotted
+        keys left out (show-config leaves out what does not apply, e.g. a granular medium's
+        ``medium.bottom_interface``).
         """
         body = _export(self.data, "")
+        for key in omit:
+            *parents, last = key.split(".")
+            node = body
+            for name in parents:
+                node = node.get(name) if isinstance(node, dict) else None
+            if isinstance(node, dict):
+                node.pop(last, None)
         text = yaml.safe_dump(body, sort_keys=False, allow_unicode=True,
                               default_flow_style=False, width=100)
         return f"# warpe-cl resolved configuration of {self.source}\n{text}"

@@ -163,7 +163,9 @@ SCHEMA: list[Field] = [
        help="Diameter d of the inclusions or grains of this species."),
 
     _F("wavelength", "length", "1064 nm", low=0.0, low_open=True,
-       help="Laser wavelength; selects the optical constants of the materials."),
+       help="Laser wavelength; selects the optical constants of the materials. The "
+            "built-ins (H2O, CO2, S, void) exist at 1064 nm only: at another wavelength give "
+            "each material under materials (n, k or a table)."),
 
     _F("materials", "names", {},
        help="Optional optical constants at the run's wavelength, added to or overriding "

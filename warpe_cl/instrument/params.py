@@ -149,23 +149,28 @@ class InstrumentParams(dict):
 
     source: str = "<dict>"
 
-    def describe(self) -> dict:
-        """Attributes for the output file: ``instrument_<section>_<key>`` -> readable value."""
+    def readable(self) -> dict:
+        """``section.key`` -> the value as a preset writes it (``"5.5 ns"``); absent values
+        left out (``warpe-cl show-config instruments/bela``)."""
         out = {}
         for key, value in self.items():
             if value is None:
                 continue
             p = PARAMS[key]
-            name = "instrument_" + key.replace(".", "_")
             if p.kind in ("str", "choice"):
-                out[name] = str(value)
+                out[key] = str(value)
             elif p.kind == "bool":
-                out[name] = int(bool(value))
+                out[key] = int(bool(value))
             elif p.kind in ("float", "int"):
-                out[name] = value            # dimensionless (or "auto")
+                out[key] = value            # dimensionless (or "auto")
             else:
-                out[name] = format_attribute(value, p.kind)
+                out[key] = format_attribute(value, p.kind)
         return out
+
+    def describe(self) -> dict:
+        """Attributes for the output file: ``instrument_<section>_<key>`` -> readable value."""
+        return {"instrument_" + key.replace(".", "_"): value
+                for key, value in self.readable().items()}
 
 
 def _flatten(mapping: dict, where: str = "instrument") -> dict:
@@ -250,6 +255,20 @@ def _resolve(spec, spec_key: str) -> tuple[dict, str]:
     return raw, str(path)
 
 
+def _base(raw: dict, source: str) -> tuple[dict, dict | None]:
+    """``raw`` without its ``base:`` key, and the bundled instrument it names (None without
+    one): an instrument file ``base: gala`` with a few keys starts from GALA's every key
+    (docs/instrument.md §2)."""
+    if "base" not in raw:
+        return raw, None
+    name = raw["base"]
+    if not isinstance(name, str) or name.lower() not in BUILTIN:
+        raise ConfigError(f"{show(name)} is not a bundled instrument; give one of "
+                          f"{', '.join(BUILTIN)}", key="instrument.base", source=source)
+    base, _ = _resolve(name.lower(), "instrument.base")
+    return {k: v for k, v in raw.items() if k != "base"}, base
+
+
 def check_parameter(key: str, value, source: str | None = None, where: str | None = None):
     """Validate one instrument parameter given apart from a preset (``--shots``, the
     ``shots`` argument of :func:`~warpe_cl.instrument.apply_instrument`).
@@ -316,11 +335,14 @@ def load_instrument(spec, overrides: dict | None = None,
     """
     raw, source = _resolve(spec, spec_key)     # only read here
     over_source = override_source or source
+    raw, base = _base(raw, source)
     try:
         flat = _flatten(raw)
         _check_keys(flat)
     except ConfigError as exc:
         raise exc.with_source(source) from None
+    if base is not None:       # the bundled instrument's keys, those of the file on top
+        flat = {**_flatten(base), **{k: v for k, v in flat.items() if v is not None}}
     try:
         over = _flatten(overrides or {})
         _check_keys(over)
@@ -334,8 +356,10 @@ def load_instrument(spec, overrides: dict | None = None,
         elif flat.get(p.key) is not None:
             out[p.key] = check_parameter(p.key, flat[p.key], source)
         elif p.required:
-            raise ConfigError(f"missing; give {allowed(p)}", f"instrument.{p.key}",
-                              source)
+            raise ConfigError(f"missing; give {allowed(p)}" + (
+                "" if base is not None else
+                f", or start from a bundled instrument with base: {' | '.join(BUILTIN)}"),
+                f"instrument.{p.key}", source)
         else:
             out[p.key] = p.default          # canonical already
     if out["window.stop"] <= out["window.start"]:
