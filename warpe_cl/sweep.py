@@ -416,6 +416,14 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
                                  error=True)
             manifest.write()
     except KeyboardInterrupt as err:   # Ctrl-C or SIGTERM: the manifest is flushed below
+        # A scenario whose file was put in place just before the signal, but whose record had
+        # not come back yet, is done: its file is complete (atomic rename), as --resume sees it.
+        for s in todo:
+            if records[s.index]["status"] == "pending" and (folder / s.file).is_file():
+                records[s.index] = {"status": "done", "error": None, "this_run": "computed",
+                                    "finished_utc": utc_now(),
+                                    "note": "file in place when the run was stopped"}
+                summary.done += 1
         err.summary = summary          # the command line's one line counts the finished ones
         raise
     finally:
