@@ -1,0 +1,115 @@
+"""The figures (issue 12 §3): what the specular's height means, legends, colour bars, labels,
+``warpe-cl plot --scenarios`` and sweep database folders."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from warpe_cl.cli import main
+from warpe_cl.plot import (MIN_RAYS, delta_fractions, numeric_sweep, scenario_labels,
+                           select_scenarios, waveform_figure)
+
+SLAB = """\
+medium:
+  texture: slab
+  thickness: "10 mm"
+  radiative: {tau0: 1.0, omega: 0.9, n: 1.3, k: 0.0}
+simulation:
+  photons: 3000
+  seed: 2
+"""
+THICKNESSES = ["1 mm", "2 mm", "5 mm", "10 mm", "20 mm", "50 mm", "100 mm", "200 mm"]
+
+
+def _run(tmp_path, text, name, photons=None):
+    preset = tmp_path / f"{name}.yaml"
+    preset.write_text(text)
+    out = tmp_path / f"{name}.nc"
+    extra = ["--photons", str(photons)] if photons else []
+    assert main(["run", str(preset), "--out", str(out), "--quiet"] + extra) == 0
+    return xr.load_dataset(out)
+
+
+@pytest.fixture(scope="module")
+def single(tmp_path_factory):
+    return _run(tmp_path_factory.mktemp("single"), SLAB, "single", photons=20000)
+
+
+@pytest.fixture(scope="module")
+def fine_start(tmp_path_factory):
+    text = SLAB + '  time_bins: {start: "1e-3 ns", stop: "1e5 ns", per_decade: 20}\n'
+    return _run(tmp_path_factory.mktemp("fine"), text, "fine", photons=20000)
+
+
+@pytest.fixture(scope="module")
+def many(tmp_path_factory):
+    text = SLAB + "sweep:\n  medium.thickness: [" + ", ".join(f'"{t}"' for t in THICKNESSES) + "]\n"
+    return _run(tmp_path_factory.mktemp("many"), text, "many")
+
+
+def _legend_texts(fig):
+    return [t.get_text() for ax in fig.axes if ax.get_legend()
+            for t in ax.get_legend().get_texts()]
+
+
+def test_specular_is_a_fraction_of_the_rays_whatever_the_bins(single, fine_start):
+    """The specular's plotted value is its fraction of the rays (right axis), the same for
+    any first bin; the diffuse axis is not stretched by it."""
+    for ds in (single, fine_start):
+        t, f = delta_fractions(ds, "specular")
+        assert t.size == 1 and 0.01 < f[0] < 0.05     # Fresnel of n = 1.3 at normal incidence
+        fig = waveform_figure(ds)
+        ax, frac_ax = fig.axes[:2]
+        lo, hi = ax.get_ylim()
+        r = ds["reflectance"].sel(component=["scattering", "bf_diffuse"]).values
+        assert hi <= 10 * r.max() * 1.0001 and np.log10(hi / lo) < 10
+        ydata = np.concatenate([ln.get_ydata() for ln in frac_ax.get_lines() if len(ln.get_ydata())])
+        assert np.any(np.isclose(ydata, f[0]))
+        assert "fraction of the rays" in frac_ax.get_ylabel()
+        assert any(f"specular {f[0]:.3g}" in a.get_text() for a in frac_ax.texts)
+    assert np.isclose(delta_fractions(single, "specular")[1][0],
+                      delta_fractions(fine_start, "specular")[1][0], rtol=0.2)
+
+
+def test_legend_lists_only_drawn_components_and_the_shaded_domain(single):
+    fig = waveform_figure(single)
+    texts = _legend_texts(fig)
+    assert f"fewer than {MIN_RAYS} rays per bin (shaded)" in texts
+    drawn = [c for c in ("scattering", "bf_diffuse")
+             if np.any(single["reflectance"].sel(component=c).values > 0)]
+    assert any(t.startswith("scattering") for t in texts) == ("scattering" in drawn)
+    assert any(t.startswith("BF diffuse") for t in texts) == ("bf_diffuse" in drawn)
+
+
+def test_many_numeric_scenarios_take_a_colour_bar(many):
+    values, key, unit = numeric_sweep(many)
+    assert key == "medium.thickness" and unit == "mm"
+    np.testing.assert_allclose(values, [1, 2, 5, 10, 20, 50, 100, 200])
+    fig = waveform_figure(many)
+    assert len(fig.axes) == 3 and fig.axes[2].get_ylabel() == "medium.thickness (mm)"
+    assert not any("thickness=" in t for t in _legend_texts(fig))
+    few = waveform_figure(many.isel(scenario=[0, 1, 2]))
+    assert len(few.axes) == 2 and "thickness=1 mm" in _legend_texts(few)
+
+
+def test_labels_are_swept_key_values():
+    ds = xr.Dataset(coords={"scenario": [0, 1], "medium": ("scenario", [
+        '{"texture": "granular", "thickness": "1000 mm", "compacity": 0.9, "phase_g": 0.8}',
+        '{"texture": "slab", "thickness": "1500 mm", "compacity": 1.0, "phase_g": 0.8}'])})
+    assert scenario_labels(ds) == ["texture=granular, thickness=1000 mm, compacity=0.9",
+                                   "texture=slab, thickness=1500 mm, compacity=1"]
+    ds = xr.Dataset(coords={"scenario": [0, 1], "medium.thickness": ("scenario", ["1 mm", "2 mm"]),
+                            "wavelength": ("scenario", ["1064 nm", "532 nm"])})
+    assert scenario_labels(ds) == ["thickness=1 mm, wavelength=1064 nm",
+                                   "thickness=2 mm, wavelength=532 nm"]
+
+
+def test_no_diffuse_ray_still_draws(single, tmp_path):
+    """A low-count run whose diffuse bins are all empty: a figure, not a log-scale error."""
+    from warpe_cl.plot import plot_waveform
+    ds = single.copy(deep=True)
+    r = ds["reflectance"]
+    ds["reflectance"] = r.where(~r.component.isin(["scattering", "bf_diffuse"]), 0.0)
+    plot_waveform(ds, tmp_path / "x.png")
+    assert (tmp_path / "x.png").stat().st_size > 10_000
