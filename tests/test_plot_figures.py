@@ -113,3 +113,35 @@ def test_no_diffuse_ray_still_draws(single, tmp_path):
     ds["reflectance"] = r.where(~r.component.isin(["scattering", "bf_diffuse"]), 0.0)
     plot_waveform(ds, tmp_path / "x.png")
     assert (tmp_path / "x.png").stat().st_size > 10_000
+
+
+def test_select_scenarios(many):
+    assert list(select_scenarios(many, "0,3,5")["scenario"].values) == [0, 3, 5]
+    assert list(select_scenarios(many, "0:2, 7")["scenario"].values) == [0, 1, 7]
+    assert list(select_scenarios(many, "6:")["scenario"].values) == [6, 7]
+    for sel in ("medium.thickness=10mm", "thickness=10 mm", "thickness=0.01 m"):
+        assert list(select_scenarios(many, sel)["scenario"].values) == [3]
+    from warpe_cl.errors import ConfigError
+    for bad in ("9", "a:b", "foo=1", "thickness=3 mm", "", "1.5"):
+        with pytest.raises(ConfigError):
+            select_scenarios(many, bad)
+
+
+def test_plot_verb_scenarios_and_database_folder(tmp_path, capsys):
+    preset = tmp_path / "grid.yaml"
+    preset.write_text(SLAB.replace("photons: 3000", "photons: 1000")
+                      + 'sweep:\n  medium.thickness: ["1 mm", "10 mm", "100 mm"]\n')
+    db = tmp_path / "db"
+    assert main(["sweep", str(preset), "--out", str(db), "--quiet"]) == 0
+    png = tmp_path / "db.png"
+    assert main(["plot", str(db), "--out", str(png)]) == 0          # a folder, not "no such file"
+    assert png.stat().st_size > 10_000
+    assert main(["plot", str(db), "--scenarios", "0,2", "--out", str(tmp_path / "s.png")]) == 0
+    assert main(["plot", str(db), "--scenarios", "thickness=10mm",
+                 "--out", str(tmp_path / "v.png")]) == 0
+    capsys.readouterr()
+    for bad in ("7", "x:y", "colour=red"):
+        assert main(["plot", str(db), "--scenarios", bad, "--out", str(tmp_path / "b.png")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "--scenarios" in err
+    assert not (tmp_path / "b.png").exists()

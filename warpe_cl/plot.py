@@ -174,7 +174,7 @@ def select_scenarios(ds, selection: str):
     if "=" in text:
         keep = np.ones(index.size, bool)
         swept = _swept(ds)
-        for term in text.split(","):
+        for term in filter(None, (t.strip() for t in text.split(","))):
             if "=" not in term:
                 raise ConfigError(f"'{term}' is not KEY=VALUE", key="--scenarios")
             key, want = (s.strip() for s in term.split("=", 1))
@@ -186,8 +186,7 @@ def select_scenarios(ds, selection: str):
             keep &= np.array([_same_value(v, want) for v in ds[found[0]].values])
     else:
         picked = set()
-        for term in text.split(","):
-            term = term.strip()
+        for term in filter(None, (t.strip() for t in text.split(","))):
             try:
                 if ":" in term:
                     lo, hi = term.split(":", 1)
