@@ -145,3 +145,45 @@ def test_plot_verb_scenarios_and_database_folder(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "--scenarios" in err
     assert not (tmp_path / "b.png").exists()
+
+
+def _inside(fig):
+    """Every legend lies inside its axes (drawn once, in display pixels)."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        box, leg = ax.get_window_extent(renderer), legend.get_window_extent(renderer)
+        assert (leg.x0 >= box.x0 - 1 and leg.x1 <= box.x1 + 1 and leg.y0 >= box.y0 - 1
+                and leg.y1 <= box.y1 + 1), (ax.get_title(), leg, box)
+
+
+def test_instrument_figure_titles_legends_and_deltas(tmp_path):
+    from warpe_cl.instrument.plot import instrument_figure
+    from conftest import REPO
+    out = tmp_path / "bela.nc"
+    assert main(["run", str(REPO / "presets" / "paper" / "bela_cases.yaml"), "--out", str(out),
+                 "--photons", "5000", "--quiet"]) == 0
+    ds = xr.load_dataset(out)
+    fig = instrument_figure(ds)
+    top, mid, bot, frac_ax = fig.axes
+    assert "received reflectance" in mid.get_title() and "received reflectance" in mid.get_ylabel()
+    assert "photon rate" not in mid.get_title()
+    _inside(fig)
+    texts = _legend_texts(fig)
+    assert any(t.startswith("texture=granular, thickness=1000 mm") for t in texts)
+    assert not any(t.startswith("scenario ") for t in texts)
+    spec = delta_fractions(ds.isel(scenario=1), "specular")[1][0]   # the slab: 0.028 of the rays
+    assert 0.02 < spec < 0.04
+    ydata = np.concatenate([ln.get_ydata() for ln in frac_ax.get_lines() if len(ln.get_ydata())])
+    assert np.any(np.isclose(ydata, spec))
+    assert top.get_ylim()[1] < 1e8                                   # not stretched by it
+    long = "texture=slab, thickness=1500 mm, compacity=1, matrix=CO2, " * 3   # shrunk to fit
+    _inside(instrument_figure([(long, ds.isel(scenario=1)), ("short", ds.isel(scenario=0))]))
+
+
+def test_waveform_legends_inside(many):
+    _inside(waveform_figure(many))
+    _inside(waveform_figure(many.isel(scenario=[0, 1, 2])))

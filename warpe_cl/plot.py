@@ -238,6 +238,33 @@ def _pyplot():
     return plt
 
 
+def fit_legend(ax, legend, smallest: float = 5.5):
+    """Keep ``legend`` inside ``ax`` (long scenario labels): shrink its font down to
+    ``smallest``, then wrap its longest labels onto several lines."""
+    import textwrap
+    renderer = ax.figure.canvas.get_renderer()
+    box = ax.get_window_extent(renderer)
+    texts = legend.get_texts()
+    if not texts:
+        return legend
+
+    def too_wide():
+        return legend.get_window_extent(renderer).width > 0.98 * box.width
+
+    size = texts[0].get_fontsize()
+    while too_wide() and size > smallest:
+        size -= 0.5
+        for text in texts:
+            text.set_fontsize(size)
+    originals = [text.get_text() for text in texts]
+    chars = max(len(o) for o in originals)
+    while too_wide() and chars > 20:
+        chars = int(chars * 0.85)
+        for text, original in zip(texts, originals):
+            text.set_text(textwrap.fill(original, chars))
+    return legend
+
+
 def delta_fractions(sc, comp: str):
     """Times (ns) and fractions of the launched rays of a delta-like return of one scenario.
 
@@ -365,7 +392,8 @@ def waveform_figure(ds, title: str | None = None):
     ax.grid(True, which="major", alpha=0.3)
     if bar is not None:
         fig.colorbar(bar[0], ax=[ax, frac_ax], label=bar[1], pad=0.02)
-    frac_ax.legend(handles, labels, fontsize=7, loc="upper right", framealpha=0.85)
+    fit_legend(frac_ax, frac_ax.legend(handles, labels, fontsize=7, loc="upper right",
+                                       framealpha=0.85))
     return fig
 
 
