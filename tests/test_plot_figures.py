@@ -187,3 +187,15 @@ def test_instrument_figure_titles_legends_and_deltas(tmp_path):
 def test_waveform_legends_inside(many):
     _inside(waveform_figure(many))
     _inside(waveform_figure(many.isel(scenario=[0, 1, 2])))
+
+
+def test_several_speculars_written_one_line_each(many):
+    """A few scenarios: each specular fraction written once, on its own line (no overlap)."""
+    sub = many.isel(scenario=[0, 1, 2])
+    fig = waveform_figure(sub)
+    lines = [t for t in fig.axes[1].texts if t.get_text().startswith("specular ")]
+    assert len(lines) == 3
+    assert len({round(t.get_position()[1], 3) for t in lines}) == 3
+    for t, i in zip(lines, range(3)):
+        f = delta_fractions(sub.isel(scenario=i), "specular")[1][0]
+        assert t.get_text() == f"specular {f:.3g} of the rays at t = 0"

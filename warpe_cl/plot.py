@@ -330,6 +330,8 @@ def waveform_figure(ds, title: str | None = None):
     t = ds["time"].values
     width = np.diff(ds["time_edges"].values)
     lows, highs, drawn, fractions, shaded = [], [], set(), [], []
+    speculars = []   # (fraction, time, colour): written on the figure
+    counts = {float(sc["photons"]) for _, sc in cases}   # one count: one limit, shaded once
     for (label, sc), colour in zip(cases, colours):
         photons = float(sc["photons"])
         for comp, style in (("scattering", "-"), ("bf_diffuse", "--")):
@@ -339,7 +341,7 @@ def waveform_figure(ds, title: str | None = None):
                         marker=".", ms=3)   # markers: isolated bins have no line
                 omega = float(sc["solid_angle"].sel(component=comp))
                 floor = MIN_RAYS / (photons * omega * width)
-                shade = "grey" if bar is not None else colour
+                shade = colour if bar is None and len(counts) > 1 else "grey"   # else the same
                 if not any(np.allclose(floor, f) and shade == c for f, c in shaded):
                     ax.fill_between(t, 1e-30, floor, color=shade, alpha=0.07, lw=0)
                     shaded.append((floor, shade))   # one shade per distinct limit
@@ -353,10 +355,8 @@ def waveform_figure(ds, title: str | None = None):
                              mfc="none" if comp == "bf_direct" else colour)
                 drawn.add(comp)
                 fractions += list(ff)
-                if comp == "specular" and len(cases) <= MAX_CYCLE:
-                    frac_ax.annotate(f"specular {ff[0]:.3g}\nof the rays at t = 0", (tt[0], ff[0]),
-                                     xytext=(8, 0), textcoords="offset points", fontsize=7,
-                                     color=colour, va="center")
+                if comp == "specular":
+                    speculars.append((ff[0], tt[0], colour))
         t1 = _value(sc, "first_bf_time_ns")
         if np.isfinite(t1):
             ax.axvline(t1, color=colour, ls=":", lw=1.0)
@@ -388,8 +388,18 @@ def waveform_figure(ds, title: str | None = None):
     ax.set_xlabel("time (ns)")
     ax.set_ylabel("diffuse reflectance (ns$^{-1}$ sr$^{-1}$)")
     frac_ax.set_ylabel("fraction of the rays: specular (o), BF direct (△)")
+    frac_ax.yaxis.set_visible(bool(fractions))   # no delta return: no right-hand axis
     ax.set_title(title or str(ds.attrs.get("name", "")))
     ax.grid(True, which="major", alpha=0.3)
+    if len(speculars) == 1:
+        f, t0, colour = speculars[0]
+        frac_ax.annotate(f"specular {f:.3g}\nof the rays at t = 0", (t0, f), xytext=(8, 0),
+                         textcoords="offset points", fontsize=7, color=colour, va="center")
+    elif 1 < len(speculars) <= MAX_CYCLE:   # one line each, stacked: the markers overlap
+        for k, (f, _, colour) in enumerate(speculars):
+            frac_ax.text(0.02, 0.03 + 0.04 * (len(speculars) - 1 - k),
+                         f"specular {f:.3g} of the rays at t = 0", transform=frac_ax.transAxes,
+                         fontsize=7, color=colour)
     if bar is not None:
         fig.colorbar(bar[0], ax=[ax, frac_ax], label=bar[1], pad=0.02)
     fit_legend(frac_ax, frac_ax.legend(handles, labels, fontsize=7, loc="upper right",
