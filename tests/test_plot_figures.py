@@ -199,3 +199,13 @@ def test_several_speculars_written_one_line_each(many):
     for t, i in zip(lines, range(3)):
         f = delta_fractions(sub.isel(scenario=i), "specular")[1][0]
         assert t.get_text() == f"specular {f:.3g} of the rays at t = 0"
+
+
+def test_angular_figure_legend_or_colour_bar(many, tmp_path):
+    from warpe_cl.plot import angular_figure, plot_angular
+    fig = angular_figure(many)
+    assert len(fig.axes) == 3 and fig.axes[2].get_ylabel() == "medium.thickness (mm)"
+    few = angular_figure(many.isel(scenario=[0, 3]))
+    assert "thickness=10 mm" in _legend_texts(few)
+    _inside(few)
+    assert plot_angular(many, tmp_path / "a.png").stat().st_size > 10_000

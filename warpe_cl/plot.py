@@ -421,20 +421,38 @@ def plot_waveform(ds, path, title: str | None = None):
 
 def plot_angular(ds, path, title: str | None = None):
     """The seed's FOV figure: angular reflectance (sr⁻¹) of the background scattering and the
-    BF diffuse against emergence, with the 12° and 3° numerical FOVs."""
+    BF diffuse against emergence, with the 12° and 3° numerical FOVs.
+
+    Scenarios are coloured and labelled as in ``waveform_figure`` (a legend, or a colour bar for
+    more than ``MAX_CYCLE`` scenarios of one numeric key). Returns ``path``.
+    """
+    plt = _pyplot()
+    fig = angular_figure(ds, title)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def angular_figure(ds, title: str | None = None):
+    """The FOV figure of ``plot_angular`` as a matplotlib Figure (two panels, then a colour
+    bar axis for more than ``MAX_CYCLE`` scenarios of one numeric key)."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), constrained_layout=True)
     fovs = {"scattering": 12.0, "bf_diffuse": 3.0}
+    cases = list(_scenarios(ds))
+    colours, bar = _colours(plt, ds, len(cases))
     for ax, comp in zip(axes, ("scattering", "bf_diffuse")):
-        for label, sc in _scenarios(ds):
+        for (label, sc), colour in zip(cases, colours):
             r = sc["angular_reflectance"].sel(component=comp).values
-            ax.plot(sc["emergence"].values, r, marker=".", label=label or None)
-        ax.axvline(fovs[comp], color="k", ls="--", lw=1)
+            ax.plot(sc["emergence"].values, r, marker=".", color=colour,
+                    label=(label or None) if bar is None else None)
+        ax.axvline(fovs[comp], color="k", ls="--", lw=1, label=f"numerical FOV {fovs[comp]:g}°")
         ax.set_xlabel("emergence (deg)")
         ax.set_ylabel("reflectance (sr$^{-1}$)")
         ax.set_title(f"{comp}: numerical FOV {fovs[comp]:g}°")
         ax.grid(True, alpha=0.3)
+        fit_legend(ax, ax.legend(fontsize=7, loc="upper right", framealpha=0.85))
+    if bar is not None:
+        fig.colorbar(bar[0], ax=list(axes), label=bar[1], pad=0.02)
     fig.suptitle(title or str(ds.attrs.get("name", "")))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig
