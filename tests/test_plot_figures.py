@@ -209,3 +209,12 @@ def test_angular_figure_legend_or_colour_bar(many, tmp_path):
     assert "thickness=10 mm" in _legend_texts(few)
     _inside(few)
     assert plot_angular(many, tmp_path / "a.png").stat().st_size > 10_000
+
+
+def test_instrument_figure_many_scenarios_colour_bar(many):
+    from warpe_cl.instrument import apply_instrument
+    from warpe_cl.instrument.plot import instrument_figure
+    fig = instrument_figure(apply_instrument(many, "bela", shots=5))
+    assert len(fig.axes) == 5 and fig.axes[4].get_ylabel() == "medium.thickness (mm)"
+    assert fig.axes[3].get_legend() is None      # the colour bar names the top panel's colours
+    _inside(fig)

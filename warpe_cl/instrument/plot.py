@@ -68,21 +68,28 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
     -------
     matplotlib.figure.Figure
         ``fig.axes``: top, middle, bottom, then the top panel's right-hand axis (fractions of
-        the rays in the specular and BF-direct returns). Every legend lies inside its panel.
+        the rays in the specular and BF-direct returns), then, for more than six scenarios of
+        one numeric swept key (colours from viridis), the colour bar. Every legend lies inside
+        its panel.
     """
-    from ..plot import _pyplot, delta_fractions, fit_legend
-    if not isinstance(cases, list):
-        title = title or f"{cases.attrs.get('name', '')} — {cases.attrs.get('instrument_name', '')}"
-        cases = cases_of(cases)
+    from ..plot import _colours, _pyplot, delta_fractions, fit_legend
     plt = _pyplot()
+    bar = None
+    if not isinstance(cases, list):
+        ds = cases
+        title = title or f"{ds.attrs.get('name', '')} — {ds.attrs.get('instrument_name', '')}"
+        cases = cases_of(ds)
+        colours, bar = _colours(plt, ds, len(cases))   # > MAX_CYCLE of a numeric key: viridis
+    else:
+        cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        colours = [cycle[i % len(cycle)] for i in range(len(cases))]
     fig, axes = plt.subplots(3, 1, figsize=(8.5, 11), constrained_layout=True)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     top, mid, bot = axes
     frac_ax = top.twinx()
     lows, highs, fractions = [], [], []
     sat = None
     for i, (label, sc) in enumerate(cases):
-        colour = colours[i % len(colours)]
+        colour = colours[i]
         # top: the surface response
         t = sc["time"].values
         rd = sum(sc["reflectance"].sel(component=c).values for c in ("scattering", "bf_diffuse"))
@@ -165,7 +172,10 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
         ax.grid(True, alpha=0.3)
         if ax is not top:
             fit_legend(ax, ax.legend(fontsize=7, loc="upper right", framealpha=0.85))
-    fit_legend(frac_ax, frac_ax.legend(*top.get_legend_handles_labels(), fontsize=7,
-                                       loc="upper right", framealpha=0.85))   # over its markers
+    if bar is None:
+        fit_legend(frac_ax, frac_ax.legend(*top.get_legend_handles_labels(), fontsize=7,
+                                           loc="upper right", framealpha=0.85))   # over markers
+    else:
+        fig.colorbar(bar[0], ax=list(axes), label=bar[1], pad=0.02, shrink=0.6)
     fig.suptitle(title or "")
     return fig
