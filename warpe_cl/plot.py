@@ -50,9 +50,9 @@ def _as_dict(value):
 
 
 def _short(value) -> str:
-    """A value as written in a legend: numbers with 4 significant digits, lists compact."""
+    """A value as written in a legend: numbers with 6 significant digits, lists compact."""
     if isinstance(value, (float, np.floating)):
-        return f"{value:.4g}"
+        return f"{value:.6g}"
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_short(v) for v in value) + "]"
     if isinstance(value, dict):
