@@ -72,7 +72,10 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
     sigma = float(slab["template_width"])
     t_bf = float(slab["first_bf_time_ns"])
     ph = slab["photons_at_aperture"].values
-    n_spec = ds["ray_count"].isel(scenario=1).sel(component="specular").sum().item()
+    # the t = 0 specular is in no log bin (ray_count): its rays are early_fraction x photons
+    one = ds.isel(scenario=1)
+    n_spec = (ds["ray_count"].isel(scenario=1).sel(component="specular").sum().item()
+              + round(float(one["early_fraction"].sel(component="specular")) * float(one["photons"])))
     n_bf = ds["ray_count"].isel(scenario=1).sel(component="bf_direct").sum().item()
     ratio = ph[2] / ph[1]
     ratio_se = ratio * np.sqrt(1 / n_spec + 1 / n_bf)

@@ -309,7 +309,14 @@ def cmd_plot(args) -> int:
     from .io import Outputs
     from .plot import plot_angular, plot_waveform
     path = Path(args.file)
-    ds = _load_result(path)
+    if path.is_dir():   # a sweep database folder (docs/interface.md §5.5)
+        from .database import open_database
+        ds = open_database(path)
+    else:
+        ds = _load_result(path)
+    if args.scenarios is not None:
+        from .plot import select_scenarios
+        ds = select_scenarios(ds, args.scenarios)
     kind = args.kind or ("instrument" if "received_reflectance" in ds else "waveform")
     if kind == "instrument":
         if "received_reflectance" not in ds:
@@ -393,7 +400,11 @@ def make_parser() -> argparse.ArgumentParser:
     ps.set_defaults(func=cmd_presets)
 
     pl = sub.add_parser("plot", help="draw the waveform of a result file")
-    pl.add_argument("file", help="a NetCDF file written by `warpe-cl run`")
+    pl.add_argument("file", help="a NetCDF file written by `warpe-cl run` or `instrument`, or a "
+                                 "database folder written by `warpe-cl sweep`")
+    pl.add_argument("--scenarios", default=None, metavar="SEL",
+                    help="draw only these scenarios: indices 0,3,5, a range 0:4 (4 excluded), "
+                         "or a swept value medium.thickness=10mm")
     pl.add_argument("--out", required=True, help="output PNG")
     pl.add_argument("--kind", choices=("waveform", "angular", "instrument"), default=None,
                     help="waveform: reflectance against time; angular: the FOV figure; "

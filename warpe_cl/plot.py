@@ -1,21 +1,104 @@
 """Figures in the seed paper's style.
 
-``plot_waveform``: log–log reflectance (ns⁻¹ sr⁻¹) against time (ns), one colour per sweep value;
-scattering as solid lines, BF diffuse dashed, specular (drawn at 1e-6 ns) and BF-direct peaks
-as markers (the specular leaves at t = 0, before log bins start: its marker is its fraction as if
-spread over the first bin, the seed's convention; no other component's early exits are drawn:
-they are in no bin, ``early_fraction``); under each curve a shaded domain where a bin would
-hold fewer than ``min_rays`` rays (the Monte Carlo limit the seed shades), and the first back-and-forth time 2 h n_eff / c
-as a dashed vertical line.
+``plot_waveform`` (drawn by ``waveform_figure``): log–log reflectance (ns⁻¹ sr⁻¹) against time
+(ns) of the diffuse components, one colour per scenario: scattering as solid lines, BF diffuse
+dashed; under each curve a shaded domain where a bin would hold fewer than ``MIN_RAYS`` rays
+(the Monte Carlo limit the seed shades), and the first back-and-forth time 2 h n_eff / c as a
+dotted vertical line. The delta-like returns (the specular, which leaves at t = 0 before the
+first log bin, drawn at 1e-6 ns, and the BF-direct peaks) are drawn as markers on a secondary,
+right-hand axis as the fraction of the launched rays they hold, and the specular's fraction is
+written on the figure: divided by a bin width, their height would only measure that width
+(docs/interface.md §5.6). The left y-range is set by the diffuse curves alone. Up to
+``MAX_CYCLE`` scenarios take the colour cycle and a legend entry each; more scenarios of one
+numeric swept key take a sequential colormap and a colour bar labelled with the key and unit.
 
 ``plot_angular``: the seed's FOV figure: time-integrated angular reflectance of the
 background scattering and the BF diffuse, with their numerical FOVs.
+
+``select_scenarios``: the ``--scenarios`` selection of ``warpe-cl plot``.
 """
 from __future__ import annotations
 
+import json
+import re
+
 import numpy as np
 
+from .errors import ConfigError
+
 SPECULAR_TIME_NS = 1e-6   # the seed draws the t = 0 specular return at 1e-6 ns
+MIN_RAYS = 3              # the shaded Monte Carlo limit: fewer rays than this in a bin
+_FIRST = ("texture", "thickness")   # a swept block's entries shown first
+MAX_CYCLE = 6             # more scenarios of a numeric sweep: a colormap and a colour bar
+_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s].*)?$")
+
+
+def _swept(ds) -> list:
+    """The swept coordinates: those along ``scenario`` but the index itself."""
+    return [c for c in ds.coords if ds[c].dims == ("scenario",) and c != "scenario"]
+
+
+def _as_dict(value):
+    """A swept value given as a block (stored as JSON text), as a dict; else None."""
+    if isinstance(value, str) and value.lstrip().startswith("{"):
+        try:
+            out = json.loads(value)
+        except ValueError:
+            return None
+        return out if isinstance(out, dict) else None
+    return None
+
+
+def _short(value) -> str:
+    """A value as written in a legend: numbers with 6 significant digits, lists compact."""
+    if isinstance(value, (float, np.floating)):
+        return f"{value:.6g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_short(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_short(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def scenario_labels(ds) -> list:
+    """One legend label per scenario: the swept values as ``key=value`` with their units.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A result (docs/interface.md §5); swept keys are the coordinates along ``scenario``.
+
+    Returns
+    -------
+    list of str
+        ``"thickness=10 mm"`` for a sweep of ``medium.thickness``; for a swept block (e.g. a
+        list of whole ``medium:`` blocks, stored as JSON text) only the entries that differ
+        between scenarios, e.g. ``"texture=granular, thickness=1000 mm, compacity=0.9"``. The
+        key is shortened to its last part unless two swept keys share it. Without a scenario
+        dimension: the result's name.
+    """
+    if "scenario" not in ds.dims:
+        return [str(ds.attrs.get("name", ""))]
+    n = ds.sizes["scenario"]
+    swept = _swept(ds)
+    lasts = [c.split(".")[-1] for c in swept]
+    parts = [[] for _ in range(n)]
+    for c, last in zip(swept, lasts):
+        name = last if lasts.count(last) == 1 else c
+        values = [v.item() if hasattr(v, "item") else v for v in ds[c].values]
+        blocks = [_as_dict(v) for v in values]
+        if all(b is not None for b in blocks):
+            keys = list(dict.fromkeys(k for b in blocks for k in b))
+            keys.sort(key=lambda k: _FIRST.index(k) if k in _FIRST else len(_FIRST))
+            varying = [k for k in keys
+                       if len({json.dumps(b.get(k), sort_keys=True) for b in blocks}) > 1]
+            for i, b in enumerate(blocks):
+                parts[i] += [f"{k}={_short(b[k])}" for k in varying if k in b]
+        else:
+            for i, v in enumerate(values):
+                parts[i].append(f"{name}={_short(v)}")
+    return [", ".join(p) if p else f"scenario {int(ds['scenario'].values[i])}"
+            for i, p in enumerate(parts)]
 
 
 def _scenarios(ds):
@@ -23,10 +106,123 @@ def _scenarios(ds):
     if "scenario" not in ds.dims:
         yield str(ds.attrs.get("name", "")), ds
         return
-    swept = [c for c in ds.coords if ds[c].dims == ("scenario",) and c != "scenario"]
-    for i in range(ds.sizes["scenario"]):
-        label = ", ".join(f"{c.split('.')[-1]} = {ds[c].values[i]}" for c in swept)
-        yield (label if len(label) < 60 else f"scenario {i}"), ds.isel(scenario=i)
+    for i, label in enumerate(scenario_labels(ds)):
+        yield label, ds.isel(scenario=i)
+
+
+def numeric_sweep(ds):
+    """The values, key and unit of a sweep of one numeric key, for a colour bar; else None.
+
+    Returns
+    -------
+    (numpy.ndarray, str, str) or None
+        The swept numbers (``"10 mm"`` gives 10.0), the key and the unit (``""`` for a pure
+        number). None if not exactly one key is swept, or its values are not numbers of one
+        unit.
+    """
+    if "scenario" not in ds.dims:
+        return None
+    swept = _swept(ds)
+    if len(swept) != 1:
+        return None
+    numbers, units = [], set()
+    for v in ds[swept[0]].values:
+        v = v.item() if hasattr(v, "item") else v
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            numbers.append(float(v))
+            units.add("")
+            continue
+        m = _QUANTITY.match(str(v))
+        if not m:
+            return None
+        numbers.append(float(m.group(1)))
+        units.add((m.group(2) or "").strip())
+    if len(units) != 1:
+        return None
+    return np.asarray(numbers), swept[0], units.pop()
+
+
+def select_scenarios(ds, selection: str):
+    """The scenarios of ``ds`` named by ``selection`` (``warpe-cl plot --scenarios``).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A result with a ``scenario`` dimension (a file of ``warpe-cl run`` or a sweep database).
+    selection : str
+        Scenario indices (the ``scenario`` coordinate, which is the grid index of a database):
+        a list ``"0,3,5"``, a range ``"0:4"`` (4 excluded, as in Python; ``"2:"`` to the end)
+        or both ``"0:2,7"``; or a swept value ``"medium.thickness=10mm"`` (the key in full or
+        its last part; a value with a unit is compared as a quantity, so ``10mm`` matches
+        ``10 mm``), several joined by ``,`` all holding.
+
+    Returns
+    -------
+    xarray.Dataset
+        The selected scenarios, in the file's order.
+
+    Raises
+    ------
+    ConfigError
+        A selection that cannot be read, or that selects no scenario (one line: exit 2).
+    """
+    text = str(selection).strip()
+    if "scenario" not in ds.dims:
+        raise ConfigError("the result has a single scenario: nothing to select",
+                          key="--scenarios")
+    index = np.asarray(ds["scenario"].values)
+    if "=" in text:
+        keep = np.ones(index.size, bool)
+        swept = _swept(ds)
+        for term in filter(None, (t.strip() for t in text.split(","))):
+            if "=" not in term:
+                raise ConfigError(f"'{term}' is not KEY=VALUE", key="--scenarios")
+            key, want = (s.strip() for s in term.split("=", 1))
+            found = [c for c in swept if c == key] or [c for c in swept
+                                                      if c.split(".")[-1] == key.split(".")[-1]]
+            if len(found) != 1:
+                raise ConfigError(f"'{key}' is not a swept key (swept: {', '.join(swept) or 'none'})",
+                                  key="--scenarios")
+            keep &= np.array([_same_value(v, want) for v in ds[found[0]].values])
+    else:
+        picked = set()
+        for term in filter(None, (t.strip() for t in text.split(","))):
+            try:
+                if ":" in term:
+                    lo, hi = term.split(":", 1)
+                    lo = int(lo) if lo.strip() else int(index.min())
+                    hi = int(hi) if hi.strip() else int(index.max()) + 1
+                    picked.update(range(lo, hi))
+                else:
+                    picked.add(int(term))
+            except ValueError:
+                raise ConfigError(f"'{term}' is not an index, a range I:J or KEY=VALUE",
+                                  key="--scenarios") from None
+        keep = np.isin(index, sorted(picked))
+    if not keep.any():
+        raise ConfigError(f"'{text}' selects no scenario (indices {index.min()}..{index.max()})",
+                          key="--scenarios")
+    return ds.isel(scenario=np.flatnonzero(keep))
+
+
+def _same_value(value, want: str) -> bool:
+    value = value.item() if hasattr(value, "item") else value
+    if str(value).replace(" ", "") == want.replace(" ", ""):
+        return True
+    a, b = _QUANTITY.match(str(value)), _QUANTITY.match(want)
+    if not (a and b):
+        return False
+    ua, ub = (a.group(2) or "").strip(), (b.group(2) or "").strip()
+    if ua == ub:
+        return np.isclose(float(a.group(1)), float(b.group(1)), rtol=1e-9)
+    from .units import DIMENSIONS, parse_quantity
+    for dimension in DIMENSIONS:
+        try:
+            return bool(np.isclose(parse_quantity(str(value), dimension),
+                                   parse_quantity(want, dimension), rtol=1e-9))
+        except Exception:  # noqa: BLE001 - not this dimension
+            continue
+    return False
 
 
 def _value(sc, name):
@@ -42,59 +238,182 @@ def _pyplot():
     return plt
 
 
-def plot_waveform(ds, path, title: str | None = None):
-    """Draw the reflectance of every component against time and save it to ``path`` (PNG)."""
+def fit_legend(ax, legend, smallest: float = 5.5):
+    """Keep ``legend`` inside ``ax`` (long scenario labels): shrink its font down to
+    ``smallest``, then wrap its longest labels onto several lines."""
+    import textwrap
+    renderer = ax.figure.canvas.get_renderer()
+    box = ax.get_window_extent(renderer)
+    texts = legend.get_texts()
+    if not texts:
+        return legend
+
+    def too_wide():
+        return legend.get_window_extent(renderer).width > 0.98 * box.width
+
+    size = texts[0].get_fontsize()
+    while too_wide() and size > smallest:
+        size -= 0.5
+        for text in texts:
+            text.set_fontsize(size)
+    originals = [text.get_text() for text in texts]
+    chars = max(len(o) for o in originals)
+    while too_wide() and chars > 20:
+        chars = int(chars * 0.85)
+        for text, original in zip(texts, originals):
+            text.set_text(textwrap.fill(original, chars))
+    return legend
+
+
+def delta_fractions(sc, comp: str):
+    """Times (ns) and fractions of the launched rays of a delta-like return of one scenario.
+
+    The specular leaves at t = 0, before the first log bin: its ``early_fraction`` is placed at
+    ``SPECULAR_TIME_NS``. A bin's fraction is its reflectance times the solid angle and the bin
+    width (docs/interface.md §5.6), so it does not depend on the binning.
+    """
+    r = sc["reflectance"].sel(component=comp).values
+    omega = float(sc["solid_angle"].sel(component=comp))
+    frac = r * omega * np.diff(sc["time_edges"].values)
+    t = sc["time"].values
+    hit = frac > 0
+    times, fracs = list(t[hit]), list(frac[hit])
+    if comp == "specular":
+        times = [SPECULAR_TIME_NS] * len(times)
+        early = (float(sc["early_fraction"].sel(component=comp))
+                 if "early_fraction" in sc.variables else 0.0)
+        if early > 0 or fracs:
+            times, fracs = [SPECULAR_TIME_NS], [early + float(np.sum(fracs))]
+    return np.asarray(times), np.asarray(fracs)
+
+
+def _colours(plt, ds, n):
+    """A colour per scenario and, for more than MAX_CYCLE of one numeric key, the colour bar's
+    (mappable, label)."""
+    sweep = numeric_sweep(ds) if n > MAX_CYCLE else None
+    if sweep is None:
+        cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        return [cycle[i % len(cycle)] for i in range(n)], None
+    import matplotlib as mpl
+    values, key, unit = sweep
+    positive = np.all(values > 0) and values.max() / values.min() > 20
+    norm = (mpl.colors.LogNorm if positive else mpl.colors.Normalize)(values.min(), values.max())
+    cmap = mpl.colormaps["viridis"]
+    mappable = mpl.cm.ScalarMappable(norm=norm, cmap=cmap)
+    return [cmap(norm(v)) for v in values], (mappable, f"{key} ({unit})" if unit else key)
+
+
+def waveform_figure(ds, title: str | None = None):
+    """The waveform figure of ``ds`` as a matplotlib Figure (``plot_waveform`` saves it).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A result of ``warpe-cl run`` or ``warpe_cl.simulate`` (docs/interface.md §5).
+    title : str, optional
+        Defaults to the result's name.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        ``fig.axes[0]``: the diffuse reflectance (ns⁻¹ sr⁻¹), whose y-range the diffuse
+        curves alone set; ``fig.axes[1]``: its twin, the fractions of the rays in the specular
+        and BF-direct returns; a colour bar axis follows for a numeric sweep of more than
+        ``MAX_CYCLE`` scenarios.
+    """
     plt = _pyplot()
+    from matplotlib.patches import Patch
     fig, ax = plt.subplots(figsize=(8.5, 5.5), constrained_layout=True)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    frac_ax = ax.twinx()
+    cases = list(_scenarios(ds))
+    colours, bar = _colours(plt, ds, len(cases))
     t = ds["time"].values
     width = np.diff(ds["time_edges"].values)
-    lows = []
-    for i, (label, sc) in enumerate(_scenarios(ds)):
-        colour = colours[i % len(colours)]
+    lows, highs, drawn, fractions, shaded = [], [], set(), [], []
+    speculars = []   # (fraction, time, colour): written on the figure
+    counts = {float(sc["photons"]) for _, sc in cases}   # one count: one limit, shaded once
+    for (label, sc), colour in zip(cases, colours):
         photons = float(sc["photons"])
-        min_rays = 3
         for comp, style in (("scattering", "-"), ("bf_diffuse", "--")):
             r = sc["reflectance"].sel(component=comp).values
             if np.any(r > 0):
                 ax.plot(t, np.where(r > 0, r, np.nan), ls=style, color=colour, lw=1.4,
                         marker=".", ms=3)   # markers: isolated bins have no line
                 omega = float(sc["solid_angle"].sel(component=comp))
-                floor = min_rays / (photons * omega * width)
-                ax.fill_between(t, 1e-30, floor, color=colour, alpha=0.07, lw=0)
+                floor = MIN_RAYS / (photons * omega * width)
+                shade = colour if bar is None and len(counts) > 1 else "grey"   # else the same
+                if not any(np.allclose(floor, f) and shade == c for f, c in shaded):
+                    ax.fill_between(t, 1e-30, floor, color=shade, alpha=0.07, lw=0)
+                    shaded.append((floor, shade))   # one shade per distinct limit
                 lows.append(np.nanmin(np.where(r > 0, r, np.nan)))
+                highs.append(r.max())
+                drawn.add(comp)
         for comp, marker in (("specular", "o"), ("bf_direct", "^")):
-            r = sc["reflectance"].sel(component=comp).values
-            if comp == "specular" and "early_fraction" in sc.variables:
-                spec = float(sc["early_fraction"].sel(component=comp))
-                omega = float(sc["solid_angle"].sel(component=comp))
-                r = r.copy()
-                r[0] += spec / (omega * width[0])   # t = 0 < edges[0]: drawn at the first bin
-            hit = r > 0
-            if hit.any():
-                tt = np.maximum(t[hit], SPECULAR_TIME_NS) if comp == "specular" else t[hit]
-                ax.plot(tt, r[hit], ls="none", marker=marker, color=colour, ms=6,
-                        mfc="none" if comp == "bf_direct" else colour)
-                lows.append(r[hit].min())
+            tt, ff = delta_fractions(sc, comp)
+            if ff.size:
+                frac_ax.plot(tt, ff, ls="none", marker=marker, color=colour, ms=6,
+                             mfc="none" if comp == "bf_direct" else colour)
+                drawn.add(comp)
+                fractions += list(ff)
+                if comp == "specular":
+                    speculars.append((ff[0], tt[0], colour))
         t1 = _value(sc, "first_bf_time_ns")
         if np.isfinite(t1):
             ax.axvline(t1, color=colour, ls=":", lw=1.0)
-        ax.plot([], [], color=colour, lw=6, alpha=0.6, label=label)
-    for comp, style in (("scattering (12°)", "-"), ("BF diffuse (3°)", "--")):
-        ax.plot([], [], color="k", ls=style, label=comp)
-    ax.plot([], [], "ko", label="specular (at 1e-6 ns)")
-    ax.plot([], [], "k^", mfc="none", label="BF direct")
-    ax.plot([], [], "k:", label="first BF time 2hn/c")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    if lows:
-        ax.set_ylim(bottom=max(min(lows) / 10, 1e-12))
+            drawn.add("first_bf")
+        if bar is None:
+            ax.plot([], [], color=colour, lw=6, alpha=0.6, label=label)
+    keys = {"scattering": dict(color="k", ls="-", label="scattering (12°)"),
+            "bf_diffuse": dict(color="k", ls="--", label="BF diffuse (3°)"),
+            "specular": dict(color="k", marker="o", ls="none",
+                             label="specular, t = 0 (right axis: fraction)"),
+            "bf_direct": dict(color="k", marker="^", mfc="none", ls="none",
+                              label="BF direct (right axis: fraction)"),
+            "first_bf": dict(color="k", ls=":", label="first BF time 2hn/c")}
+    for comp, kw in keys.items():
+        if comp in drawn:
+            ax.plot([], [], **kw)
+    handles, labels = ax.get_legend_handles_labels()
+    if drawn & {"scattering", "bf_diffuse"}:
+        handles.append(Patch(color="grey", alpha=0.25, lw=0))
+        labels.append(f"fewer than {MIN_RAYS} rays per bin (shaded)")
+    for a in (ax, frac_ax):
+        a.set_xscale("log")
+        a.set_yscale("log")
+    # without data a log axis has no range: a nominal one (nothing to stretch it)
+    ax.set_ylim(max(min(lows) / 10, 1e-12), max(highs) * 10) if lows else ax.set_ylim(1e-6, 1.0)
+    frac_ax.set_ylim(*((min(fractions) / 10, min(max(fractions) * 10, 10.0)) if fractions
+                       else (1e-6, 1.0)))
     ax.set_xlim(SPECULAR_TIME_NS / 2, t[-1])
     ax.set_xlabel("time (ns)")
-    ax.set_ylabel("reflectance (ns$^{-1}$ sr$^{-1}$)")
+    ax.set_ylabel("diffuse reflectance (ns$^{-1}$ sr$^{-1}$)")
+    frac_ax.set_ylabel("fraction of the rays: specular (o), BF direct (△)")
+    frac_ax.yaxis.set_visible(bool(fractions))   # no delta return: no right-hand axis
     ax.set_title(title or str(ds.attrs.get("name", "")))
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
+    if len(speculars) == 1:
+        f, t0, colour = speculars[0]
+        frac_ax.annotate(f"specular {f:.3g}\nof the rays at t = 0", (t0, f), xytext=(8, 0),
+                         textcoords="offset points", fontsize=7, color=colour, va="center")
+    elif 1 < len(speculars) <= MAX_CYCLE:   # one line each, stacked: the markers overlap
+        for k, (f, _, colour) in enumerate(speculars):
+            frac_ax.text(0.02, 0.03 + 0.04 * (len(speculars) - 1 - k),
+                         f"specular {f:.3g} of the rays at t = 0", transform=frac_ax.transAxes,
+                         fontsize=7, color=colour)
+    if bar is not None:
+        fig.colorbar(bar[0], ax=[ax, frac_ax], label=bar[1], pad=0.02)
+    fit_legend(frac_ax, frac_ax.legend(handles, labels, fontsize=7, loc="upper right",
+                                       framealpha=0.85))
+    return fig
+
+
+def plot_waveform(ds, path, title: str | None = None):
+    """Draw the reflectance of every component against time and save it to ``path`` (PNG).
+
+    See ``waveform_figure`` for what is drawn. Returns ``path``.
+    """
+    plt = _pyplot()
+    fig = waveform_figure(ds, title)
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
@@ -102,20 +421,38 @@ def plot_waveform(ds, path, title: str | None = None):
 
 def plot_angular(ds, path, title: str | None = None):
     """The seed's FOV figure: angular reflectance (sr⁻¹) of the background scattering and the
-    BF diffuse against emergence, with the 12° and 3° numerical FOVs."""
+    BF diffuse against emergence, with the 12° and 3° numerical FOVs.
+
+    Scenarios are coloured and labelled as in ``waveform_figure`` (a legend, or a colour bar for
+    more than ``MAX_CYCLE`` scenarios of one numeric key). Returns ``path``.
+    """
+    plt = _pyplot()
+    fig = angular_figure(ds, title)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def angular_figure(ds, title: str | None = None):
+    """The FOV figure of ``plot_angular`` as a matplotlib Figure (two panels, then a colour
+    bar axis for more than ``MAX_CYCLE`` scenarios of one numeric key)."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), constrained_layout=True)
     fovs = {"scattering": 12.0, "bf_diffuse": 3.0}
+    cases = list(_scenarios(ds))
+    colours, bar = _colours(plt, ds, len(cases))
     for ax, comp in zip(axes, ("scattering", "bf_diffuse")):
-        for label, sc in _scenarios(ds):
+        for (label, sc), colour in zip(cases, colours):
             r = sc["angular_reflectance"].sel(component=comp).values
-            ax.plot(sc["emergence"].values, r, marker=".", label=label or None)
-        ax.axvline(fovs[comp], color="k", ls="--", lw=1)
+            ax.plot(sc["emergence"].values, r, marker=".", color=colour,
+                    label=(label or None) if bar is None else None)
+        ax.axvline(fovs[comp], color="k", ls="--", lw=1, label=f"numerical FOV {fovs[comp]:g}°")
         ax.set_xlabel("emergence (deg)")
         ax.set_ylabel("reflectance (sr$^{-1}$)")
         ax.set_title(f"{comp}: numerical FOV {fovs[comp]:g}°")
         ax.grid(True, alpha=0.3)
+        fit_legend(ax, ax.legend(fontsize=7, loc="upper right", framealpha=0.85))
+    if bar is not None:
+        fig.colorbar(bar[0], ax=list(axes), label=bar[1], pad=0.02)
     fig.suptitle(title or str(ds.attrs.get("name", "")))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig

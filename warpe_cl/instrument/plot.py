@@ -1,9 +1,11 @@
 """The seed's BELA figure (Barron et al. 2026, fig. WARPE_BELA) from instrument results.
 
 Three panels, one colour per case: (top) the surface response of a perfect instrument, log–log,
-diffuse R_d as a line, the specular (drawn at 1e-6 ns) and BF-direct returns as markers;
-(middle) the photon rate at the receiver, as reflectance seen through the pulse and the footprint
-kernel (ns⁻¹ sr⁻¹; specular and BF-direct scaled by their aperture fraction), log scale;
+diffuse R_d (ns⁻¹ sr⁻¹) as a line, the specular (drawn at 1e-6 ns) and BF-direct returns as
+markers on the right-hand axis, as the fraction of the rays they hold (docs/interface.md §5.6);
+(middle) the received reflectance, ``received_reflectance``: the surface response seen through
+the pulse and the footprint kernel (ns⁻¹ sr⁻¹; specular and BF-direct scaled by their aperture
+fraction), log scale, the expected photons at the aperture per shot in the legend;
 (bottom) the sampled electric signal: the noiseless analog voltage clipped at saturation
 (line), the recorded samples of one shot (dots, at their true sampling times) and the
 saturation voltage (dotted). Photon counting (ATLAS): the histogram of time tags over all shots
@@ -37,19 +39,57 @@ def _xlim(cases):
 
 
 def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
-    """Draw the three panels for ``cases`` (a Dataset, or a list of (label, Dataset)) to ``path``."""
+    """Draw the three panels for ``cases`` (a Dataset, or a list of (label, Dataset)) to ``path``.
+
+    See ``instrument_figure``. Returns ``path``.
+    """
     from ..plot import _pyplot
-    if not isinstance(cases, list):
-        title = title or f"{cases.attrs.get('name', '')} — {cases.attrs.get('instrument_name', '')}"
-        cases = cases_of(cases)
     plt = _pyplot()
+    fig = instrument_figure(cases, title, shot)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def instrument_figure(cases, title: str | None = None, shot: int = 0):
+    """The three panels as a matplotlib Figure.
+
+    Parameters
+    ----------
+    cases : xarray.Dataset or list of (str, xarray.Dataset)
+        An instrument result (docs/interface.md §5.4), one case per scenario labelled by its
+        swept values, or labelled single-scenario results.
+    title : str, optional
+        Defaults to the result's name and the instrument's.
+    shot : int
+        The shot whose samples are drawn.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        ``fig.axes``: top, middle, bottom, then the top panel's right-hand axis (fractions of
+        the rays in the specular and BF-direct returns), then, for more than six scenarios of
+        one numeric swept key (colours from viridis), the colour bar. Every legend lies inside
+        its panel.
+    """
+    from ..plot import _colours, _pyplot, delta_fractions, fit_legend
+    plt = _pyplot()
+    bar = None
+    if not isinstance(cases, list):
+        ds = cases
+        title = title or f"{ds.attrs.get('name', '')} — {ds.attrs.get('instrument_name', '')}"
+        cases = cases_of(ds)
+        colours, bar = _colours(plt, ds, len(cases))   # > MAX_CYCLE of a numeric key: viridis
+    else:
+        cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        colours = [cycle[i % len(cycle)] for i in range(len(cases))]
     fig, axes = plt.subplots(3, 1, figsize=(8.5, 11), constrained_layout=True)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     top, mid, bot = axes
-    lows = []
+    frac_ax = top.twinx()
+    lows, highs, fractions = [], [], []
     sat = None
     for i, (label, sc) in enumerate(cases):
-        colour = colours[i % len(colours)]
+        colour = colours[i]
         # top: the surface response
         t = sc["time"].values
         rd = sum(sc["reflectance"].sel(component=c).values for c in ("scattering", "bf_diffuse"))
@@ -57,16 +97,16 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
             top.plot(t, np.where(rd > 0, rd, np.nan), color=colour, lw=1.3, label=label,
                      marker=".", ms=3, ls=("-", "--", ":")[i % 3])
             lows.append(np.nanmin(np.where(rd > 0, rd, np.nan)))
+            highs.append(rd.max())
         else:
             top.plot([], [], color=colour, lw=1.3, label=label)
         for comp, marker in (("specular", "o"), ("bf_direct", "^")):
-            r = sc["reflectance"].sel(component=comp).values
-            hit = r > 0
-            if hit.any():
-                tt = np.full(hit.sum(), SPECULAR_TIME_NS) if comp == "specular" else t[hit]
-                top.plot(tt, r[hit], ls="none", marker=marker, color=colour, ms=9 - 2 * (i % 3),
-                         mfc="none" if comp == "bf_direct" else colour)
-        # middle: photon rate at the receiver
+            tt, ff = delta_fractions(sc, comp)
+            if ff.size:
+                frac_ax.plot(tt, ff, ls="none", marker=marker, color=colour, ms=9 - 2 * (i % 3),
+                             mfc="none" if comp == "bf_direct" else colour)
+                fractions += list(ff)
+        # middle: the received reflectance
         rr = sc["received_reflectance"].values
         mid.plot(sc["fine_time"].values, np.where(rr > 0, rr, np.nan), color=colour, lw=1.3,
                  label=f"{label}: {float(sc['photons_at_aperture'].sum()):.3g} photons at the aperture")
@@ -74,16 +114,17 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
         if "signal_mv" in sc:
             sat = float(sc["saturation_mv"])
             analog = sc["expected_analog_mv"].values
-            bot.plot(sc["fine_time"].values, np.minimum(analog, sat), color=colour, lw=1.3,
-                     label=f"{label}: unclipped peak {analog.max():.4g} mV")
-            at = sc["sample_time"].values + float(sc["sampling_phase"].values[shot])
-            bot.plot(at, sc["signal_mv"].values[shot], ls="none", marker="o", ms=4, color=colour)
             base = float(sc["baseline_mv"])
             top_mv = analog.max() - base
-            if top_mv > 0:
-                k = 0.9 * (sat - base) / top_mv
+            k = 0.9 * (sat - base) / top_mv if top_mv > 0 else None
+            bot.plot(sc["fine_time"].values, np.minimum(analog, sat), color=colour, lw=1.3,
+                     label=f"{label}: unclipped peak {analog.max():.4g} mV"
+                           + (f", shape x {k:.2g}" if k else ""))
+            at = sc["sample_time"].values + float(sc["sampling_phase"].values[shot])
+            bot.plot(at, sc["signal_mv"].values[shot], ls="none", marker="o", ms=4, color=colour)
+            if k:
                 bot.plot(sc["fine_time"].values, base + (analog - base) * k, color=colour, ls="--",
-                         lw=0.9, label=f"shape (unclipped) x {k:.2g}")
+                         lw=0.9)
         else:
             shots = sc.sizes["shot"]
             hist = sc["signal_counts"].values.sum(axis=0)
@@ -91,23 +132,28 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
                      label=f"{label}: {int(hist.sum())} photons in {shots} shots")
             bot.plot(sc["sample_time"].values + 0.5 * np.diff(sc["sample_time"].values[:2]),
                      sc["expected_counts"].values * shots, color=colour, ls="--", lw=0.8)
-    top.set_xscale("log")
-    top.set_yscale("log")
-    if lows:
-        top.set_ylim(bottom=max(min(lows) / 10, 1e-12))
+    for a in (top, frac_ax):
+        a.set_xscale("log")
+        a.set_yscale("log")
+    # the diffuse curves set the left range (headroom for the legend); the deltas the right
+    top.set_ylim(*((max(min(lows) / 10, 1e-12), max(highs) * 1e3) if lows else (1e-6, 1.0)))
+    frac_ax.set_ylim(*((min(fractions) / 10, min(max(fractions) * 10, 10.0)) if fractions
+                       else (1e-6, 1.0)))
     top.set_xlabel("time (ns)")
-    top.set_ylabel("reflectance (ns$^{-1}$ sr$^{-1}$)")
-    top.set_title("surface response (perfect instrument); o specular at 1e-6 ns, △ BF direct",
-                  fontsize=9)
+    top.set_ylabel("diffuse reflectance (ns$^{-1}$ sr$^{-1}$)")
+    frac_ax.set_ylabel("fraction of the rays", fontsize=8)
+    top.set_title("surface response (perfect instrument): line = diffuse; right axis: "
+                  "o specular (t = 0, at 1e-6 ns), △ BF direct", fontsize=9)
     mid.set_yscale("log")
     mid.set_xlabel("time (ns)")
-    mid.set_ylabel("reflectance at the receiver (ns$^{-1}$ sr$^{-1}$)")
-    mid.set_title("photon rate at the receiver: pulse and footprint applied", fontsize=9)
+    mid.set_ylabel("received reflectance (ns$^{-1}$ sr$^{-1}$)")
+    mid.set_title("received reflectance: surface response through the pulse and the footprint "
+                  "(specular, BF direct x aperture fraction)", fontsize=9)
     peaks = [np.nanmax(np.where(sc["received_reflectance"].values > 0,
                                 sc["received_reflectance"].values, np.nan))
              for _, sc in cases if np.any(sc["received_reflectance"].values > 0)]
     if peaks:
-        mid.set_ylim(min(peaks) * 1e-3, max(peaks) * 3)
+        mid.set_ylim(min(peaks) * 1e-3, max(peaks) * 300)   # headroom for the legend
     lim = _xlim(cases)
     if lim:
         mid.set_xlim(*lim)
@@ -115,17 +161,21 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
     bot.set_xlabel("time (ns)")
     if sat is not None:
         bot.axhline(sat, color="purple", ls=":", lw=1.5, label=f"saturation {sat:g} mV")
-        bot.set_ylim(0, 1.1 * sat)
+        bot.set_ylim(0, 1.45 * sat)   # headroom for the legend
         bot.set_ylabel("electric signal (mV)")
         bot.set_title(f"sampled signal: line = noiseless analog (clipped), dots = shot {shot}, "
-                      "dashed = unclipped shape scaled by the factor shown", fontsize=9)
+                      "dashed = unclipped shape x the factor shown", fontsize=9)
     else:
         bot.set_ylabel("photons per bin (all shots)")
         bot.set_title("photon-counting histogram (dashed: expected, before dead time)", fontsize=9)
     for ax in axes:
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="upper right")
+        if ax is not top:
+            fit_legend(ax, ax.legend(fontsize=7, loc="upper right", framealpha=0.85))
+    if bar is None:
+        fit_legend(frac_ax, frac_ax.legend(*top.get_legend_handles_labels(), fontsize=7,
+                                           loc="upper right", framealpha=0.85))   # over markers
+    else:
+        fig.colorbar(bar[0], ax=list(axes), label=bar[1], pad=0.02, shrink=0.6)
     fig.suptitle(title or "")
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig

@@ -1,0 +1,220 @@
+"""The figures (issue 12 §3): what the specular's height means, legends, colour bars, labels,
+``warpe-cl plot --scenarios`` and sweep database folders."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from warpe_cl.cli import main
+from warpe_cl.plot import (MIN_RAYS, delta_fractions, numeric_sweep, scenario_labels,
+                           select_scenarios, waveform_figure)
+
+SLAB = """\
+medium:
+  texture: slab
+  thickness: "10 mm"
+  radiative: {tau0: 1.0, omega: 0.9, n: 1.3, k: 0.0}
+simulation:
+  photons: 3000
+  seed: 2
+"""
+THICKNESSES = ["1 mm", "2 mm", "5 mm", "10 mm", "20 mm", "50 mm", "100 mm", "200 mm"]
+
+
+def _run(tmp_path, text, name, photons=None):
+    preset = tmp_path / f"{name}.yaml"
+    preset.write_text(text)
+    out = tmp_path / f"{name}.nc"
+    extra = ["--photons", str(photons)] if photons else []
+    assert main(["run", str(preset), "--out", str(out), "--quiet"] + extra) == 0
+    return xr.load_dataset(out)
+
+
+@pytest.fixture(scope="module")
+def single(tmp_path_factory):
+    return _run(tmp_path_factory.mktemp("single"), SLAB, "single", photons=20000)
+
+
+@pytest.fixture(scope="module")
+def fine_start(tmp_path_factory):
+    text = SLAB + '  time_bins: {start: "1e-3 ns", stop: "1e5 ns", per_decade: 20}\n'
+    return _run(tmp_path_factory.mktemp("fine"), text, "fine", photons=20000)
+
+
+@pytest.fixture(scope="module")
+def many(tmp_path_factory):
+    text = SLAB + "sweep:\n  medium.thickness: [" + ", ".join(f'"{t}"' for t in THICKNESSES) + "]\n"
+    return _run(tmp_path_factory.mktemp("many"), text, "many")
+
+
+def _legend_texts(fig):
+    return [t.get_text() for ax in fig.axes if ax.get_legend()
+            for t in ax.get_legend().get_texts()]
+
+
+def test_specular_is_a_fraction_of_the_rays_whatever_the_bins(single, fine_start):
+    """The specular's plotted value is its fraction of the rays (right axis), the same for
+    any first bin; the diffuse axis is not stretched by it."""
+    for ds in (single, fine_start):
+        t, f = delta_fractions(ds, "specular")
+        assert t.size == 1 and 0.01 < f[0] < 0.05     # Fresnel of n = 1.3 at normal incidence
+        fig = waveform_figure(ds)
+        ax, frac_ax = fig.axes[:2]
+        lo, hi = ax.get_ylim()
+        r = ds["reflectance"].sel(component=["scattering", "bf_diffuse"]).values
+        assert hi <= 10 * r.max() * 1.0001 and np.log10(hi / lo) < 10
+        ydata = np.concatenate([ln.get_ydata() for ln in frac_ax.get_lines() if len(ln.get_ydata())])
+        assert np.any(np.isclose(ydata, f[0]))
+        assert "fraction of the rays" in frac_ax.get_ylabel()
+        assert any(f"specular {f[0]:.3g}" in a.get_text() for a in frac_ax.texts)
+    assert np.isclose(delta_fractions(single, "specular")[1][0],
+                      delta_fractions(fine_start, "specular")[1][0], rtol=0.2)
+
+
+def test_legend_lists_only_drawn_components_and_the_shaded_domain(single):
+    fig = waveform_figure(single)
+    texts = _legend_texts(fig)
+    assert f"fewer than {MIN_RAYS} rays per bin (shaded)" in texts
+    drawn = [c for c in ("scattering", "bf_diffuse")
+             if np.any(single["reflectance"].sel(component=c).values > 0)]
+    assert any(t.startswith("scattering") for t in texts) == ("scattering" in drawn)
+    assert any(t.startswith("BF diffuse") for t in texts) == ("bf_diffuse" in drawn)
+
+
+def test_many_numeric_scenarios_take_a_colour_bar(many):
+    values, key, unit = numeric_sweep(many)
+    assert key == "medium.thickness" and unit == "mm"
+    np.testing.assert_allclose(values, [1, 2, 5, 10, 20, 50, 100, 200])
+    fig = waveform_figure(many)
+    assert len(fig.axes) == 3 and fig.axes[2].get_ylabel() == "medium.thickness (mm)"
+    assert not any("thickness=" in t for t in _legend_texts(fig))
+    few = waveform_figure(many.isel(scenario=[0, 1, 2]))
+    assert len(few.axes) == 2 and "thickness=1 mm" in _legend_texts(few)
+
+
+def test_labels_are_swept_key_values():
+    ds = xr.Dataset(coords={"scenario": [0, 1], "medium": ("scenario", [
+        '{"texture": "granular", "thickness": "1000 mm", "compacity": 0.9, "phase_g": 0.8}',
+        '{"texture": "slab", "thickness": "1500 mm", "compacity": 1.0, "phase_g": 0.8}'])})
+    assert scenario_labels(ds) == ["texture=granular, thickness=1000 mm, compacity=0.9",
+                                   "texture=slab, thickness=1500 mm, compacity=1"]
+    ds = xr.Dataset(coords={"scenario": [0, 1], "medium.thickness": ("scenario", ["1 mm", "2 mm"]),
+                            "wavelength": ("scenario", ["1064 nm", "532 nm"])})
+    assert scenario_labels(ds) == ["thickness=1 mm, wavelength=1064 nm",
+                                   "thickness=2 mm, wavelength=532 nm"]
+
+
+def test_no_diffuse_ray_still_draws(single, tmp_path):
+    """A low-count run whose diffuse bins are all empty: a figure, not a log-scale error."""
+    from warpe_cl.plot import plot_waveform
+    ds = single.copy(deep=True)
+    r = ds["reflectance"]
+    ds["reflectance"] = r.where(~r.component.isin(["scattering", "bf_diffuse"]), 0.0)
+    plot_waveform(ds, tmp_path / "x.png")
+    assert (tmp_path / "x.png").stat().st_size > 10_000
+
+
+def test_select_scenarios(many):
+    assert list(select_scenarios(many, "0,3,5")["scenario"].values) == [0, 3, 5]
+    assert list(select_scenarios(many, "0:2, 7")["scenario"].values) == [0, 1, 7]
+    assert list(select_scenarios(many, "6:")["scenario"].values) == [6, 7]
+    for sel in ("medium.thickness=10mm", "thickness=10 mm", "thickness=0.01 m"):
+        assert list(select_scenarios(many, sel)["scenario"].values) == [3]
+    from warpe_cl.errors import ConfigError
+    for bad in ("9", "a:b", "foo=1", "thickness=3 mm", "", "1.5"):
+        with pytest.raises(ConfigError):
+            select_scenarios(many, bad)
+
+
+def test_plot_verb_scenarios_and_database_folder(tmp_path, capsys):
+    preset = tmp_path / "grid.yaml"
+    preset.write_text(SLAB.replace("photons: 3000", "photons: 1000")
+                      + 'sweep:\n  medium.thickness: ["1 mm", "10 mm", "100 mm"]\n')
+    db = tmp_path / "db"
+    assert main(["sweep", str(preset), "--out", str(db), "--quiet"]) == 0
+    png = tmp_path / "db.png"
+    assert main(["plot", str(db), "--out", str(png)]) == 0          # a folder, not "no such file"
+    assert png.stat().st_size > 10_000
+    assert main(["plot", str(db), "--scenarios", "0,2", "--out", str(tmp_path / "s.png")]) == 0
+    assert main(["plot", str(db), "--scenarios", "thickness=10mm",
+                 "--out", str(tmp_path / "v.png")]) == 0
+    capsys.readouterr()
+    for bad in ("7", "x:y", "colour=red"):
+        assert main(["plot", str(db), "--scenarios", bad, "--out", str(tmp_path / "b.png")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "--scenarios" in err
+    assert not (tmp_path / "b.png").exists()
+
+
+def _inside(fig):
+    """Every legend lies inside its axes (drawn once, in display pixels)."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        box, leg = ax.get_window_extent(renderer), legend.get_window_extent(renderer)
+        assert (leg.x0 >= box.x0 - 1 and leg.x1 <= box.x1 + 1 and leg.y0 >= box.y0 - 1
+                and leg.y1 <= box.y1 + 1), (ax.get_title(), leg, box)
+
+
+def test_instrument_figure_titles_legends_and_deltas(tmp_path):
+    from warpe_cl.instrument.plot import instrument_figure
+    from conftest import REPO
+    out = tmp_path / "bela.nc"
+    assert main(["run", str(REPO / "presets" / "paper" / "bela_cases.yaml"), "--out", str(out),
+                 "--photons", "5000", "--quiet"]) == 0
+    ds = xr.load_dataset(out)
+    fig = instrument_figure(ds)
+    top, mid, bot, frac_ax = fig.axes
+    assert "received reflectance" in mid.get_title() and "received reflectance" in mid.get_ylabel()
+    assert "photon rate" not in mid.get_title()
+    _inside(fig)
+    texts = _legend_texts(fig)
+    assert any(t.startswith("texture=granular, thickness=1000 mm") for t in texts)
+    assert not any(t.startswith("scenario ") for t in texts)
+    spec = delta_fractions(ds.isel(scenario=1), "specular")[1][0]   # the slab: 0.028 of the rays
+    assert 0.02 < spec < 0.04
+    ydata = np.concatenate([ln.get_ydata() for ln in frac_ax.get_lines() if len(ln.get_ydata())])
+    assert np.any(np.isclose(ydata, spec))
+    assert top.get_ylim()[1] < 1e8                                   # not stretched by it
+    long = "texture=slab, thickness=1500 mm, compacity=1, matrix=CO2, " * 3   # shrunk to fit
+    _inside(instrument_figure([(long, ds.isel(scenario=1)), ("short", ds.isel(scenario=0))]))
+
+
+def test_waveform_legends_inside(many):
+    _inside(waveform_figure(many))
+    _inside(waveform_figure(many.isel(scenario=[0, 1, 2])))
+
+
+def test_several_speculars_written_one_line_each(many):
+    """A few scenarios: each specular fraction written once, on its own line (no overlap)."""
+    sub = many.isel(scenario=[0, 1, 2])
+    fig = waveform_figure(sub)
+    lines = [t for t in fig.axes[1].texts if t.get_text().startswith("specular ")]
+    assert len(lines) == 3
+    assert len({round(t.get_position()[1], 3) for t in lines}) == 3
+    for t, i in zip(lines, range(3)):
+        f = delta_fractions(sub.isel(scenario=i), "specular")[1][0]
+        assert t.get_text() == f"specular {f:.3g} of the rays at t = 0"
+
+
+def test_angular_figure_legend_or_colour_bar(many, tmp_path):
+    from warpe_cl.plot import angular_figure, plot_angular
+    fig = angular_figure(many)
+    assert len(fig.axes) == 3 and fig.axes[2].get_ylabel() == "medium.thickness (mm)"
+    few = angular_figure(many.isel(scenario=[0, 3]))
+    assert "thickness=10 mm" in _legend_texts(few)
+    _inside(few)
+    assert plot_angular(many, tmp_path / "a.png").stat().st_size > 10_000
+
+
+def test_instrument_figure_many_scenarios_colour_bar(many):
+    from warpe_cl.instrument import apply_instrument
+    from warpe_cl.instrument.plot import instrument_figure
+    fig = instrument_figure(apply_instrument(many, "bela", shots=5))
+    assert len(fig.axes) == 5 and fig.axes[4].get_ylabel() == "medium.thickness (mm)"
+    assert fig.axes[3].get_legend() is None      # the colour bar names the top panel's colours
+    _inside(fig)
