@@ -145,6 +145,12 @@ def test_plot_verb_scenarios_and_database_folder(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "--scenarios" in err
     assert not (tmp_path / "b.png").exists()
+    # the instrument reads a database folder too
+    out = tmp_path / "bela.nc"
+    assert main(["instrument", str(db), "--instrument", "bela", "--shots", "2", "--out", str(out),
+                 "--quiet"]) == 0, capsys.readouterr().err
+    import xarray as xr
+    assert xr.load_dataset(out, engine="h5netcdf").sizes["scenario"] == 3
 
 
 def _inside(fig):

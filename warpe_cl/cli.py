@@ -166,7 +166,12 @@ def cmd_run(args) -> int:
 
 
 def _load_result(path: Path):
+    """A result file of ``run`` or ``instrument``, or a sweep database folder (docs/interface.md
+    §5.5), as a Dataset; one line (exit 2) for anything else."""
     import xarray as xr
+    if path.is_dir():
+        from .database import open_database
+        return open_database(path)
     if not path.is_file():
         raise ConfigError("no such file", key=str(path))
     try:
@@ -309,11 +314,7 @@ def cmd_plot(args) -> int:
     from .io import Outputs
     from .plot import plot_angular, plot_waveform
     path = Path(args.file)
-    if path.is_dir():   # a sweep database folder (docs/interface.md §5.5)
-        from .database import open_database
-        ds = open_database(path)
-    else:
-        ds = _load_result(path)
+    ds = _load_result(path)          # a file, or a sweep database folder
     if args.scenarios is not None:
         from .plot import select_scenarios
         ds = select_scenarios(ds, args.scenarios)

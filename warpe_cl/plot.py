@@ -34,8 +34,16 @@ _QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\d
 
 
 def _swept(ds) -> list:
-    """The swept coordinates: those along ``scenario`` but the index itself."""
-    return [c for c in ds.coords if ds[c].dims == ("scenario",) and c != "scenario"]
+    """The swept keys: the coordinates along ``scenario`` but the index itself and the
+    ``<key>_text`` companions of numeric ones (docs/interface.md §5.3)."""
+    along = [c for c in ds.coords if ds[c].dims == ("scenario",) and c != "scenario"]
+    return [c for c in along if not (c.endswith("_text") and c[:-len("_text")] in along)]
+
+
+def _written(ds, key):
+    """A swept key's values as written (``"10 mm"``): its ``<key>_text`` coordinate when the
+    file stores the key as numbers in canonical units, else the coordinate itself."""
+    return ds[f"{key}_text"] if f"{key}_text" in ds.coords else ds[key]
 
 
 def _as_dict(value):
@@ -85,7 +93,7 @@ def scenario_labels(ds) -> list:
     parts = [[] for _ in range(n)]
     for c, last in zip(swept, lasts):
         name = last if lasts.count(last) == 1 else c
-        values = [v.item() if hasattr(v, "item") else v for v in ds[c].values]
+        values = [v.item() if hasattr(v, "item") else v for v in _written(ds, c).values]
         blocks = [_as_dict(v) for v in values]
         if all(b is not None for b in blocks):
             keys = list(dict.fromkeys(k for b in blocks for k in b))
@@ -126,7 +134,7 @@ def numeric_sweep(ds):
     if len(swept) != 1:
         return None
     numbers, units = [], set()
-    for v in ds[swept[0]].values:
+    for v in _written(ds, swept[0]).values:
         v = v.item() if hasattr(v, "item") else v
         if isinstance(v, (int, float)) and not isinstance(v, bool):
             numbers.append(float(v))
@@ -183,7 +191,7 @@ def select_scenarios(ds, selection: str):
             if len(found) != 1:
                 raise ConfigError(f"'{key}' is not a swept key (swept: {', '.join(swept) or 'none'})",
                                   key="--scenarios")
-            keep &= np.array([_same_value(v, want) for v in ds[found[0]].values])
+            keep &= np.array([_same_value(v, want) for v in _written(ds, found[0]).values])
     else:
         picked = set()
         for term in filter(None, (t.strip() for t in text.split(","))):
