@@ -498,3 +498,13 @@ def test_alternating_timers_and_jitter():
 def test_detection_closed_forms():
     assert detection.false_alarm_probability(24, 4.5) == pytest.approx(24 * 3.3977e-6, rel=1e-3)
     assert detection.detection_probability(5.0, 5.0, 1.0) == pytest.approx(0.5)
+
+
+def test_wavelength_of_a_swept_numeric_or_written_coordinate():
+    """A swept wavelength is stored in m (docs/interface.md §5.3); older files wrote "532 nm"."""
+    from warpe_cl.instrument.surface import wavelength_of
+    ds = synthetic_surface(scenarios=2)
+    numeric = ds.assign_coords(wavelength=("scenario", [1.064e-6, 5.32e-7]))
+    assert wavelength_of(numeric, 1) == pytest.approx(5.32e-7, rel=1e-12)
+    written = ds.assign_coords(wavelength=("scenario", ["1064 nm", "532 nm"]))
+    assert wavelength_of(written, 0) == pytest.approx(1.064e-6, rel=1e-12)

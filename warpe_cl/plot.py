@@ -276,23 +276,17 @@ def fit_legend(ax, legend, smallest: float = 5.5):
 def delta_fractions(sc, comp: str):
     """Times (ns) and fractions of the launched rays of a delta-like return of one scenario.
 
-    The specular leaves at t = 0, before the first log bin: its ``early_fraction`` is placed at
-    ``SPECULAR_TIME_NS``. A bin's fraction is its reflectance times the solid angle and the bin
-    width (docs/interface.md §5.6), so it does not depend on the binning.
+    The same returns the instrument chain takes (:func:`warpe_cl.instrument.surface.response`:
+    the specular's whole fraction, the BF-direct rays per bin over the rays launched, at the
+    exact passage times 2 k h n_eff / c), so the figure and the chain cannot disagree; these
+    fractions do not depend on the binning (docs/interface.md §5.6). The specular, which leaves
+    at t = 0 before the first log bin, is placed at ``SPECULAR_TIME_NS``.
     """
-    r = sc["reflectance"].sel(component=comp).values
-    omega = float(sc["solid_angle"].sel(component=comp))
-    frac = r * omega * np.diff(sc["time_edges"].values)
-    t = sc["time"].values
-    hit = frac > 0
-    times, fracs = list(t[hit]), list(frac[hit])
+    from .instrument.surface import response
+    pairs = [(t, f) for c, t, f in response(sc).returns if c == comp]
     if comp == "specular":
-        times = [SPECULAR_TIME_NS] * len(times)
-        early = (float(sc["early_fraction"].sel(component=comp))
-                 if "early_fraction" in sc.variables else 0.0)
-        if early > 0 or fracs:
-            times, fracs = [SPECULAR_TIME_NS], [early + float(np.sum(fracs))]
-    return np.asarray(times), np.asarray(fracs)
+        pairs = [(SPECULAR_TIME_NS, f) for _, f in pairs]
+    return (np.asarray([t for t, _ in pairs], float), np.asarray([f for _, f in pairs], float))
 
 
 def _colours(plt, ds, n):

@@ -67,7 +67,9 @@ def wavelength_of(ds, scenario: int | None = None) -> float | None:
     from ..units import parse_quantity
     if "wavelength" in ds.coords and scenario is not None and "scenario" in ds["wavelength"].dims:
         value = ds["wavelength"].values[scenario]
-        return parse_quantity(str(value), "length")
+        if np.issubdtype(np.asarray(value).dtype, np.number):   # numeric, in its units (m)
+            return float(value)
+        return parse_quantity(str(value), "length")             # as written (older files)
     text = ds.attrs.get("config")
     if not text:
         return None
