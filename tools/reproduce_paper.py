@@ -104,9 +104,13 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
     facts["threshold_mv"] = float(runs["0 deg"]["threshold_mv"].values[1])
     facts["mv_per_pe"] = float(runs["0 deg"]["mv_per_photoelectron"].values[1])
     lobe = bela["geometry.lobe_factor"]
-    facts["roughness_scan"] = {
-        r: spec01 * (np.tan(np.radians(0.1 * lobe)) / np.tan(np.radians(r * lobe))) ** 2
-        for r in (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)}
+    # the unclipped specular peak scales as 1/tan^2(theta_L) (docs/physics.md §7.3), from the
+    # 0.1 deg run; with the preset's lobe factor (2.5: the paper's 0.1 deg -> 0.25 deg) and with
+    # 5 (its 0.5 deg -> 2.5 deg point), which the paper's two statements disagree on
+    for name, factor in (("roughness_scan", lobe), ("roughness_scan_lobe_factor_5", 5.0)):
+        facts[name] = {
+            r: spec01 * (np.tan(np.radians(0.1 * lobe)) / np.tan(np.radians(r * factor))) ** 2
+            for r in (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)}
     perfect = facts["perfect slab CO2 1500 mm"]["unclipped_peak_mv"]
     rough001 = facts["slab, roughness 0.01°"]["unclipped_peak_mv"]
     facts["gain_window_seed_figure"] = (1000.0 / perfect, 1000.0 / rough001)
