@@ -78,6 +78,7 @@ def test_unknown_device_exits_3(tmp_path, capsys):
     assert rc == 3 and len(err.splitlines()) == 1 and "no OpenCL device matches" in err
 
 
+@pytest.mark.slow
 def test_run_writes_the_dataset_of_the_interface(tmp_path, capsys):
     out, png = tmp_path / "demo.nc", tmp_path / "demo.png"
     rc = main(["run", str(PRESET), "--out", str(out), "--plot", str(png), "--photons", "20000",
@@ -140,6 +141,7 @@ def test_sweep_preset_gives_a_scenario_dimension(tmp_path, capsys):
     assert ds.reflectance.dims == ("scenario", "component", "time")
 
 
+@pytest.mark.slow
 def test_plot_verb(tmp_path, capsys):
     out = tmp_path / "a.nc"
     assert main(["run", str(PRESET), "--out", str(out), "--photons", "5000", "--quiet"]) == 0

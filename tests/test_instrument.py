@@ -367,6 +367,7 @@ def _range_crb(model, interval, peak, sigma, tau=0.3, phases=64):
     return math.sqrt(np.mean(var))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["bela", "gala"])
 @pytest.mark.parametrize("snr", [10, 100, 1000])
 def test_range_spread_follows_the_cramer_rao_bound(name, snr):
@@ -391,6 +392,7 @@ def test_range_spread_follows_the_cramer_rao_bound(name, snr):
     assert np.std(ranges) == pytest.approx(crb, rel=0.20)
 
 
+@pytest.mark.slow
 def test_width_does_not_depend_on_the_altitude():
     """A flat nadir surface (no slope, no roughness) at 250 km and 500 km: the geometric kernel
     σ_g = (2/c) R σ_θ² is < 1e-3 ns at both, so p ⊗ g ⊗ h_e and the true width are the same;

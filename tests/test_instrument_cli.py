@@ -357,6 +357,7 @@ def test_combined_scenarios_pad_photon_time_tags():
     assert (out["photon_time"].values[1] == 2.0).all()
 
 
+@pytest.mark.slow
 def test_swept_altitude_is_reported_per_scenario(tmp_path, capsys):
     preset = tmp_path / "swept.yaml"
     preset.write_text('name: swept\nmedium: {texture: granular, thickness: "10 mm", '

@@ -53,6 +53,7 @@ def _legend_texts(fig):
             for t in ax.get_legend().get_texts()]
 
 
+@pytest.mark.slow
 def test_specular_is_a_fraction_of_the_rays_whatever_the_bins(single, fine_start):
     """The specular's plotted value is its fraction of the rays (right axis), the same for
     any first bin; the diffuse axis is not stretched by it."""
@@ -72,6 +73,7 @@ def test_specular_is_a_fraction_of_the_rays_whatever_the_bins(single, fine_start
                       delta_fractions(fine_start, "specular")[1][0], rtol=0.2)
 
 
+@pytest.mark.slow
 def test_legend_lists_only_drawn_components_and_the_shaded_domain(single):
     fig = waveform_figure(single)
     texts = _legend_texts(fig)
@@ -82,6 +84,7 @@ def test_legend_lists_only_drawn_components_and_the_shaded_domain(single):
     assert any(t.startswith("BF diffuse") for t in texts) == ("bf_diffuse" in drawn)
 
 
+@pytest.mark.slow
 def test_many_numeric_scenarios_take_a_colour_bar(many):
     values, key, unit = numeric_sweep(many)
     assert key == "medium.thickness" and unit == "mm"
@@ -105,6 +108,7 @@ def test_labels_are_swept_key_values():
                                    "thickness=2 mm, wavelength=532 nm"]
 
 
+@pytest.mark.slow
 def test_no_diffuse_ray_still_draws(single, tmp_path):
     """A low-count run whose diffuse bins are all empty: a figure, not a log-scale error."""
     from warpe_cl.plot import plot_waveform
@@ -127,6 +131,7 @@ def test_select_scenarios(many):
             select_scenarios(many, bad)
 
 
+@pytest.mark.slow
 def test_plot_verb_scenarios_and_database_folder(tmp_path, capsys):
     preset = tmp_path / "grid.yaml"
     preset.write_text(SLAB.replace("photons: 3000", "photons: 1000")
@@ -166,6 +171,7 @@ def _inside(fig):
                 and leg.y1 <= box.y1 + 1), (ax.get_title(), leg, box)
 
 
+@pytest.mark.slow
 def test_instrument_figure_titles_legends_and_deltas(tmp_path):
     from warpe_cl.instrument.plot import instrument_figure
     from conftest import REPO
@@ -190,6 +196,7 @@ def test_instrument_figure_titles_legends_and_deltas(tmp_path):
     _inside(instrument_figure([(long, ds.isel(scenario=1)), ("short", ds.isel(scenario=0))]))
 
 
+@pytest.mark.slow
 def test_waveform_legends_inside(many):
     _inside(waveform_figure(many))
     _inside(waveform_figure(many.isel(scenario=[0, 1, 2])))
@@ -207,6 +214,7 @@ def test_several_speculars_written_one_line_each(many):
         assert t.get_text() == f"specular {f:.3g} of the rays at t = 0"
 
 
+@pytest.mark.slow
 def test_angular_figure_legend_or_colour_bar(many, tmp_path):
     from warpe_cl.plot import angular_figure, plot_angular
     fig = angular_figure(many)
@@ -217,6 +225,7 @@ def test_angular_figure_legend_or_colour_bar(many, tmp_path):
     assert plot_angular(many, tmp_path / "a.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_instrument_figure_many_scenarios_colour_bar(many):
     from warpe_cl.instrument import apply_instrument
     from warpe_cl.instrument.plot import instrument_figure

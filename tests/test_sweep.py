@@ -193,6 +193,7 @@ def test_fast_scenario_reader_matches_xarray(reference):
     assert template.identical(xr.load_dataset(files[0], engine="h5netcdf"))  # left untouched
 
 
+@pytest.mark.slow
 def test_shards_in_one_folder_and_in_separate_folders(reference, tmp_path, capsys):
     _, preset, run, _ = reference
     folder = tmp_path / "shards"
@@ -448,6 +449,7 @@ def grains(tmp_path_factory):
     return tmp, xr.load_dataset(tmp / "run.nc"), warpe_cl.open_database(tmp / "db")
 
 
+@pytest.mark.slow
 def test_derived_parameters_are_variables_with_units(grains):
     """tau0 ... and the per-species w and N: variables with units, the same in one scenario's
     file, a run of the grid and a database; one scenario keeps them as attributes too."""
@@ -473,6 +475,7 @@ def test_derived_parameters_are_variables_with_units(grains):
         rp["species"][0]["number_density_per_m3"]
 
 
+@pytest.mark.slow
 def test_readme_delay_vs_grain_size(grains, tmp_path, monkeypatch):
     """The README's figure from a sweep, its five lines as written (the database path aside),
     on the tiny grain-size sweep: the plotted points are the three grain sizes in order."""
