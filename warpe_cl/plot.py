@@ -20,17 +20,16 @@ background scattering and the BF diffuse, with their numerical FOVs.
 from __future__ import annotations
 
 import json
-import re
 
 import numpy as np
 
 from .errors import ConfigError
+from .units import same_quantity, split_quantity
 
 SPECULAR_TIME_NS = 1e-6   # the seed draws the t = 0 specular return at 1e-6 ns
 MIN_RAYS = 3              # the shaded Monte Carlo limit: fewer rays than this in a bin
 _FIRST = ("texture", "thickness")   # a swept block's entries shown first
 MAX_CYCLE = 6             # more scenarios of a numeric sweep: a colormap and a colour bar
-_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s].*)?$")
 
 
 def _swept(ds) -> list:
@@ -140,11 +139,11 @@ def numeric_sweep(ds):
             numbers.append(float(v))
             units.add("")
             continue
-        m = _QUANTITY.match(str(v))
-        if not m:
+        q = split_quantity(str(v))
+        if q is None:
             return None
-        numbers.append(float(m.group(1)))
-        units.add((m.group(2) or "").strip())
+        numbers.append(q[0])
+        units.add(q[1])
     if len(units) != 1:
         return None
     return np.asarray(numbers), swept[0], units.pop()
@@ -217,20 +216,7 @@ def _same_value(value, want: str) -> bool:
     value = value.item() if hasattr(value, "item") else value
     if str(value).replace(" ", "") == want.replace(" ", ""):
         return True
-    a, b = _QUANTITY.match(str(value)), _QUANTITY.match(want)
-    if not (a and b):
-        return False
-    ua, ub = (a.group(2) or "").strip(), (b.group(2) or "").strip()
-    if ua == ub:
-        return np.isclose(float(a.group(1)), float(b.group(1)), rtol=1e-9)
-    from .units import DIMENSIONS, parse_quantity
-    for dimension in DIMENSIONS:
-        try:
-            return bool(np.isclose(parse_quantity(str(value), dimension),
-                                   parse_quantity(want, dimension), rtol=1e-9))
-        except Exception:  # noqa: BLE001 - not this dimension
-            continue
-    return False
+    return same_quantity(str(value), want)
 
 
 def _value(sc, name):

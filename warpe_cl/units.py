@@ -192,6 +192,39 @@ def parse_quantity(text, dimension: str) -> float:
     raise UnitError(f'"{text}" has an unknown unit "{unit}"{hint}', dimension)
 
 
+def split_quantity(text: str):
+    """A number and the unit written after it, read with the same grammar as
+    :func:`parse_quantity` but for no dimension in particular.
+
+    Returns
+    -------
+    (float, str) or None
+        ``(10.0, "mm")`` for ``"10 mm"``, ``(0.3, "")`` for ``"0.3"``; None for text that is
+        not a number followed by an optional unit.
+
+    Examples
+    --------
+    >>> split_quantity("10 mm"), split_quantity("0.3"), split_quantity("granular")
+    ((10.0, 'mm'), (0.3, ''), None)
+    """
+    match = _QUANTITY.match(text)
+    return None if match is None else (float(match.group(1)), match.group(2))
+
+
+def same_quantity(a: str, b: str, rtol: float = 1e-9) -> bool:
+    """Whether two quantities written as text are equal to ``rtol``: ``"10mm"`` and
+    ``"0.01 m"`` are; a bare number equals only a bare number, and a length never an angle."""
+    qa, qb = split_quantity(a), split_quantity(b)
+    if qa is None or qb is None:
+        return False
+    if qa[1] == qb[1]:
+        return math.isclose(qa[0], qb[0], rel_tol=rtol)
+    for dimension, units in UNITS.items():
+        if qa[1] in units and qb[1] in units:
+            return math.isclose(_scale(*qa, dimension), _scale(*qb, dimension), rel_tol=rtol)
+    return False
+
+
 def _number_text(x: float) -> str:
     """Shortest text that reads back as exactly ``x``: ``100``, ``12.5``, ``1e+05``."""
     if x == 0.0:
