@@ -285,8 +285,8 @@ def _field_kind(key: str):
     from .config.schema import FIELDS
     field = FIELDS.get(schema_key(split_key(key)))
     if field is None and key.startswith("instrument."):
-        from .instrument.params import SCHEMA
-        field = {f.key: f for f in SCHEMA}.get(key[len("instrument."):])
+        from .instrument.params import PARAMS
+        field = PARAMS.get(key[len("instrument."):])
     return None if field is None else field.kind
 
 
@@ -339,8 +339,10 @@ def grid_name(key: str, keys, taken=()) -> str:
     variable); two inclusions' grain sizes -> ``inclusions_0_grain_size`` and
     ``inclusions_1_grain_size``.
     """
+    from .config.keys import split_key
+
     def parts(k):
-        return [str(p) for p in k.replace("[", ".").replace("]", "").split(".")]
+        return [str(p) for p in split_key(k)]
 
     def tail(k, n):
         return "_".join(parts(k)[-n:])
