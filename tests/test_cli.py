@@ -353,3 +353,14 @@ def test_run_reports_the_walk_and_the_engine_times_it(tmp_path, capsys):
     assert engine.last_build_s + engine.last_walk_s <= float(ds["wall_time"])
     time_line = next(x for x in out.splitlines() if x.startswith("  time "))
     assert f"walk {engine.last_walk_s:.2f} s" in time_line, time_line
+
+
+def test_renames_hold_back_both_stopping_signals():
+    """Outputs renames its staged files with SIGINT and SIGTERM (which the command line turns
+    into the same KeyboardInterrupt) held back, so neither splits a run's .nc from its .png."""
+    import signal
+    from warpe_cl.io import _stops_held
+    with _stops_held():
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    assert {signal.SIGINT, signal.SIGTERM} <= set(blocked)
+    assert not {signal.SIGINT, signal.SIGTERM} & set(signal.pthread_sigmask(signal.SIG_BLOCK, set()))

@@ -443,8 +443,9 @@ class Outputs:
     """Several output files written all or nothing (``warpe-cl run --out X.nc --plot X.png``).
 
     :meth:`stage` gives a hidden temporary path next to each destination; leaving the
-    ``with`` block normally renames every staged file onto its destination, with SIGINT held
-    back during the renames, so that Ctrl-C finds either none of the files or all of them.
+    ``with`` block normally renames every staged file onto its destination, with SIGINT and
+    SIGTERM held back during the renames, so that Ctrl-C or SIGTERM finds either none of the
+    files or all of them.
     Leaving it by an exception (KeyboardInterrupt included) removes the staged files and
     leaves the destinations as they were.
 
@@ -487,7 +488,7 @@ class Outputs:
     def __exit__(self, kind, value, tb) -> bool:
         try:
             if kind is None:
-                with _sigint_held():
+                with _stops_held():
                     for tmp, path in self._staged:
                         os.replace(tmp, path)
         finally:
@@ -498,17 +499,23 @@ class Outputs:
         return False
 
 
-class _sigint_held:
-    """Hold SIGINT back (delivered on exit) in the main thread; a no-op elsewhere."""
+#: The signals that stop warpe-cl as Ctrl-C does (the command line turns SIGTERM, Slurm's time
+#: limit, into the same KeyboardInterrupt): held back while staged files are renamed.
+_STOPS = {signal.SIGINT, signal.SIGTERM}
+
+
+class _stops_held:
+    """Hold SIGINT and SIGTERM back (delivered on exit) in the main thread; a no-op
+    elsewhere."""
 
     def __enter__(self):
         self._held = (hasattr(signal, "pthread_sigmask")
                       and threading.current_thread() is threading.main_thread())
         if self._held:
-            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
         return self
 
     def __exit__(self, *exc):
         if self._held:
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOPS)
         return False
