@@ -31,9 +31,17 @@ def resolve_preset(text: str) -> Path:
     path = Path(text)
     if path.is_file():
         return path
+    return bundled_preset(text) or path
+
+
+def bundled_preset(text: str, presets: dict | None = None):
+    """The bundled preset named ``text`` (``radiative/slab_co2_1m``, with or without
+    ``presets/`` and ``.yaml``, or a stem that only one preset has), or None.
+
+    ``presets``: :func:`bundled_presets`, when the caller already has it."""
     name = text.removeprefix("presets/").removesuffix(".yaml")
-    presets = bundled_presets()
+    presets = bundled_presets() if presets is None else presets
     if name in presets:
         return presets[name]
     by_stem = [p for key, p in presets.items() if key.rsplit("/", 1)[-1] == name]
-    return by_stem[0] if len(by_stem) == 1 else path
+    return by_stem[0] if len(by_stem) == 1 else None

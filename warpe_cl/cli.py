@@ -74,6 +74,13 @@ def _not_an_instrument(args):
             "preset's instrument: block (docs/instrument.md)", key=args.preset)
 
 
+def _instrument_sets(args) -> dict:
+    """``--set KEY=VALUE`` of an instrument command as instrument keys (an ``instrument.``
+    prefix, as in a scenario's block, is dropped)."""
+    from .config.keys import parse_overrides
+    return {k.removeprefix("instrument."): v for k, v in parse_overrides(args.set or []).items()}
+
+
 def _load(args):
     from .config import load_preset
     return load_preset(args.preset, overrides=_overrides(args))   # a path or a bundled name
@@ -138,7 +145,7 @@ def cmd_run(args) -> int:
     points = cfg.sweep_points()
     for _, pcfg in points:
         radiative_parameters(pcfg)    # bad input fails (exit 2) before a device is sought
-    api.get_engine(args.device)       # no usable device fails (exit 3) before any output
+    engine = api.get_engine(args.device)   # no usable device fails (exit 3) before any output
     say = _say(args)
     say(report.run_header(cfg, len(points)))
     t0 = time.perf_counter()
@@ -148,8 +155,6 @@ def cmd_run(args) -> int:
             say(f"scenario {i}: " + report.point_text(point))
         for line in report.derived_lines(radiative_parameters(pcfg)):
             say(line)
-
-    engine = api.get_engine(args.device)
 
     def after(ds):
         for line in report.scenario_lines(ds, getattr(engine, "last_build_s", 0.0),
@@ -183,9 +188,7 @@ def _load_result(path: Path):
 def cmd_instrument(args) -> int:
     from .instrument import apply_instrument, check_parameter, load_instrument
     from .instrument.plot import plot_instrument
-    from .config.keys import parse_overrides
-    overrides = {k[len("instrument."):] if k.startswith("instrument.") else k: v
-                 for k, v in parse_overrides(args.set or []).items()}
+    overrides = _instrument_sets(args)
     if args.altitude is not None:
         overrides["geometry.altitude"] = args.altitude
     if args.roughness is not None:
@@ -266,11 +269,9 @@ def cmd_show_config(args) -> int:
     from .radiative import radiative_parameters
     instrument = _instrument_preset(args.preset)
     if instrument is not None:     # its resolved parameters (a base: filled in), with units
-        from .config.keys import parse_overrides
         from .instrument import load_instrument
-        over = {k[len("instrument."):] if k.startswith("instrument.") else k: v
-                for k, v in parse_overrides(args.set or []).items()}
-        params = load_instrument(str(instrument), over, override_source="command line")
+        params = load_instrument(str(instrument), _instrument_sets(args),
+                                 override_source="command line")
         print(f"# instrument preset {instrument}")
         for key, value in params.readable().items():
             print(f"{key}: {value}")
@@ -288,18 +289,18 @@ def cmd_show_config(args) -> int:
 
 def cmd_presets(args) -> int:
     import yaml
-    from .catalog import bundled_presets
+    from .catalog import bundled_preset, bundled_presets
     presets = bundled_presets()
     if args.show:        # its text, comments included, to copy and edit
-        name = args.show.removeprefix("presets/").removesuffix(".yaml")
-        by_stem = [k for k in presets if k.rsplit("/", 1)[-1] == name]
-        if name not in presets and len(by_stem) != 1:
+        path = bundled_preset(args.show, presets)
+        if path is None:
             import difflib
+            name = args.show.removeprefix("presets/").removesuffix(".yaml")
             hint = difflib.get_close_matches(name, list(presets), n=1)
             raise ConfigError(f"{args.show!r} is not a bundled preset"
                               + (f" (did you mean {hint[0]}?)" if hint else "")
                               + "; `warpe-cl presets` lists them", key="--show")
-        print(presets[name if name in presets else by_stem[0]].read_text().rstrip())
+        print(path.read_text().rstrip())
         return EXIT_OK
     for name, path in presets.items():
         try:
