@@ -363,16 +363,20 @@ class Engine:
                       for k in weights}}
         zeroed = [buffers[k] for k in (*hist, *weights, "next_photon")]
 
+        def record_buffers(n: int) -> dict:
+            """The per-photon record buffers of a launch of ``n`` photons (int and REAL
+            columns, cl/tally.h)."""
+            return {"rec_int": cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * len(RECORD_INT_COLUMNS) * n),
+                    "rec_real": cl.Buffer(ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize
+                                          * len(RECORD_REAL_COLUMNS) * n)}
+
         warm_key = (params.texture, precision, records, lanes, weighted, local_size)
         if warm_key not in self._warmed:
             # PoCL compiles a kernel for its work-group size at its first launch: a launch
             # walking no ray (n_photons 0) does that here, inside the build time; every
             # buffer it touches is zeroed or rewritten by the launches below
-            launch = {**buffers, "first_photon": first_photon, "n_photons": 0}
-            if records:
-                launch["rec_int"] = cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * len(RECORD_INT_COLUMNS))
-                launch["rec_real"] = cl.Buffer(
-                    ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * len(RECORD_REAL_COLUMNS))
+            launch = {**buffers, "first_photon": first_photon, "n_photons": 0,
+                      **(record_buffers(1) if records else {})}
             cl.enqueue_fill_buffer(queue, buffers["next_photon"], np.uint32(0), 0, 4)
             kern(queue, (local_size or 1,), (local_size,) if local_size else None,
                  *argument_values(args, params, launch, real))
@@ -395,10 +399,7 @@ class Engine:
             if local_size:
                 launch_items = -(-launch_items // local_size) * local_size
             if records:
-                launch["rec_int"] = cl.Buffer(ctx, mf.WRITE_ONLY,
-                                              size=4 * len(RECORD_INT_COLUMNS) * n)
-                launch["rec_real"] = cl.Buffer(
-                    ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize * len(RECORD_REAL_COLUMNS) * n)
+                launch.update(record_buffers(n))
             t0 = time.perf_counter()
             kern(queue, (launch_items,), (local_size,) if local_size else None,
                  *argument_values(args, params, launch, real))
