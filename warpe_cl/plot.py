@@ -232,6 +232,13 @@ def _pyplot():
     return plt
 
 
+def save_figure(fig, path):
+    """Save ``fig`` to ``path`` (PNG, 120 dpi), close it, and return ``path``."""
+    fig.savefig(path, dpi=120)
+    _pyplot().close(fig)
+    return path
+
+
 def fit_legend(ax, legend, smallest: float = 5.5):
     """Keep ``legend`` inside ``ax`` (long scenario labels): shrink its font down to
     ``smallest``, then wrap its longest labels onto several lines."""
@@ -400,11 +407,7 @@ def plot_waveform(ds, path, title: str | None = None):
 
     See ``waveform_figure`` for what is drawn. Returns ``path``.
     """
-    plt = _pyplot()
-    fig = waveform_figure(ds, title)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(waveform_figure(ds, title), path)
 
 
 def plot_angular(ds, path, title: str | None = None):
@@ -414,11 +417,7 @@ def plot_angular(ds, path, title: str | None = None):
     Scenarios are coloured and labelled as in ``waveform_figure`` (a legend, or a colour bar for
     more than ``MAX_CYCLE`` scenarios of one numeric key). Returns ``path``.
     """
-    plt = _pyplot()
-    fig = angular_figure(ds, title)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(angular_figure(ds, title), path)
 
 
 def angular_figure(ds, title: str | None = None):

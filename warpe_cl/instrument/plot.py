@@ -43,12 +43,8 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
 
     See ``instrument_figure``. Returns ``path``.
     """
-    from ..plot import _pyplot
-    plt = _pyplot()
-    fig = instrument_figure(cases, title, shot)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    from ..plot import save_figure
+    return save_figure(instrument_figure(cases, title, shot), path)
 
 
 def instrument_figure(cases, title: str | None = None, shot: int = 0):
