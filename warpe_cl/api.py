@@ -103,17 +103,8 @@ def scenario_key(point: dict | None, cfg) -> int:
     """
     data = cfg.data if hasattr(cfg, "data") else cfg
     canonical = json.dumps(keyed_configuration(data), sort_keys=True, separators=(",", ":"),
-                           default=_json_default, allow_nan=True)
+                           default=io.json_default, allow_nan=True)
     return int.from_bytes(hashlib.sha256(canonical.encode()).digest()[:8], "big")
-
-
-def _json_default(value):
-    import numpy as np
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return str(value)
 
 
 def format_key(key: int) -> str:

@@ -77,6 +77,13 @@ def derived_variables(derived: dict) -> dict:
     return out
 
 
+def json_default(value):
+    """JSON fallback for the NumPy values a configuration may hold: arrays and NumPy scalars as
+    Python lists and numbers (``tolist``), anything else as its text."""
+    tolist = getattr(value, "tolist", None)
+    return tolist() if tolist is not None else str(value)
+
+
 def package_version() -> str:
     """The installed version of warpe-cl ("unknown" in a bare checkout)."""
     try:

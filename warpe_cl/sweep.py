@@ -40,7 +40,7 @@ from pathlib import Path
 
 from .database import database_folder, manifest_name, open_database, read_manifests
 from .errors import ConfigError, one_line
-from .io import utc_now, versions, write_text
+from .io import json_default, utc_now, versions, write_text
 from .progress import Progress
 from .report import point_text, sweep_start_line
 from .report import sweep_summary_lines as summary_lines     # docs/cluster.md imports it here
@@ -58,14 +58,8 @@ MANIFEST_INTERVAL_S = 2.0     # the manifest is rewritten at most this often (an
 
 # --------------------------------------------------------------------------- small helpers
 
-def _jsonable(value):
-    """JSON fallback for numpy values in configurations."""
-    tolist = getattr(value, "tolist", None)
-    return tolist() if tolist is not None else str(value)
-
-
 def _sha256(value) -> str:
-    text = json.dumps(value, sort_keys=True, default=_jsonable, separators=(",", ":"))
+    text = json.dumps(value, sort_keys=True, default=json_default, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -353,7 +347,7 @@ class _Manifest:
         manifest = {**self.header, "updated_utc": utc_now(),
                     "versions": versions(("xarray", "pyopencl") + used), "counts": counts,
                     "scenarios": rows}
-        write_text(self.path, json.dumps(manifest, indent=1, default=_jsonable))
+        write_text(self.path, json.dumps(manifest, indent=1, default=json_default))
 
 
 def _triage(sweep: _Sweep, records: dict, summary: SweepSummary) -> list:
