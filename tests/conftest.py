@@ -42,9 +42,9 @@ def engine():
 def selftest(engine):
     """The self-test program (single and double precision), for the kernel building blocks."""
     from warpe_cl.device import SELFTEST_FILES, build_program
-    progs = {"single": build_program(engine.device, SELFTEST_FILES, ())[0]}
+    progs = {"single": build_program(engine.device, SELFTEST_FILES, ())}
     if engine.info.fp64:
-        progs["double"] = build_program(engine.device, SELFTEST_FILES, ("-DWARPE_DOUBLE",))[0]
+        progs["double"] = build_program(engine.device, SELFTEST_FILES, ("-DWARPE_DOUBLE",))
     return progs
 
 

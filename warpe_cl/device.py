@@ -163,15 +163,15 @@ def context_and_queue(device):
 
 @lru_cache(maxsize=None)
 def build_program(device, names: tuple, options: tuple):
-    """Build (and keep) the program made of ``names`` with ``-D`` options for ``device``.
+    """Build the program made of ``names`` with ``-D`` options for ``device`` and return it.
 
-    Returns ``(program, source_hash(names, options))``. pyopencl and PoCL also cache binaries
-    on disk (keyed by the source text and the options), so a second process rebuilds nothing.
+    pyopencl and PoCL cache binaries on disk (keyed by the source text and the options), so a
+    second process rebuilds nothing. What identifies the kernel in output files is
+    :func:`source_hash` (computed once per process by its users, not per build).
     """
     cl = _cl()
     ctx, _ = context_and_queue(device)
-    program = cl.Program(ctx, assemble_source(names)).build(options=list(options))
-    return program, source_hash(names, options)
+    return cl.Program(ctx, assemble_source(names)).build(options=list(options))
 
 
 def _explain_build_failure(err: Exception) -> str:

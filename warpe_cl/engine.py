@@ -280,7 +280,7 @@ class Engine:
                                      "(cl_khr_int64_base_atomics), which the weighted mode's "
                                      "exact tallies need; use simulation.mode: analog")
         options = build_options(texture, precision, records, lanes, weighted)
-        program, _ = devmod.build_program(self.device, WALK_FILES, options)
+        program = devmod.build_program(self.device, WALK_FILES, options)
         self.kernel_hash = walk_source_hash()
         key = (texture, precision, records, lanes, weighted)
         if key not in self._kernels:
