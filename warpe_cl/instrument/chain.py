@@ -31,13 +31,23 @@ def shot_rng(seed: int, scenario_key: int, shot: int) -> np.random.Generator:
     return np.random.Generator(np.random.Philox(key=key, counter=counter))
 
 
+#: A surface computed within this relative difference of the instrument's wavelength is at it.
+WAVELENGTH_RTOL = 1e-3
+
+
+def at_wavelength(surface_m: float, instrument_m: float) -> bool:
+    """Whether a surface computed at ``surface_m`` (m) is at the instrument's ``instrument_m``
+    (m), to :data:`WAVELENGTH_RTOL`."""
+    return abs(surface_m - instrument_m) <= WAVELENGTH_RTOL * instrument_m
+
+
 def check_wavelength(surface: SurfaceResponse, params) -> None:
     """ConfigError unless the surface response was computed at the instrument's wavelength."""
     lam = params["wavelength"]
     if surface.wavelength is None:
         raise ConfigError("the surface result does not say its wavelength (no configuration "
                           "attribute); recompute it with `warpe-cl run`", key="wavelength")
-    if abs(surface.wavelength - lam) > 1e-3 * lam:
+    if not at_wavelength(surface.wavelength, lam):
         raise ConfigError(f"the surface response was computed at {surface.wavelength * 1e9:g} nm "
                           f"but {params['name']} works at {lam * 1e9:g} nm; recompute the surface "
                           f"with wavelength: \"{lam * 1e9:g} nm\" (and optical constants at it)",

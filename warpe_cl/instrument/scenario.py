@@ -86,11 +86,12 @@ def scenario_instrument(cfg) -> InstrumentParams | None:
 
 
 def _check_wavelength(cfg, params: InstrumentParams, source: str) -> None:
-    """ConfigError unless the preset's wavelength is the instrument's (to 0.1 %), as the chain
-    requires (:func:`warpe_cl.instrument.chain.check_wavelength`), before any walk."""
+    """ConfigError unless the preset's wavelength is the instrument's, by the chain's own test
+    (:func:`warpe_cl.instrument.chain.at_wavelength`, 0.1 %), before any walk."""
+    from .chain import at_wavelength
     lam = params["wavelength"]
     surface = cfg.get("wavelength")
-    if abs(surface - lam) > 1e-3 * lam:
+    if not at_wavelength(surface, lam):
         raise ConfigError(f"{params['name']} works at {lam * 1e9:g} nm but the surface is "
                           f"computed at {surface * 1e9:g} nm; give wavelength: "
                           f"\"{lam * 1e9:g} nm\" (with optical constants at it) or another "
