@@ -346,10 +346,46 @@ def test_noiseless_range_and_width_do_not_depend_on_the_sampling_phase(name):
     tau = 0.3
     for phase in np.linspace(0.0, interval, 20, endpoint=False):
         t, s = _return(model, interval, phase, tau, 353.0)
-        det, arrival, width, _ = detection.estimate(t, s, sampled, t_peak, 5.0, t_width, model)
+        det, arrival, width, _ = detection.estimate(t, s, sampled, t_peak, 5.0, model)
         assert det
         assert abs(arrival - tau) < 0.01 * interval, phase
         assert abs(width - t_width) < 0.01 * interval, phase
+
+
+@pytest.mark.parametrize("name", ["bela", "gala"])
+def test_saturated_range_and_width_do_not_depend_on_the_sampling_phase(name):
+    """A noiseless return 5x above the clipped level (its top 2-3 samples at the ceiling): the
+    clipped samples are censored, not fitted as values, so the range and width are still the
+    true arrival and σ_T to 1 % of Δt_s at every phase. Fitted as values (ceiling = inf), the
+    flat top pulls the fitted model away from the true shape."""
+    interval, sampled, t_peak, t_width, model = _detection_setup(name)
+    tau, ceiling = 0.3, 200.0
+    as_values = []
+    for phase in np.linspace(0.0, interval, 20, endpoint=False):
+        t, s = _return(model, interval, phase, tau, 5.0 * ceiling)
+        s = np.minimum(s, ceiling)
+        assert np.count_nonzero(s >= ceiling) >= 1
+        det, arrival, width, peak = detection.estimate(t, s, sampled, t_peak, 5.0, model, ceiling)
+        assert det and peak == ceiling
+        assert abs(arrival - tau) < 0.01 * interval, phase
+        assert abs(width - t_width) < 0.01 * interval, phase
+        as_values.append(detection.estimate(t, s, sampled, t_peak, 5.0, model)[1] - tau)
+    # the clipped samples fitted as values: off by up to 24 % (BELA) / 44 % (GALA) of Δt_s
+    assert np.max(np.abs(as_values)) > 0.1 * interval
+
+
+def test_saturated_specular_return_ranges_to_the_surface():
+    """A specular flood that clips BELA's samples (saturation 1000 mV): the range is the surface
+    (t = 0) within 5 standard errors of the mean over shots (s.e. from the sample std) plus
+    1 % of Δt_s, and the width is the template's within the same; the shots are flagged."""
+    ds = synthetic_surface(f_spec=0.02)
+    out = apply_instrument(ds, "bela", {"geometry.roughness": "0.05 deg"}, shots=40)
+    assert out["saturated"].all() and out["detected"].all()
+    r, w = out["range_time"].values, out["pulse_width"].values
+    interval = float(out["sample_time"][1] - out["sample_time"][0])
+    assert abs(r.mean()) < 5 * r.std(ddof=1) / math.sqrt(r.size) + 0.01 * interval
+    assert abs(w.mean() - float(out["template_width"])) < \
+        5 * w.std(ddof=1) / math.sqrt(w.size) + 0.01 * interval
 
 
 def _range_crb(model, interval, peak, sigma, tau=0.3, phases=64):
@@ -385,7 +421,7 @@ def test_range_spread_follows_the_cramer_rao_bound(name, snr):
         # threshold −inf: the estimator, not the detection, is under test (at SNR 10 and the worst
         # BELA phase the matched-filter peak is only ~0.46 SNR σ, so m = 4.5 would drop ~5 % of
         # the shots, the low ones, and bias the spread)
-        ranges.append(detection.estimate(t, s, sampled, t_peak, -math.inf, t_width, model)[1])
+        ranges.append(detection.estimate(t, s, sampled, t_peak, -math.inf, model)[1])
     ranges = np.array(ranges)
     assert np.isfinite(ranges).all()
     crb = _range_crb(model, interval, snr * sigma, sigma)

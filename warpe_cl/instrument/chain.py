@@ -208,7 +208,8 @@ def _linear_mode(p, grid, amounts, kernel, k_origin, h, h_origin, signal_rate, d
     m = p["detection.threshold_sigma"]
     threshold = m * sigma_n
     y_exp = detection.matched_filter(expected_mv - baseline_mv, template)
-    top = adc.quantise(np.array([full_scale]), full_scale, bits)[0] * 1e3
+    # the clipped level: saturation or the top ADC code, whichever is lower, as recorded (mV)
+    top = adc.quantise(np.array([min(v_sat, full_scale)]) * 1e3, full_scale * 1e3, bits)[0]
 
     signal = np.empty((shots, ts.size))
     phase = np.empty(shots)
@@ -239,7 +240,7 @@ def _linear_mode(p, grid, amounts, kernel, k_origin, h, h_origin, signal_rate, d
         signal[s] = adc.quantise(adc.sample(t_fine, volts, at) * 1e3, full_scale * 1e3, bits)
         saturated[s] = bool(np.any(signal[s] >= top - 1e-9))
         det[s], arrival[s], width[s], peak[s] = detection.estimate(
-            at, signal[s] - baseline_mv, template, t_peak, threshold, t_width, model)
+            at, signal[s] - baseline_mv, template, t_peak, threshold, model, top - baseline_mv)
     return {
         "sample_time": ts,
         "signal_mv": signal,

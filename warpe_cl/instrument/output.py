@@ -40,7 +40,7 @@ VARIABLES = {
     "range_offset": (("shot",), "m", "range error c range_time / 2 (positive: farther)"),
     "pulse_width": (("shot",), "ns", "rms width of the recorded return"),
     "peak_mv": (("shot",), "mV", "largest sample of the shot"),
-    "saturated": (("shot",), "", "a sample of the shot is at the top ADC code"),
+    "saturated": (("shot",), "", "a sample of the shot is at the clipped level (saturation or the top ADC code)"),
     "noise_mv": ((), "mV", "per-sample noise: electronic, background/dark shot noise, quantisation"),
     "electronic_noise_mv": ((), "mV", "electronic noise G_T i_n sqrt(B_eq)"),
     "baseline_mv": ((), "mV", "expected signal-free level (offset, dark and background)"),
