@@ -14,9 +14,10 @@
  *   TIME_BIN_LATE, TIME_BIN_EARLY                              time_bin of a late, an early exit
  *   N_ITEM_STATS, STAT_*                                       slots of item_stats (walk.cl)
  *   N_RECORD_INT, N_RECORD_REAL, RECORD_*                      columns of the per-photon records
+ *   N_STATE_REAL, N_STATE_INT, STATE_*                         columns of a parked ray (walk.cl)
  *   FIXED_SHIFT, FIXED_WORDS, MAX_WEIGHT                       the weighted sums (below) */
 #if !defined(N_COMPONENTS) || !defined(N_FATES) || !defined(N_ITEM_STATS) \
-    || !defined(N_RECORD_INT) || !defined(FIXED_SHIFT)
+    || !defined(N_RECORD_INT) || !defined(N_STATE_REAL) || !defined(FIXED_SHIFT)
 #error "build the walk with the layout macros of warpe_cl/params.py (warpe_cl/engine.py)"
 #endif
 

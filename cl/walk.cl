@@ -54,7 +54,6 @@ typedef struct {
     VMASK flights, n_scat, n_lamb, n_bspec, n_top;   /* the counters of walk.md §3 */
     VMASK phase;                 /* PHASE_ENTRY, PHASE_FLIGHT or PHASE_GAP: the next event */
     VMASK event;                 /* the next event's Philox block (walk.md §2) */
-    VMASK photon;                /* photon index within the launch */
     VMASK alive;                 /* lanes with a ray */
     VUINT p_lo, p_hi;            /* the photon's 64-bit index (first_photon + photon) */
 #ifdef WARPE_WEIGHTED
@@ -80,7 +79,6 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
     r.n_top = (VMASK)0;
     r.phase = (VMASK)phase_start;
     r.event = (VMASK)0;
-    r.photon = (VMASK)0;
     r.alive = (VMASK)0;
     r.p_lo = (VUINT)0;
     r.p_hi = (VUINT)0;
@@ -103,8 +101,9 @@ typedef struct {
     __global ulong *w2_time_in_fov, *w2_total;
 #endif
 #ifdef WARPE_RECORD
-    __global int *rec_int;
-    __global REAL *rec_real;
+    __global int *rec_int;       /* [photons of the walk][N_RECORD_INT] */
+    __global REAL *rec_real;     /* [photons of the walk][N_RECORD_REAL] */
+    uint record_base;            /* the low word of the walk's first photon: row 0 */
 #endif
     __global const REAL *time_edges;
     int n_edges;
@@ -199,12 +198,12 @@ WALK_STEP void refill_lanes(rays_t *r, int *exhausted, __global uint *next_photo
 {
     IREAL a[WARPE_LANES], p[WARPE_LANES];
     VSTORE(r->alive, a);
-    VSTORE(r->photon, p);
     uint wanted = 0;
     for (int j = 0; j < WARPE_LANES; ++j)
         wanted += a[j] ? 0u : 1u;
     uint next = atomic_add(next_photon, wanted);
     for (int j = 0; j < WARPE_LANES; ++j) {
+        p[j] = 0;
         if (a[j])
             continue;
         if (next < n_photons) {
@@ -216,10 +215,9 @@ WALK_STEP void refill_lanes(rays_t *r, int *exhausted, __global uint *next_photo
         }
     }
     const VMASK fresh = VLOAD(a) & !r->alive;
-    r->photon = VLOAD(p);
     r->alive |= fresh;
     /* the photon's index first_photon + photon, carried into the high word (walk.md §2) */
-    const VUINT lo = (VUINT)base_lo + CONVERT_VUINT(r->photon);
+    const VUINT lo = (VUINT)base_lo + CONVERT_VUINT(VLOAD(p));
     r->p_lo = SEL(r->p_lo, lo, MASK32(fresh));
     r->p_hi = SEL(r->p_hi, SEL((VUINT)base_hi, (VUINT)(base_hi + 1u), lo < base_lo),
                   MASK32(fresh));
@@ -240,6 +238,161 @@ WALK_STEP void refill_lanes(rays_t *r, int *exhausted, __global uint *next_photo
 #ifdef WARPE_WEIGHTED
     r->w = SEL(r->w, (VREAL)1, fresh);
 #endif
+}
+
+/* The rays carried from one launch to the next (walk.md §5): a launch stops each work-item
+ * after event_budget events and parks its unfinished rays, one row each (N_STATE_REAL REALs,
+ * N_STATE_INT uints: columns STATE_* of warpe_cl/params.py); the next launch resumes them
+ * before it takes new photons. A row holds the whole state of rays_t but the exit cosine
+ * (set when a ray exits): the ray goes on from the same event block, so its history does not
+ * depend on where launches cut it. */
+typedef struct {
+    uint resume_count;                   /* rows in resume_real / resume_int */
+    __global uint *next_resume;          /* rows taken so far (starts at 0) */
+    __global const REAL *resume_real;
+    __global const uint *resume_int;
+    __global uint *parked;               /* rows written so far (starts at 0) */
+    __global REAL *park_real;
+    __global uint *park_int;
+} carry_t;
+
+/* The lanes' state as per-lane arrays (the rows of carry_t are per ray). */
+typedef struct {
+    REAL z[WARPE_LANES], ux[WARPE_LANES], uy[WARPE_LANES], uz[WARPE_LANES];
+    REAL Ls[WARPE_LANES], Lc[WARPE_LANES], w[WARPE_LANES];
+    IREAL flights[WARPE_LANES], n_scat[WARPE_LANES], n_lamb[WARPE_LANES];
+    IREAL n_bspec[WARPE_LANES], n_top[WARPE_LANES], phase[WARPE_LANES], event[WARPE_LANES];
+    IREAL alive[WARPE_LANES];
+    uint p_lo[WARPE_LANES], p_hi[WARPE_LANES];
+} lane_rows_t;
+
+WALK_STEP void rays_to_rows(const rays_t *r, lane_rows_t *l)
+{
+    VSTORE(r->z, l->z);
+    VSTORE(r->ux, l->ux);
+    VSTORE(r->uy, l->uy);
+    VSTORE(r->uz, l->uz);
+    VSTORE(r->Ls, l->Ls);
+    VSTORE(r->Lc, l->Lc);
+#ifdef WARPE_WEIGHTED
+    VSTORE(r->w, l->w);
+#endif
+    VSTORE(r->flights, l->flights);
+    VSTORE(r->n_scat, l->n_scat);
+    VSTORE(r->n_lamb, l->n_lamb);
+    VSTORE(r->n_bspec, l->n_bspec);
+    VSTORE(r->n_top, l->n_top);
+    VSTORE(r->phase, l->phase);
+    VSTORE(r->event, l->event);
+    VSTORE(r->alive, l->alive);
+    VSTORE(r->p_lo, l->p_lo);
+    VSTORE(r->p_hi, l->p_hi);
+}
+
+WALK_STEP void rows_to_rays(const lane_rows_t *l, rays_t *r)
+{
+    r->z = VLOAD(l->z);
+    r->ux = VLOAD(l->ux);
+    r->uy = VLOAD(l->uy);
+    r->uz = VLOAD(l->uz);
+    r->Ls = VLOAD(l->Ls);
+    r->Lc = VLOAD(l->Lc);
+#ifdef WARPE_WEIGHTED
+    r->w = VLOAD(l->w);
+#endif
+    r->flights = VLOAD(l->flights);
+    r->n_scat = VLOAD(l->n_scat);
+    r->n_lamb = VLOAD(l->n_lamb);
+    r->n_bspec = VLOAD(l->n_bspec);
+    r->n_top = VLOAD(l->n_top);
+    r->phase = VLOAD(l->phase);
+    r->event = VLOAD(l->event);
+    r->alive = VLOAD(l->alive);
+    r->p_lo = VLOAD(l->p_lo);
+    r->p_hi = VLOAD(l->p_hi);
+}
+
+/* Lanes without a ray take the parked rays of the last launch first (walk.md §5); clears
+ * *resuming once they are all taken. */
+WALK_STEP void resume_lanes(rays_t *r, const carry_t *cy, int *resuming)
+{
+    lane_rows_t l;
+    rays_to_rows(r, &l);
+    uint wanted = 0;
+    for (int j = 0; j < WARPE_LANES; ++j)
+        wanted += l.alive[j] ? 0u : 1u;
+    const uint first = atomic_add(cy->next_resume, wanted);
+    if (first + wanted >= cy->resume_count)
+        *resuming = 0;
+    if (first >= cy->resume_count)
+        return;
+    const uint end = min(first + wanted, cy->resume_count);
+    uint row = first;
+    for (int j = 0; j < WARPE_LANES && row < end; ++j) {
+        if (l.alive[j])
+            continue;
+        __global const REAL *rr = cy->resume_real + N_STATE_REAL * (size_t)row;
+        __global const uint *ri = cy->resume_int + N_STATE_INT * (size_t)row;
+        l.z[j] = rr[STATE_Z];
+        l.ux[j] = rr[STATE_UX];
+        l.uy[j] = rr[STATE_UY];
+        l.uz[j] = rr[STATE_UZ];
+        l.Ls[j] = rr[STATE_LS];
+        l.Lc[j] = rr[STATE_LC];
+        l.w[j] = rr[STATE_W];
+        l.flights[j] = (IREAL)ri[STATE_FLIGHTS];
+        l.n_scat[j] = (IREAL)ri[STATE_N_SCAT];
+        l.n_lamb[j] = (IREAL)ri[STATE_N_LAMB];
+        l.n_bspec[j] = (IREAL)ri[STATE_N_BSPEC];
+        l.n_top[j] = (IREAL)ri[STATE_N_TOP];
+        l.phase[j] = (IREAL)ri[STATE_PHASE];
+        l.event[j] = (IREAL)ri[STATE_EVENT];
+        l.p_lo[j] = ri[STATE_P_LO];
+        l.p_hi[j] = ri[STATE_P_HI];
+        l.alive[j] = (IREAL)-1;     /* "true" in both mask conventions (lanes.h) */
+        row += 1;
+    }
+    rows_to_rays(&l, r);
+}
+
+/* The live lanes' rays into rows of the park buffer, for the next launch (walk.md §5). */
+WALK_STEP void park_lanes(const rays_t *r, const carry_t *cy)
+{
+    lane_rows_t l;
+    rays_to_rows(r, &l);
+    uint count = 0;
+    for (int j = 0; j < WARPE_LANES; ++j)
+        count += l.alive[j] ? 1u : 0u;
+    if (count == 0)
+        return;
+    uint row = atomic_add(cy->parked, count);
+    for (int j = 0; j < WARPE_LANES; ++j) {
+        if (!l.alive[j])
+            continue;
+        __global REAL *rr = cy->park_real + N_STATE_REAL * (size_t)row;
+        __global uint *ri = cy->park_int + N_STATE_INT * (size_t)row;
+        rr[STATE_Z] = l.z[j];
+        rr[STATE_UX] = l.ux[j];
+        rr[STATE_UY] = l.uy[j];
+        rr[STATE_UZ] = l.uz[j];
+        rr[STATE_LS] = l.Ls[j];
+        rr[STATE_LC] = l.Lc[j];
+#ifdef WARPE_WEIGHTED
+        rr[STATE_W] = l.w[j];
+#else
+        rr[STATE_W] = (REAL)1;
+#endif
+        ri[STATE_FLIGHTS] = (uint)l.flights[j];
+        ri[STATE_N_SCAT] = (uint)l.n_scat[j];
+        ri[STATE_N_LAMB] = (uint)l.n_lamb[j];
+        ri[STATE_N_BSPEC] = (uint)l.n_bspec[j];
+        ri[STATE_N_TOP] = (uint)l.n_top[j];
+        ri[STATE_PHASE] = (uint)l.phase[j];
+        ri[STATE_EVENT] = (uint)l.event[j];
+        ri[STATE_P_LO] = l.p_lo[j];
+        ri[STATE_P_HI] = l.p_hi[j];
+        row += 1;
+    }
 }
 
 /* FLIGHT, the free flight of the lanes in fl (walk.md §3 steps 3.1-3.5, docs/physics.md §5.3,
@@ -421,13 +574,11 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
 {
     const int n_time = tally->n_edges - 1;
     IREAL d[WARPE_LANES], f[WARPE_LANES], ns[WARPE_LANES], nl[WARPE_LANES];
-    IREAL p[WARPE_LANES];
     REAL t[WARPE_LANES], ce[WARPE_LANES];
     VSTORE(e->done, d);
     VSTORE(e->fate, f);
     VSTORE(r->n_scat, ns);
     VSTORE(r->n_lamb, nl);
-    VSTORE(r->photon, p);
     VSTORE(r->Ls * tally->ns_per_m, t);
     VSTORE(r->cos_exit, ce);
 #ifdef WARPE_WEIGHTED
@@ -436,8 +587,10 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
 #endif
 #ifdef WARPE_RECORD
     IREAL nb[WARPE_LANES], nt[WARPE_LANES];
+    uint p[WARPE_LANES];
     VSTORE(r->n_bspec, nb);
     VSTORE(r->n_top, nt);
+    VSTORE(r->p_lo, p);
 #endif
     for (int j = 0; j < WARPE_LANES; ++j) {
         if (!d[j])
@@ -482,7 +635,7 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
 #else
         const REAL w_end = (REAL)1;
 #endif
-        write_record(tally, (size_t)p[j], fj, component, n_s, n_l, (int)nb[j], (int)nt[j], tb,
+        write_record(tally, (size_t)(p[j] - tally->record_base), fj, component, n_s, n_l, (int)nb[j], (int)nt[j], tb,
                      eb, tj, ce[j], w_end);
 #endif
     }
@@ -499,6 +652,14 @@ __kernel void walk(const uint seed, const ulong scenario,
                    const REAL cos_fov_specular, const REAL cos_fov_bf_direct,
                    const REAL cos_fov_bf_diffuse, const REAL cos_fov_scattering,
                    __global uint *next_photon,   /* [1] photons handed out so far (starts at 0) */
+                   const uint event_budget,      /* events per work-item in this launch */
+                   const uint resume_count,      /* rays parked by the last launch */
+                   __global uint *next_resume,   /* [1] parked rays taken so far (starts at 0) */
+                   __global const REAL *resume_real, /* [resume_count][N_STATE_REAL] */
+                   __global const uint *resume_int,  /* [resume_count][N_STATE_INT] */
+                   __global uint *parked,        /* [1] rays parked by this launch (starts at 0) */
+                   __global REAL *park_real,     /* [global size x lanes][N_STATE_REAL] */
+                   __global uint *park_int,      /* [global size x lanes][N_STATE_INT] */
                    __global uint *time_in_fov,   /* [N_COMPONENTS][n_edges - 1] */
                    __global uint *time_any,      /* [N_COMPONENTS][n_edges - 1] */
                    __global uint *angular,       /* [N_COMPONENTS][N_EMERGENCE] */
@@ -515,8 +676,9 @@ __kernel void walk(const uint seed, const ulong scenario,
                    , __global ulong *w2_total       /* [N_COMPONENTS][FIXED_WORDS] */
 #endif
 #ifdef WARPE_RECORD
-                   , __global int *rec_int       /* [n_photons][N_RECORD_INT] */
-                   , __global REAL *rec_real     /* [n_photons][N_RECORD_REAL] */
+                   , __global int *rec_int       /* [photons of the walk][N_RECORD_INT] */
+                   , __global REAL *rec_real     /* [photons of the walk][N_RECORD_REAL] */
+                   , const uint record_base      /* low word of the walk's first photon */
 #endif
                    )
 {
@@ -534,7 +696,7 @@ __kernel void walk(const uint seed, const ulong scenario,
         .w2_total = w2_total,
 #endif
 #ifdef WARPE_RECORD
-        .rec_int = rec_int, .rec_real = rec_real,
+        .rec_int = rec_int, .rec_real = rec_real, .record_base = record_base,
 #endif
         .time_edges = time_edges, .n_edges = n_edges,
         .cos_fov = {cos_fov_specular, cos_fov_bf_direct, cos_fov_bf_diffuse, cos_fov_scattering},
@@ -551,15 +713,30 @@ __kernel void walk(const uint seed, const ulong scenario,
 #else
     const IREAL phase_start = PHASE_FLIGHT;           /* granular: no entry event */
 #endif
+    const carry_t carry = {.resume_count = resume_count, .next_resume = next_resume,
+                           .resume_real = resume_real, .resume_int = resume_int,
+                           .parked = parked, .park_real = park_real, .park_int = park_int};
     stats_t st = {{0}, 0, 0, 0};
     rays_t r = no_rays(phase_start);
-    int exhausted = 0;
+    int exhausted = 0, resuming = resume_count > 0;
+    uint events = 0;
 
     for (;;) {
-        if (!exhausted && !ALL(r.alive))
-            refill_lanes(&r, &exhausted, next_photon, n_photons, base_lo, base_hi, phase_start);
+        /* the launch's event budget spent: park the rays still walking (walk.md §5) */
+        if (events == event_budget) {
+            park_lanes(&r, &carry);
+            break;
+        }
+        if (!exhausted && !ALL(r.alive)) {
+            if (resuming)
+                resume_lanes(&r, &carry, &resuming);
+            if (!ALL(r.alive))
+                refill_lanes(&r, &exhausted, next_photon, n_photons, base_lo, base_hi,
+                             phase_start);
+        }
         if (!ANY(r.alive))
             break;
+        events += 1;
 
         /* one event of every live lane, from block `event` of its stream (walk.md §2) */
         VUINT x0, x1, x2, x3;

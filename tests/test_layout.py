@@ -85,14 +85,15 @@ def test_walk_arguments_are_typed_and_named_once():
 
 
 LAYOUT_NAME = re.compile(r"\b(N_COMPONENTS|N_FATES|N_EMERGENCE|N_ITEM_STATS|N_RECORD_INT|"
-                         r"N_RECORD_REAL|COMPONENT_\w+|FATE_\w+|STAT_\w+|RECORD_\w+|TIME_BIN_\w+|"
+                         r"N_RECORD_REAL|N_STATE_REAL|N_STATE_INT|COMPONENT_\w+|FATE_\w+|STAT_\w+|"
+                         r"RECORD_\w+|STATE_\w+|TIME_BIN_\w+|"
                          r"FIXED_SHIFT|FIXED_WORDS|MAX_WEIGHT)\b")
 
 
 def test_layout_macros_come_from_params_only():
     """Every layout name the kernel uses is one of params.kernel_layout's macros, none is
-    #defined in cl/ itself, and every one is used (every item_stats slot and record column
-    is written)."""
+    #defined in cl/ itself, and every one is used (every item_stats slot, record column and
+    parked-ray column is written)."""
     layout = P.kernel_layout()
     code = "\n".join(_code((kernel_dir() / name).read_text()) for name in WALK_FILES)
     used = set(LAYOUT_NAME.findall(code))

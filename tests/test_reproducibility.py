@@ -34,6 +34,35 @@ def test_counts_do_not_depend_on_lane_width(engine, precision, texture):
         assert engine.run(p, n, precision=precision, lanes=lanes).same_as(reference), lanes
 
 
+BUDGET_CASES = [pytest.param(mode, texture, lanes, marks=() if fast else pytest.mark.slow)
+                for mode, texture, lanes, fast in (
+                    ("analog", "slab", 16, True), ("weighted", "granular", 1, True),
+                    ("weighted", "slab", 16, False), ("analog", "granular", 16, False),
+                    ("analog", "slab", 1, False), ("weighted", "slab", 1, False),
+                    ("analog", "granular", 1, False), ("weighted", "granular", 16, False))]
+
+
+@pytest.mark.parametrize("mode, texture, lanes", BUDGET_CASES)
+def test_counts_and_rays_do_not_depend_on_the_event_budget(engine, mode, texture, lanes):
+    """A launch stops each work-item after event_budget events and parks its unfinished rays;
+    the next launch resumes them (docs/walk.md §5). Whatever the budget, down to one event per
+    launch (every ray parked after each event: its position, direction, path, counters,
+    phase, weight and event block carried), every tally and every ray's record is the same
+    bits as one unbounded launch; the slab has a vacuum gap, so rays are parked in it too."""
+    p = medium(**{**SCATTERING, "texture": texture, "mode": mode})
+    for n, budgets in ((300, (1, 3)), (3000, (29,))):
+        reference = engine.run(p, n, precision="double", lanes=lanes, records=True,
+                               event_budget=2 ** 32 - 1)
+        for budget in budgets:
+            launches = []
+            other = engine.run(p, n, precision="double", lanes=lanes, records=True,
+                               event_budget=budget, progress=launches.append)
+            assert other.same_as(reference), budget
+            assert len(launches) > 3 and launches[-1] == n, launches[:5]
+            for field, value in reference.records.items():
+                assert np.array_equal(other.records[field], value, equal_nan=True), field
+
+
 def test_split_runs_add_up_to_the_whole(engine):
     p = medium(**SCATTERING)
     whole = engine.run(p, 50_000)

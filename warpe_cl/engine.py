@@ -1,10 +1,13 @@
 """The OpenCL engine: launches photon batches of the walk kernel and reduces their tallies.
 
-Each launch walks a contiguous range of photon indices; every ray draws its random numbers
-from Philox keyed by (seed, scenario key) with the photon index in the counter, so the counts do
-not depend on the device, the work-group size, the global size or how photons are split into
-launches. Launches are sized to take about ``target_launch_s`` seconds and at most 2^31
-photons (the per-launch uint32 histograms cannot overflow); the host adds each launch's
+Each launch hands out the next photon indices of the walk; every ray draws its random numbers
+from Philox keyed by (seed, scenario key) with the photon index and the event in the counter, so
+the counts do not depend on the device, the work-group size, the global size or how the walk is
+split into launches. A launch is bounded by events, not by its longest ray: each work-item walks
+at most ``event_budget`` events, then parks its unfinished rays, which the next launch resumes
+before it takes new photons (docs/walk.md §5). The budget is scaled so that a launch takes about
+``target_launch_s`` seconds whatever the medium, and a launch offers at most 2^31 photons minus
+the parked rays (the per-launch uint32 histograms cannot overflow); the host adds each launch's
 histograms into int64 :class:`~warpe_cl.params.Counts`.
 """
 from __future__ import annotations
@@ -20,11 +23,15 @@ import numpy as np
 from . import device as devmod
 from .errors import WeightError
 from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, ITEM_STATS, RECORD_FIELDS,
-                     RECORD_INT_COLUMNS, RECORD_REAL_COLUMNS, Counts, WalkParams,
-                     kernel_layout, tally_shapes)
+                     RECORD_INT_COLUMNS, RECORD_REAL_COLUMNS, STATE_INT_COLUMNS,
+                     STATE_REAL_COLUMNS, Counts, WalkParams, kernel_layout, tally_shapes)
 
 WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "tally.h", "walk.cl")
 MAX_LAUNCH = 2 ** 31 - 1
+#: Events per work-item of a walk's first launch; later launches scale it to take about
+#: ``target_launch_s`` (docs/walk.md §5)
+FIRST_EVENT_BUDGET = 4096
+MAX_EVENT_BUDGET = 2 ** 32 - 1
 LANE_WIDTHS = (1, 2, 4, 8, 16)
 
 
@@ -121,6 +128,14 @@ WALK_ARGS = (
     KernelArg("n_edges", "int", lambda p: len(p.time_edges)),
     *(KernelArg(f"cos_fov_{name}", "REAL", _cos_fov(c)) for c, name in enumerate(COMPONENTS)),
     KernelArg("next_photon", "__global uint *"),
+    KernelArg("event_budget", "uint"),
+    KernelArg("resume_count", "uint"),
+    KernelArg("next_resume", "__global uint *"),
+    KernelArg("resume_real", "__global const REAL *"),
+    KernelArg("resume_int", "__global const uint *"),
+    KernelArg("parked", "__global uint *"),
+    KernelArg("park_real", "__global REAL *"),
+    KernelArg("park_int", "__global uint *"),
     *(KernelArg(name, "__global uint *") for name in HISTOGRAMS),
     KernelArg("item_stats", "__global ulong *"),
     *(KernelArg(name, "__global ulong *", only="weighted")
@@ -128,6 +143,7 @@ WALK_ARGS = (
                    "w2_time_in_fov", "w2_total")),
     KernelArg("rec_int", "__global int *", only="records"),
     KernelArg("rec_real", "__global REAL *", only="records"),
+    KernelArg("record_base", "uint", only="records"),
 )
 
 _SCALAR_TYPES = {"uint": np.uint32, "ulong": np.uint64, "int": np.int32}
@@ -291,7 +307,8 @@ class Engine:
     def run(self, params: WalkParams, photons: int, precision: str = "single",
             first_photon: int = 0, records: bool = False, batch: int | None = None,
             global_size: int | None = None, local_size: int | None = None,
-            lanes: int | None = None, progress=None, qualified: bool = False) -> Counts:
+            lanes: int | None = None, progress=None, qualified: bool = False,
+            event_budget: int | None = None) -> Counts:
         """Walk ``photons`` rays, numbered from ``first_photon``.
 
         Parameters
@@ -306,7 +323,7 @@ class Engine:
         records : bool
             Also return one record per photon (``Counts.records``), for the parity tests.
         batch : int, optional
-            Photons per launch; by default sized from the measured speed.
+            At most this many new photons per launch (default: no limit but the histograms').
         global_size, local_size : int, optional
             Work-items per launch and per work-group (results never depend on them).
         lanes : int, optional
@@ -317,6 +334,11 @@ class Engine:
         qualified : bool
             Skip the qualification of this combination (for the known-answer walk itself,
             :mod:`warpe_cl.qualify`, which compares the result with the reference).
+        event_budget : int, optional
+            Events each work-item walks per launch before it parks its unfinished rays for the
+            next launch (docs/walk.md §5; results never depend on it). By default
+            :data:`FIRST_EVENT_BUDGET`, then scaled so that a launch takes about
+            ``target_launch_s``.
 
         Returns
         -------
@@ -351,24 +373,38 @@ class Engine:
         shapes = tally_shapes(n_time)
         hist = [a.name for a in args if a.name in HISTOGRAMS]
         weights = [a.name for a in args if a.only == "weighted"]
+        itemsize = np.dtype(real).itemsize
+        # every lane of every work-item may park a ray at the end of a launch
+        capacity = gsize * lanes
         # the buffers, by kernel argument: uint32 histograms; weighted sums in FIXED_WORDS
-        # uint64 words per cell (cl/tally.h); the statistics of every work-item
+        # uint64 words per cell (cl/tally.h); the statistics of every work-item; the counters
+        counters = ("next_photon", "next_resume", "parked")
         buffers = {"time_edges": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=edges),
-                   "next_photon": cl.Buffer(ctx, mf.READ_WRITE, size=4),
+                   **{k: cl.Buffer(ctx, mf.READ_WRITE, size=4) for k in counters},
                    "item_stats": cl.Buffer(ctx, mf.READ_WRITE, size=8 * len(ITEM_STATS) * gsize),
                    **{k: cl.Buffer(ctx, mf.READ_WRITE, size=4 * int(np.prod(shapes[k])))
                       for k in hist},
                    **{k: cl.Buffer(ctx, mf.READ_WRITE,
                                    size=8 * FIXED_WORDS * int(np.prod(shapes[k])))
                       for k in weights}}
-        zeroed = [buffers[k] for k in (*hist, *weights, "next_photon")]
+        zeroed = [buffers[k] for k in (*hist, *weights, *counters)]
+        # parked rays, in two buffers that swap roles each launch (written, then resumed)
+        carry = [(cl.Buffer(ctx, mf.READ_WRITE, size=itemsize * len(STATE_REAL_COLUMNS) * capacity),
+                  cl.Buffer(ctx, mf.READ_WRITE, size=4 * len(STATE_INT_COLUMNS) * capacity))
+                 for _ in range(2)]
 
         def record_buffers(n: int) -> dict:
-            """The per-photon record buffers of a launch of ``n`` photons (int and REAL
-            columns, cl/tally.h)."""
+            """The per-photon record buffers of a walk of ``n`` photons (int and REAL
+            columns, cl/tally.h), row 0 for ``first_photon``."""
             return {"rec_int": cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * len(RECORD_INT_COLUMNS) * n),
-                    "rec_real": cl.Buffer(ctx, mf.WRITE_ONLY, size=np.dtype(real).itemsize
-                                          * len(RECORD_REAL_COLUMNS) * n)}
+                    "rec_real": cl.Buffer(ctx, mf.WRITE_ONLY,
+                                          size=itemsize * len(RECORD_REAL_COLUMNS) * n),
+                    "record_base": first_photon & 0xFFFFFFFF}
+
+        def carry_args(resume_count: int) -> dict:
+            """The carried rays' arguments: resume from carry[0], park into carry[1]."""
+            return {"resume_count": resume_count, "resume_real": carry[0][0],
+                    "resume_int": carry[0][1], "park_real": carry[1][0], "park_int": carry[1][1]}
 
         warm_key = (params.texture, precision, records, lanes, weighted, local_size)
         if warm_key not in self._warmed:
@@ -376,8 +412,10 @@ class Engine:
             # walking no ray (n_photons 0) does that here, inside the build time; every
             # buffer it touches is zeroed or rewritten by the launches below
             launch = {**buffers, "first_photon": first_photon, "n_photons": 0,
+                      "event_budget": 1, **carry_args(0),
                       **(record_buffers(1) if records else {})}
-            cl.enqueue_fill_buffer(queue, buffers["next_photon"], np.uint32(0), 0, 4)
+            for k in counters:
+                cl.enqueue_fill_buffer(queue, buffers[k], np.uint32(0), 0, 4)
             kern(queue, (local_size or 1,), (local_size,) if local_size else None,
                  *argument_values(args, params, launch, real))
             queue.finish()
@@ -387,23 +425,28 @@ class Engine:
 
         total = Counts(n_time=n_time, weighted=weighted)
         lost_weights = 0   # weighted exits whose weight the exact sums cannot hold
-        rec_chunks = []
-        done = 0
-        size = int(batch) if batch else min(gsize * lanes * 4, photons) or 1
-        while done < photons:
-            n = min(size, photons - done, MAX_LAUNCH)
+        records_of_walk = record_buffers(photons) if records and photons else {}
+        handed = 0         # photons handed to launches so far
+        carried = 0        # rays parked by the last launch, resumed by the next
+        budget = int(event_budget or FIRST_EVENT_BUDGET)
+        # new photons per launch: the uint32 histograms hold them and the carried rays
+        offer = min(int(batch) if batch else MAX_LAUNCH, MAX_LAUNCH - capacity)
+        while handed < photons or carried:
+            n = min(offer, photons - handed)
             for buf in zeroed:
                 cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)
-            launch = {**buffers, "first_photon": first_photon + done, "n_photons": n}
-            launch_items = min(gsize, -(-n // lanes))
+            launch = {**buffers, "first_photon": first_photon + handed, "n_photons": n,
+                      "event_budget": budget, **carry_args(carried), **records_of_walk}
+            launch_items = min(gsize, -(-(n + carried) // lanes))
             if local_size:
                 launch_items = -(-launch_items // local_size) * local_size
-            if records:
-                launch.update(record_buffers(n))
             t0 = time.perf_counter()
             kern(queue, (launch_items,), (local_size,) if local_size else None,
                  *argument_values(args, params, launch, real))
-            part = Counts(n_time=n_time, photons=n, weighted=weighted)
+            taken, parked = np.empty(1, np.uint32), np.empty(1, np.uint32)
+            cl.enqueue_copy(queue, taken, buffers["next_photon"])
+            cl.enqueue_copy(queue, parked, buffers["parked"])
+            part = Counts(n_time=n_time, weighted=weighted)
             for name in hist:
                 host = np.empty(shapes[name], dtype=np.uint32)
                 cl.enqueue_copy(queue, host, buffers[name])
@@ -414,30 +457,30 @@ class Engine:
                 setattr(part, name, _exact_sums(words))
             stats = np.empty((gsize, len(ITEM_STATS)), dtype=np.uint64)
             cl.enqueue_copy(queue, stats, buffers["item_stats"])
+            queue.finish()
+            elapsed = time.perf_counter() - t0
             stats = dict(zip(ITEM_STATS, stats[:launch_items].astype(np.int64).sum(axis=0)))
             part.fates[...] = [stats[f"fate_{f}"] for f in FATES]
             part.scattering_events = int(stats["scattering_events"])
             part.mixed_history = int(stats["mixed_history"])
             lost_weights += int(stats["lost_weights"])
-            if records:
-                ri = np.empty((n, len(RECORD_INT_COLUMNS)), dtype=np.int32)
-                rr = np.empty((n, len(RECORD_REAL_COLUMNS)), dtype=real)
-                cl.enqueue_copy(queue, ri, launch["rec_int"])
-                cl.enqueue_copy(queue, rr, launch["rec_real"])
-                rec_chunks.append((ri, rr))
-            queue.finish()
-            elapsed = time.perf_counter() - t0
+            took = min(int(taken[0]), n)
+            part.photons = took
             total += part
-            done += n
+            budget_spent = int(parked[0]) > 0 or took < n
+            handed += took
+            carried = int(parked[0])
+            carry.reverse()
             if progress is not None:
-                progress(done)
-            if not batch:
-                rate = n / max(elapsed, 1e-6)
-                size = int(min(max(rate * self.target_launch_s, gsize * lanes), 4 * n, MAX_LAUNCH))
+                progress(handed - carried)
+            if budget_spent and not event_budget:
+                # the launch ran on its budget: scale it to the wanted launch time
+                scale = min(max(self.target_launch_s / max(elapsed, 1e-6), 0.25), 4.0)
+                budget = int(min(max(budget * scale, 64), MAX_EVENT_BUDGET))
         if lost_weights:
             raise WeightError(lost_weights)
         if records:
-            total.records = _records_from_chunks(rec_chunks)
+            total.records = _read_records(queue, records_of_walk, photons, real)
         self.last_walk_s = time.perf_counter() - t_walk
         return total
 
@@ -448,14 +491,19 @@ def _exact_sums(words: np.ndarray) -> np.ndarray:
     return sum(words[..., i].astype(object) << (64 * i) for i in range(FIXED_WORDS))
 
 
-def _records_from_chunks(chunks) -> dict:
-    """The kernel's per-photon records (``rec_int``, ``rec_real`` of each launch) as
+def _read_records(queue, buffers: dict, photons: int, real) -> dict:
+    """The kernel's per-photon records of a walk (``rec_int``, ``rec_real``) as
     ``Counts.records``: one array per field of :data:`~warpe_cl.params.RECORD_FIELDS`, NaN
     times and exit cosines for the rays that did not exit."""
+    import pyopencl as cl
     n_int, n_real = len(RECORD_INT_COLUMNS), len(RECORD_REAL_COLUMNS)
-    ri = np.concatenate([c[0] for c in chunks]) if chunks else np.empty((0, n_int), np.int32)
-    rr = (np.concatenate([c[1] for c in chunks]).astype(np.float64) if chunks
-          else np.empty((0, n_real)))
+    ri = np.empty((photons, n_int), dtype=np.int32)
+    rr = np.empty((photons, n_real), dtype=real)
+    if photons:
+        cl.enqueue_copy(queue, ri, buffers["rec_int"])
+        cl.enqueue_copy(queue, rr, buffers["rec_real"])
+        queue.finish()
+    rr = rr.astype(np.float64)
     exited = ri[:, RECORD_INT_COLUMNS.index("component")] >= 0
     out = {name: ri[:, j].astype(RECORD_FIELDS[name]) for j, name in enumerate(RECORD_INT_COLUMNS)}
     for j, name in enumerate(RECORD_REAL_COLUMNS):

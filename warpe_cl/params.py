@@ -53,6 +53,12 @@ ITEM_STATS = tuple(f"fate_{f}" for f in FATES) + ("scattering_events", "mixed_hi
 RECORD_INT_COLUMNS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
                       "emergence_bin")
 RECORD_REAL_COLUMNS = ("time_ns", "cos_exit", "weight")
+#: The columns of a parked ray (cl/walk.cl ``carry_t``): a launch that spends its event budget
+#: writes each unfinished ray as a row of ``STATE_REAL_COLUMNS`` (REAL) and ``STATE_INT_COLUMNS``
+#: (uint32), and the next launch resumes it from there (docs/walk.md §5).
+STATE_REAL_COLUMNS = ("z", "ux", "uy", "uz", "ls", "lc", "w")
+STATE_INT_COLUMNS = ("flights", "n_scat", "n_lamb", "n_bspec", "n_top", "phase", "event",
+                     "p_lo", "p_hi")
 #: Per-photon record fields and their dtypes (``Counts.records`` when asked for).
 RECORD_FIELDS = {
     "fate": np.int8,            # index into FATES
@@ -93,9 +99,9 @@ def tally_shapes(n_time: int) -> dict:
 
 def kernel_layout() -> dict:
     """The layouts the host and the kernel share, as the ``-D`` macros of the walk kernel
-    (warpe_cl/engine.py build_options): component, fate, statistics-slot and record-column
-    indices, table sizes, the time-bin sentinels and the fixed-point format. They are defined
-    here only; cl/tally.h and cl/walk.cl use the names.
+    (warpe_cl/engine.py build_options): component, fate, statistics-slot, record-column and
+    parked-ray-column indices, table sizes, the time-bin sentinels and the fixed-point format.
+    They are defined here only; cl/tally.h and cl/walk.cl use the names.
 
     Returns
     -------
@@ -114,6 +120,10 @@ def kernel_layout() -> dict:
     out.update({f"RECORD_{c.upper()}": i for i, c in enumerate(RECORD_INT_COLUMNS)})
     out["N_RECORD_REAL"] = len(RECORD_REAL_COLUMNS)
     out.update({f"RECORD_{c.upper()}": i for i, c in enumerate(RECORD_REAL_COLUMNS)})
+    out["N_STATE_REAL"] = len(STATE_REAL_COLUMNS)
+    out.update({f"STATE_{c.upper()}": i for i, c in enumerate(STATE_REAL_COLUMNS)})
+    out["N_STATE_INT"] = len(STATE_INT_COLUMNS)
+    out.update({f"STATE_{c.upper()}": i for i, c in enumerate(STATE_INT_COLUMNS)})
     out.update(FIXED_SHIFT=FIXED_SHIFT, FIXED_WORDS=FIXED_WORDS)
     text = {k: (f"({v})" if v < 0 else str(v)) for k, v in out.items()}
     text["MAX_WEIGHT"] = float.hex(MAX_WEIGHT)     # exact: a C99 hexadecimal literal
