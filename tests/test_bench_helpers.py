@@ -91,6 +91,9 @@ def test_toy_script_path(tmp_path, monkeypatch):
     assert bench.toy_script_path(None) == script.resolve()
     with pytest.raises(bench.ToyUnavailable, match="--toy-script"):
         bench.toy_script_path(str(tmp_path / "missing.py"))
+    monkeypatch.delenv("WARPE_TOY_WALK")
+    with pytest.raises(bench.ToyUnavailable, match="WARPE_TOY_WALK"):
+        bench.toy_script_path(None)
 
 
 def test_toy_command_has_b1s_medium(tmp_path):

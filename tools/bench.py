@@ -37,8 +37,7 @@ slower; --numpy-photons on B1-B3, the same fraction of --tail-photons on T1) and
 ratio of events/s.
 
 ``--compare toy`` runs the hand-vectorised toy layer walk ``toy_walk.py`` (a performance anchor
-that is not part of warpe-cl: --toy-script PATH, default $WARPE_TOY_WALK, else the developers'
-copy beside the checkout when there is one) with this Python, as
+that is not part of warpe-cl: --toy-script PATH, default $WARPE_TOY_WALK) with this Python, as
 ``toy_walk.py --photons 4e6 --variants vec16 --platform P --json FILE`` (--toy-photons), with
 B1's medium (mus, mua, g, n, h, A and the 5 ns cap passed explicitly) on our device's OpenCL
 platform P, once per round after our scenes. It prints the toy's scattering events/s (its
@@ -107,9 +106,6 @@ TAIL_SCENES = ("T1",)
 #: Issue 13's goal for T1's scattering events/s, as a fraction of B1's.
 TAIL_GOAL = 0.8
 
-REPO = Path(__file__).resolve().parent.parent
-#: The developers' copy of the toy walk, beside the checkout (users set $WARPE_TOY_WALK).
-TOY_BESIDE = REPO.parent / "shared" / "bench" / "toy_walk.py"
 TOY_VARIANT = "vec16"
 #: What one timed run of ours reports, each summarised over rounds.
 RUN_KEYS = ("seconds", "cpu_seconds", "photons_per_s", "scattering_events_per_s",
@@ -220,11 +216,14 @@ class ToyUnavailable(RuntimeError):
 
 
 def toy_script_path(given: str | None) -> Path:
-    """The toy walk script: ``given``, else $WARPE_TOY_WALK, else the copy beside the checkout.
+    """The toy walk script: ``given``, else $WARPE_TOY_WALK.
 
-    Raises :class:`ToyUnavailable` when that file does not exist."""
+    Raises :class:`ToyUnavailable` when neither names an existing file."""
     named = given or os.environ.get("WARPE_TOY_WALK")
-    path = Path(named).expanduser() if named else TOY_BESIDE
+    if not named:
+        raise ToyUnavailable("--compare toy needs the toy walk script: give --toy-script PATH "
+                             "or set $WARPE_TOY_WALK")
+    path = Path(named).expanduser()
     if not path.is_file():
         raise ToyUnavailable(f"no toy walk script at {path} (give --toy-script PATH or set "
                              "$WARPE_TOY_WALK)")
@@ -464,8 +463,7 @@ def parse_args(argv) -> argparse.Namespace:
                    help="NumPy reference photons on B1-B3; T1 gets the same fraction of "
                         "--tail-photons (default 2e3)")
     p.add_argument("--toy-script", default=None,
-                   help="the toy walk, toy_walk.py (default $WARPE_TOY_WALK, else the copy "
-                        "beside the checkout)")
+                   help="the toy walk, toy_walk.py (default $WARPE_TOY_WALK)")
     p.add_argument("--toy-photons", type=float, default=4e6,
                    help="photons of each toy run (default 4e6)")
     p.add_argument("--mcxcl-photons", type=float, default=1e6,

@@ -8,7 +8,7 @@
 Each round runs tools/bench.py (this folder's, so both trees are measured the same way) once
 per tree, in a new process with ``PYTHONPATH`` set to that tree; the order alternates from
 round to round (A B, B A, A B, ...) so that a drift of the machine's load falls on both alike.
-bench.py keeps the best of 3 runs per scene after a warm-up. Prints every round and the load
+bench.py times one run per scene after a warm-up. Prints every round and the load
 average, then per scene the median and the range of scattering events/s and photons/s of each
 tree and the ratio of the medians (B / A). ``--out`` also writes everything printed to a file.
 
