@@ -33,7 +33,8 @@ sigma^2/n, (mu_4 - sigma^4)/(4 sigma^2 n) and f(1 - f)/n.
 The peak is robust to the 1-2 rays a fine bin holds: consecutive bins are merged, from the
 first, until each merged bin holds at least ``min_rays`` rays (``ray_count``; the remainder
 joins the last), and the peak is the centre (geometric mean of its edges, or the arithmetic
-mean from 0) of the merged bin of largest s / width. Its standard error is the standard
+mean from 0) of the merged bin of largest s / width; with fewer than two merged bins (fewer
+than 2 ``min_rays`` rays in all) there is no peak (NaN). Its standard error is the standard
 deviation of that peak over ``resamples`` Poisson resamplings of the bins (s_i scaled by
 n*_i / n_i, n*_i ~ Poisson(n_i); fixed seed), so it includes the jumps between merged bins.
 
@@ -86,8 +87,10 @@ histogram of all shots is what is analysed, and the numbers are the surface's, a
 s_i = the counts of bin i summed over every shot minus the expected background
 (``background_rate`` x bin width x shots), t_i the bin centres, var_i = the counts (Poisson;
 dead time makes the counts slightly sub-Poisson, so these errors are slightly conservative),
-the peak over bins merged until each holds ``min_rays`` photons, with its Poisson resampling
-error. ``shots_used`` is every shot.
+the peak over the window's bins merged, from the window's start, until each holds
+``min_rays`` photons, with its Poisson resampling error (with few photons the merged bins are
+wide and so is that error; below 2 ``min_rays`` photons in the window, no peak). ``shots_used``
+is every shot.
 
 *The noiseless values*, ``expected_mean_delay``, ``expected_rms_width``,
 ``expected_peak_time`` and ``expected_fraction_after``: the same numbers of the expected signal
@@ -167,7 +170,7 @@ def _peak(s, n, lo, hi, min_rays):
             groups[-1] = (groups[-1][0], len(n))
         else:
             groups.append((start, len(n)))
-    if not groups or not np.any(s > 0):
+    if len(groups) < 2 or not np.any(s > 0):     # one merged bin spans the record: no peak
         return np.nan
     density = [s[a:b].sum() / (hi[b - 1] - lo[a]) for a, b in groups]
     a, b = groups[int(np.argmax(density))]
@@ -321,7 +324,8 @@ def _counting(sc, after, level, min_rays, resamples, rng):
     n = np.where(inside, counts, 0.0)
     out["mean_delay"], out["mean_delay_stderr"], out["rms_width"], out["rms_width_stderr"] = \
         _moments(s, n, t)
-    peak, peak_se = _peaks(s[None], n[None], lo, hi, min_rays, resamples, rng)
+    peak, peak_se = _peaks(s[None, inside], n[None, inside], lo[inside], hi[inside], min_rays,
+                           resamples, rng)                 # merged from the window's start
     out["peak_time"], out["peak_time_stderr"] = peak[0], peak_se[0]
     if after.size:
         out["fraction_after"], out["fraction_after_stderr"] = _fraction_after(s, n, lo, after)
