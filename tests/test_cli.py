@@ -364,3 +364,50 @@ def test_renames_hold_back_both_stopping_signals():
         blocked = signal.pthread_sigmask(signal.SIG_BLOCK, set())
     assert {signal.SIGINT, signal.SIGTERM} <= set(blocked)
     assert not {signal.SIGINT, signal.SIGTERM} & set(signal.pthread_sigmask(signal.SIG_BLOCK, set()))
+
+
+@pytest.mark.slow
+def test_plot_metrics_of_a_sweep_and_of_an_instrument_file(tmp_path, capsys):
+    """`plot --metrics` draws the metrics of a numeric sweep against the swept key (one line
+    per component holding something: no specular, which is in no time bin) and those of a
+    file written by `instrument`, after the chain, with the noiseless expected values."""
+    from conftest import synthetic_surface
+    from warpe_cl.plot import metrics_figure
+    sweep = tmp_path / "sweep.nc"
+    assert main(["run", "radiative/slab_tau_sweep", "--out", str(sweep), "--photons", "3000",
+                 "--quiet"]) == 0
+    png = tmp_path / "sweep.png"
+    assert main(["plot", str(sweep), "--metrics", "--after", "0.1 ns,1 ns",
+                 "--out", str(png)]) == 0
+    assert png.stat().st_size > 10_000
+    fig = metrics_figure(xr.load_dataset(sweep), after=[0.1])
+    assert len(fig.axes) == 4 and fig.axes[-1].get_xlabel() == "medium.radiative.tau0"
+    legend = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "scattering" in legend and "specular" not in legend
+    surface = tmp_path / "surface.nc"
+    synthetic_surface(diffuse_integral=0.05, scenarios=2).to_netcdf(surface, engine="h5netcdf")
+    recorded = tmp_path / "bela.nc"
+    assert main(["instrument", str(surface), "--instrument", "bela", "--shots", "20",
+                 "--out", str(recorded), "--quiet"]) == 0
+    png = tmp_path / "bela.png"
+    assert main(["plot", str(recorded), "--metrics", "--out", str(png)]) == 0
+    assert png.stat().st_size > 10_000
+    legend = [t.get_text() for t in metrics_figure(xr.load_dataset(recorded)).axes[0]
+              .get_legend().get_texts()]
+    assert legend == ["recorded signal", "noiseless expected signal"]
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--metrics"], "bad.nc: has no time_edges, reflectance"),
+    (["--metrics", "--kind", "instrument"], "bad.nc: has no recorded signal"),
+    (["--metrics", "--kind", "angular"], "--kind: --metrics draws the waveform metrics"),
+    (["--metrics", "--after", "5"], "--after: \"5\" is a bare number with no unit"),
+    (["--after", "5 ns"], "--after: applies to --metrics only"),
+])
+def test_plot_metrics_bad_input_exits_2_with_one_line(tmp_path, capsys, extra, message):
+    bad = tmp_path / "bad.nc"
+    xr.Dataset({"x": ("y", [1.0, 2.0])}).to_netcdf(bad, engine="h5netcdf")
+    rc = main(["plot", str(bad), "--out", str(tmp_path / "x.png"), *extra])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "x.png").exists()

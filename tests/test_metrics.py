@@ -81,3 +81,170 @@ def test_leading_dimensions_and_empty_waveforms():
     assert list(m["thickness"].values) == [0.01, 0.02]
     assert np.isfinite(m["mean_delay"][0, 0]) and np.isnan(m["mean_delay"][1, 0])
     assert np.isnan(m["peak_time"][1, 0]) and np.isnan(m["fraction_after"][1, 0, 0])
+
+
+# --- after the instrument chain --------------------------------------------------------------
+
+T0, SIGMA, AMPLITUDE, NOISE, BASE, DT = 3.0, 4.0, 50.0, 1.5, 10.0, 12.5   # ns, ns, mV, mV, mV, ns
+FINE = np.arange(-60.0, 120.0, 0.1) + 0.05                                   # ns
+
+
+def _gauss(t):
+    return np.exp(-0.5 * ((t - T0) / SIGMA) ** 2)
+
+
+def _linear_record(shots, scenarios, seed=21):
+    """A linear-mode instrument result built by hand: a Gaussian return (T0, SIGMA) of
+    AMPLITUDE mV over a baseline, sampled every DT ns at a uniform random phase per shot, with
+    Gaussian noise of NOISE mV; the noiseless analog voltage on a 0.1 ns fine grid."""
+    rng = np.random.default_rng(seed)
+    sample_time = np.arange(-50.0, 100.0, DT)
+    phase = rng.uniform(0.0, DT, (scenarios, shots))
+    t = sample_time + phase[..., None]
+    signal = BASE + AMPLITUDE * _gauss(t) + rng.normal(0.0, NOISE, t.shape)
+    return xr.Dataset({
+        "signal_mv": (("scenario", "shot", "sample_time"), signal, {"units": "mV"}),
+        "sampling_phase": (("scenario", "shot"), phase),
+        "baseline_mv": ((), BASE),
+        "expected_analog_mv": (("fine_time",), BASE + AMPLITUDE * _gauss(FINE)),
+        "detected": (("scenario", "shot"), np.ones(phase.shape, bool)),
+    }, coords={"sample_time": sample_time, "fine_time": FINE,
+               "scenario": np.arange(scenarios)})
+
+
+def _truncated(lo, hi, after=None):
+    """Mean, RMS width (ns) and share after ``after`` of the Gaussian (T0, SIGMA) on [lo, hi]."""
+    from scipy.stats import truncnorm
+    a, b = (lo - T0) / SIGMA, (hi - T0) / SIGMA
+    dist = truncnorm(a, b, loc=T0, scale=SIGMA)
+    late = None if after is None else float(dist.sf(after))
+    return float(dist.mean()), float(dist.std()), late
+
+
+def test_instrument_expected_values_are_the_analytic_ones():
+    """The noiseless values are the truncated Gaussian's over the window (the fine points
+    from lo to hi stand for [lo - 0.05, hi + 0.05] ns); the window is where the Gaussian
+    reaches 1e-3 of its peak, +-sqrt(2 ln 1000) sigma to within a fine step; the peak is
+    the Gaussian's vertex, exact for a Gaussian. Tolerances: the midpoint rule's error on the
+    0.1 ns grid (rel. ~1e-5 here) and round-off."""
+    m = warpe_cl.metrics(_linear_record(shots=4, scenarios=1), after=[5.0]).isel(scenario=0)
+    lo, hi = float(m["window_start"]), float(m["window_stop"])
+    half = SIGMA * np.sqrt(2 * np.log(1e3))
+    assert abs(lo - (T0 - half)) <= 0.1 and abs(hi - (T0 + half)) <= 0.1
+    mean, rms, late = _truncated(lo - 0.05, hi + 0.05, after=5.0)
+    assert float(m["expected_mean_delay"]) == pytest.approx(mean, abs=1e-9)
+    assert float(m["expected_rms_width"]) == pytest.approx(rms, rel=1e-4)
+    assert float(m["expected_fraction_after"][0]) == pytest.approx(late, rel=1e-4)
+    assert float(m["expected_peak_time"]) == pytest.approx(T0, abs=1e-9)
+    assert m.attrs["metrics_stage"] == "instrument" and "component" not in m.dims
+    assert m["expected_mean_delay"].attrs["units"] == "ns"
+
+
+def test_instrument_numbers_agree_with_the_truth_and_their_errors_with_the_scatter():
+    """100 independent records of 100 shots: each number within 5 of its standard errors of
+    the truth (the truncated Gaussian on the window); the spread of the 100 values matches
+    their standard errors: the ratio of the two is 1 within 5 x 1/sqrt(2 x 99) (the relative
+    error of a standard deviation of 100 values)."""
+    records = 100
+    m = warpe_cl.metrics(_linear_record(shots=100, scenarios=records), after=[5.0])
+    assert m["mean_delay"].dims == ("scenario",) and int(m["shots_used"][0]) == 100
+    lo, hi = float(m["window_start"][0]), float(m["window_stop"][0])
+    mean, rms, late = _truncated(lo, hi, after=5.0)
+    truth = {"mean_delay": mean, "rms_width": rms, "peak_time": T0, "fraction_after": late}
+    tolerance = 5 / np.sqrt(2 * (records - 1))
+    for name, value in truth.items():
+        got = m[name].values.reshape(records)
+        err = m[f"{name}_stderr"].values.reshape(records)
+        assert np.all(np.abs(got - value) < 5 * err), name
+        # and their mean, 100 times more precise, within 5 of its standard errors too
+        assert abs(got.mean() - value) < 5 * np.sqrt(np.mean(err ** 2) / records), name
+        assert abs(got.std(ddof=1) / np.sqrt(np.mean(err ** 2)) - 1) < tolerance, name
+
+
+def test_instrument_shots_not_detected_are_left_out():
+    """Only detected shots count: undetected ones holding garbage change nothing, and a
+    scenario without a detected shot gives NaN."""
+    ds = _linear_record(shots=40, scenarios=2)
+    clean = warpe_cl.metrics(ds.isel(shot=slice(0, 20)))
+    ds["signal_mv"][:, 20:] = 999.0
+    ds["detected"][:, 20:] = False
+    ds["detected"][1] = False
+    m = warpe_cl.metrics(ds)
+    assert float(m["mean_delay"][0]) == pytest.approx(float(clean["mean_delay"][0]), rel=1e-12)
+    assert list(m["shots_used"].values) == [20, 0]
+    assert np.isnan(m["mean_delay"][1]) and np.isnan(m["peak_time"][1])
+
+
+def _counting_record(shots, scenarios, seed=5):
+    """A photon-counting result built by hand: Poisson counts of a Gaussian return (mean 5 ns,
+    rms 1 ns, 10 photons a shot, as ATLAS) over a background of 0.05 per ns, in 0.1 ns bins."""
+    rng = np.random.default_rng(seed)
+    step, background = 0.1, 0.05
+    lo = np.arange(-20.0, 40.0, step)
+    rate = 10.0 * np.exp(-0.5 * (lo + 0.5 * step - 5.0) ** 2) / np.sqrt(2 * np.pi) + background
+    fine = np.arange(-20.0, 40.0, 0.05) + 0.025
+    return xr.Dataset({
+        "signal_counts": (("scenario", "shot", "sample_time"),
+                          rng.poisson(rate * step, (scenarios, shots, lo.size))),
+        "photon_rate": (("fine_time",), np.exp(-0.5 * (fine - 5.0) ** 2)),
+        "background_rate": ((), background),
+        "detected": (("scenario", "shot"), np.ones((scenarios, shots), bool)),
+    }, coords={"sample_time": lo, "fine_time": fine, "scenario": np.arange(scenarios)})
+
+
+def test_photon_counting_histogram_of_all_shots():
+    """60 independent records of 200 shots of photon counting: the numbers of the
+    background-subtracted histogram of all shots within 5 of their standard errors of the truth
+    (the Gaussian truncated to the window, which is the expected values'; the peak to within
+    a 0.1 ns bin), and the spread of the 60 values matches those errors (ratio 1 within
+    5 / sqrt(2 x 59)); the mean delay's error is the Poisson one of the photons."""
+    records, shots = 60, 200
+    m = warpe_cl.metrics(_counting_record(shots, records), after=[5.0], resamples=20)
+    assert int(m["shots_used"][0]) == shots
+    assert float(m["expected_mean_delay"][0]) == pytest.approx(5.0, abs=1e-6)
+    truth = {"mean_delay": 5.0, "rms_width": float(m["expected_rms_width"][0]),
+             "fraction_after": 0.5, "peak_time": 5.0}
+    tolerance = 5 / np.sqrt(2 * (records - 1))
+    for name, value in truth.items():
+        got = m[name].values.reshape(records)
+        err = m[f"{name}_stderr"].values.reshape(records)
+        slack = 0.1 if name == "peak_time" else 0.0          # the peak is a bin's centre
+        assert np.all(np.abs(got - value) < 5 * err + slack), name
+        assert abs(got.std(ddof=1) / np.sqrt(np.mean(err ** 2)) - 1) < tolerance, name
+    # Poisson: var = (n sigma^2 + b half^2 / 3) / n^2 for n signal photons and b background
+    # counts spread evenly over the window +-half; to 10 % (the counts' own fluctuation)
+    n = 10.0 * shots
+    half = 0.5 * float(m["window_stop"][0] - m["window_start"][0])
+    b = 0.05 * 2 * half * shots
+    assert np.allclose(m["mean_delay_stderr"], np.sqrt(n + b * half ** 2 / 3) / n, rtol=0.1)
+
+
+def test_the_instrument_chain_output_and_the_stages():
+    """On the chain's real output (BELA and ATLAS, a few shots of a synthetic surface): the
+    numbers come with their expected values, per scenario; stage="surface" gives the surface
+    numbers of the same file, per component; a Dataset without what a stage needs is refused
+    with a ConfigError."""
+    from conftest import synthetic_surface
+    from warpe_cl.errors import ConfigError
+    from warpe_cl.instrument import apply_instrument
+    ds = apply_instrument(synthetic_surface(diffuse_integral=0.05, scenarios=2), "bela",
+                          shots=8, seed=1)
+    m = warpe_cl.metrics(ds, after=[2.0])
+    assert m["mean_delay"].dims == ("scenario",)
+    assert m["fraction_after"].dims == ("scenario", "after")
+    for name in ("mean_delay", "rms_width", "peak_time"):
+        assert np.all(np.isfinite(m[name])) and np.all(np.isfinite(m[f"expected_{name}"]))
+    ds["reflectance_stderr"] = xr.zeros_like(ds["reflectance"])
+    surface = warpe_cl.metrics(ds, stage="surface", resamples=0)
+    assert surface["mean_delay"].dims == ("scenario", "component")
+    atlas = apply_instrument(synthetic_surface(diffuse_integral=0.05, wavelength="532 nm"),
+                             "atlas", shots=50, seed=1)
+    m = warpe_cl.metrics(atlas)
+    assert m["mean_delay"].dims == () and np.isfinite(float(m["mean_delay"]))
+    assert "photon counting" in m.attrs["metrics_method"]
+    with pytest.raises(ConfigError, match="has no time_edges"):
+        warpe_cl.metrics(xr.Dataset({"x": ("time", np.zeros(3))}))
+    with pytest.raises(ConfigError, match="has no recorded signal"):
+        warpe_cl.metrics(_synthetic(np.ones(3)), stage="instrument")
+    with pytest.raises(ConfigError, match="not a stage"):
+        warpe_cl.metrics(ds, stage="detector")

@@ -311,16 +311,53 @@ def cmd_presets(args) -> int:
     return EXIT_OK
 
 
+def _after_times(values) -> list:
+    """The times of ``plot --after`` in ns: quantities with a unit (``"10 ns"``), the option
+    repeated or the times joined by commas; bad input (exit 2) otherwise."""
+    from .units import UnitError, parse_quantity
+    times = []
+    for text in values or []:
+        for part in filter(None, (p.strip() for p in str(text).split(","))):
+            try:
+                times.append(parse_quantity(part, "time"))
+            except UnitError as err:
+                raise ConfigError(str(err), key="--after") from None
+    return times
+
+
+def _metrics_drawer(args, path: Path):
+    """``plot --metrics``: the function drawing the metrics figure; ``--kind waveform`` picks
+    the surface's numbers, ``--kind instrument`` those after the chain (docs/interface.md §2)."""
+    from .plot import plot_metrics
+    if args.kind == "angular":
+        raise ConfigError("--metrics draws the waveform metrics: give --kind waveform (the "
+                          "surface's), --kind instrument (after the chain) or no --kind",
+                          key="--kind")
+    stage = {"waveform": "surface", "instrument": "instrument"}.get(args.kind)
+    after = _after_times(args.after)
+
+    def draw(ds, out):
+        try:
+            return plot_metrics(ds, out, after=after, stage=stage)
+        except ConfigError as err:
+            raise err.with_source(str(path)) from None
+    return draw
+
+
 def cmd_plot(args) -> int:
     from .io import Outputs
     from .plot import plot_angular, plot_waveform
     path = Path(args.file)
+    if args.after and not args.metrics:
+        raise ConfigError("applies to --metrics only", key="--after")
     ds = _load_result(path)          # a file, or a sweep database folder
     if args.scenarios is not None:
         from .plot import select_scenarios
         ds = select_scenarios(ds, args.scenarios)
     kind = args.kind or ("instrument" if "received_reflectance" in ds else "waveform")
-    if kind == "instrument":
+    if args.metrics:
+        draw = _metrics_drawer(args, path)
+    elif kind == "instrument":
         if "received_reflectance" not in ds:
             raise ConfigError("has no instrument variables; give a file written by "
                               "`warpe-cl instrument`", key=str(path))
@@ -412,6 +449,14 @@ def make_parser() -> argparse.ArgumentParser:
                     help="waveform: reflectance against time; angular: the FOV figure; "
                          "instrument: the seed's three-panel BELA figure (default for a file "
                          "written by `warpe-cl instrument`, else waveform)")
+    pl.add_argument("--metrics", action="store_true",
+                    help="draw the waveform metrics instead (mean delay, RMS width, peak time "
+                         "with their standard errors) against the swept value or the scenario; "
+                         "after the instrument chain for a file written by `instrument` "
+                         "(--kind waveform: the surface's)")
+    pl.add_argument("--after", action="append", metavar="T",
+                    help='with --metrics, also the fraction returned after T, e.g. "10 ns" '
+                         "(repeatable, or T1,T2)")
     pl.set_defaults(func=cmd_plot)
 
     ins = sub.add_parser("instrument", help="what an instrument records from a surface result")

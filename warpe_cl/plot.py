@@ -443,3 +443,126 @@ def angular_figure(ds, title: str | None = None):
         fig.colorbar(bar[0], ax=list(axes), label=bar[1], pad=0.02)
     fig.suptitle(title or str(ds.attrs.get("name", "")))
     return fig
+
+
+#: The panels of the metrics figure: (metric, y label).
+METRIC_PANELS = (("mean_delay", "mean delay (ns)"), ("rms_width", "RMS width (ns)"),
+                 ("peak_time", "peak time (ns)"))
+_MARKERS = ("o", "s", "^", "v", "D")
+
+
+def _metrics_x(ds):
+    """Where each scenario goes on the metrics figure's x axis: (positions, tick labels or
+    None, axis label, log scale). A sweep of one numeric key: its values (log for positive
+    values spanning more than a factor 20); else one position per scenario, labelled by its
+    swept values (by the result's name for a single scenario)."""
+    sweep = numeric_sweep(ds)
+    if sweep is not None:
+        values, key, unit = sweep
+        log = bool(np.all(values > 0) and values.max() / values.min() > 20)
+        return values, None, f"{key} ({unit})" if unit else key, log
+    labels = scenario_labels(ds)
+    return np.arange(len(labels), dtype=float), labels, "scenario", False
+
+
+def _metrics_series(m):
+    """The lines of the metrics figure: (label, component or None, prefix, with error bars,
+    style). Surface: one per component that holds something. Instrument: the recorded signal,
+    with its errors, and the noiseless expected signal, dashed."""
+    if m.attrs.get("metrics_stage") == "instrument":
+        return [("recorded signal", None, "", True, dict(color="C0", ls="-")),
+                ("noiseless expected signal", None, "expected_", False,
+                 dict(color="k", ls="--", lw=1.0, marker="x"))]
+    return [(str(c), str(c), "", True, dict(color=f"C{i}", ls="-"))
+            for i, c in enumerate(m["component"].values)
+            if np.any(np.isfinite(m["mean_delay"].sel(component=c)))]
+
+
+def metrics_figure(ds, after=(), title: str | None = None, stage: str | None = None):
+    """The waveform metrics of ``ds`` (:func:`warpe_cl.metrics`) against the sweep, as a
+    matplotlib Figure (``plot_metrics`` saves it).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A result of ``warpe-cl run`` or ``warpe-cl instrument`` (one scenario or a sweep along
+        ``scenario``; docs/interface.md §5).
+    after : sequence of float
+        Times (ns) of a fourth panel, ``fraction_after``; none by default.
+    title : str, optional
+        Defaults to the result's name (and the instrument's).
+    stage : {None, "surface", "instrument"}
+        Passed to :func:`warpe_cl.metrics`: None draws the recorded signal's numbers for an
+        instrument result, the surface's otherwise.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One panel per metric, sharing x: mean delay, RMS width and peak time (ns), then the
+        fraction after each time of ``after``, with error bars of one standard error. x is the
+        swept value for a sweep of one numeric key, else the scenario's label. Surface: one
+        line per component holding something (the specular, in no time bin, is left out).
+        Instrument: the recorded signal with its errors, and the noiseless expected signal
+        dashed (the components are summed by then).
+
+    Raises
+    ------
+    ConfigError
+        ``ds`` lacks what the metrics need, or is a grid (``as_grid``) rather than scenarios.
+    """
+    from .metrics import metrics
+    m = metrics(ds, after, stage=stage)
+    extra = [d for d in m["mean_delay"].dims if d not in ("scenario", "component")]
+    if extra:
+        raise ConfigError(f"the metrics figure draws scenarios, not a grid along "
+                          f"{', '.join(extra)}; give the result as written (not as_grid)")
+    x, ticks, xlabel, log = _metrics_x(ds)
+    order = np.argsort(x, kind="stable")
+    panels = list(METRIC_PANELS) + ([("fraction_after", "fraction after t")]
+                                    if "after" in m.dims else [])
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(panels), 1, sharex=True, figsize=(7.5, 1.2 + 2.2 * len(panels)),
+                             constrained_layout=True)
+    line = "-" if ticks is None else "none"       # categories: markers, not lines between them
+    for ax, (name, ylabel) in zip(axes, panels):
+        for label, comp, prefix, errors, style in _metrics_series(m):
+            values = m[prefix + name] if comp is None else m[prefix + name].sel(component=comp)
+            for j, a in enumerate(m["after"].values if name == "fraction_after" else [None]):
+                y = values if a is None else values.sel(after=a)
+                err = (m[f"{name}_stderr"] if comp is None
+                       else m[f"{name}_stderr"].sel(component=comp)) if errors else None
+                if err is not None and a is not None:
+                    err = err.sel(after=a)
+                y = np.atleast_1d(y.values)[order]
+                err = None if err is None else np.nan_to_num(np.atleast_1d(err.values)[order])
+                ax.errorbar(x[order], y, yerr=err, capsize=3, ms=4,
+                            **{"marker": _MARKERS[j % len(_MARKERS)], **style,
+                               "ls": style["ls"] if line == "-" else "none"},
+                            label=label if a is None else f"{label}, t = {a:g} ns")
+        ax.set_ylabel(ylabel)
+        ax.grid(True, alpha=0.3)
+    for ax in (axes[0], axes[-1]) if "after" in m.dims else axes[:1]:   # the lines' keys
+        if ax.get_legend_handles_labels()[0]:
+            fit_legend(ax, ax.legend(fontsize=7, loc="best", framealpha=0.85))
+    bottom = axes[-1]
+    if log:
+        bottom.set_xscale("log")
+    if ticks is not None:
+        long = max(len(t) for t in ticks) > 12 or len(ticks) > 6
+        bottom.set_xticks(x, ticks, rotation=30 if long else 0, ha="right" if long else "center",
+                          fontsize=7)
+        bottom.set_xlim(x.min() - 0.5, x.max() + 0.5)
+    bottom.set_xlabel(xlabel)
+    name = str(ds.attrs.get("name", ""))
+    if m.attrs.get("metrics_stage") == "instrument":
+        name += f" — after {ds.attrs.get('instrument_name', 'the instrument')}"
+    axes[0].set_title(title or name)
+    return fig
+
+
+def plot_metrics(ds, path, after=(), title: str | None = None, stage: str | None = None):
+    """Draw the waveform metrics of ``ds`` against its sweep and save them to ``path`` (PNG).
+
+    See ``metrics_figure`` for what is drawn. Returns ``path``.
+    """
+    return save_figure(metrics_figure(ds, after, title, stage), path)
