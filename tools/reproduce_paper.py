@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
-"""Run every paper preset and draw every figure of the seed (Barron et al. 2026).
+"""Run every paper preset and draw every figure of the paper (Barron et al. 2026).
 
     python tools/reproduce_paper.py [--photons N] [--out docs/figures] [--only NAME ...]
 
 Writes ``NAME.nc`` (in --data, default a temporary folder) and ``NAME.png`` for each preset of
 ``presets/paper/`` (plus ``fov_numerical_angular.png``, the FOV figure, and
-``bela_cases_instrument.png``, the seed's three-panel BELA figure, whose claims it checks and
+``bela_cases_instrument.png``, the paper's three-panel BELA figure, whose claims it checks and
 prints), and prints the time each took. ``--photons`` overrides every preset's ray count per scenario (the presets' own
 counts are used otherwise).
 """
@@ -25,7 +25,7 @@ from warpe_cl.plot import plot_angular, plot_waveform
 
 
 def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
-    """The seed's BELA figure (fig. WARPE_BELA) and the numbers behind its claims.
+    """The paper's BELA figure (fig. WARPE_BELA) and the numbers behind its claims.
 
     Three cases through the BELA chain at the preset's altitude: the granular CO2 layer, the
     perfect 1500 mm CO2 slab (roughness 0: beam-limited specular) and the same slab with 0.01°
@@ -113,7 +113,7 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
             for r in (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)}
     perfect = facts["perfect slab CO2 1500 mm"]["unclipped_peak_mv"]
     rough001 = facts["slab, roughness 0.01°"]["unclipped_peak_mv"]
-    facts["gain_window_seed_figure"] = (1000.0 / perfect, 1000.0 / rough001)
+    facts["gain_window_paper_figure"] = (1000.0 / perfect, 1000.0 / rough001)
     print("bela_cases instrument:")
     for k, val in facts.items():
         print(f"    {k}: {val}")

@@ -1,9 +1,10 @@
-"""Figures in the seed paper's style.
+"""Figures in the style of the paper (Barron et al. 2026, "Simulation of laser travel-time on
+Mercury for BELA").
 
 ``plot_waveform`` (drawn by ``waveform_figure``): log–log reflectance (ns⁻¹ sr⁻¹) against time
 (ns) of the diffuse components, one colour per scenario: scattering as solid lines, BF diffuse
 dashed; under each curve a shaded domain where a bin would hold fewer than ``MIN_RAYS`` rays
-(the Monte Carlo limit the seed shades), and the first back-and-forth time 2 h n_eff / c as a
+(the Monte Carlo limit the paper shades), and the first back-and-forth time 2 h n_eff / c as a
 dotted vertical line. The delta-like returns (the specular, which leaves at t = 0 before the
 first log bin, drawn at 1e-6 ns, and the BF-direct peaks) are drawn as markers on a secondary,
 right-hand axis as the fraction of the launched rays they hold, and the specular's fraction is
@@ -12,7 +13,7 @@ written on the figure: divided by a bin width, their height would only measure t
 ``MAX_CYCLE`` scenarios take the colour cycle and a legend entry each; more scenarios of one
 numeric swept key take a sequential colormap and a colour bar labelled with the key and unit.
 
-``plot_angular``: the seed's FOV figure: time-integrated angular reflectance of the
+``plot_angular``: the paper's FOV figure: time-integrated angular reflectance of the
 background scattering and the BF diffuse, with their numerical FOVs.
 
 ``select_scenarios``: the ``--scenarios`` selection of ``warpe-cl plot``.
@@ -26,7 +27,7 @@ import numpy as np
 from .errors import ConfigError
 from .units import same_quantity, split_quantity
 
-SPECULAR_TIME_NS = 1e-6   # the seed draws the t = 0 specular return at 1e-6 ns
+SPECULAR_TIME_NS = 1e-6   # the paper draws the t = 0 specular return at 1e-6 ns
 MIN_RAYS = 3              # the shaded Monte Carlo limit: fewer rays than this in a bin
 _FIRST = ("texture", "thickness")   # a swept block's entries shown first
 MAX_CYCLE = 6             # more scenarios of a numeric sweep: a colormap and a colour bar
@@ -411,7 +412,7 @@ def plot_waveform(ds, path, title: str | None = None):
 
 
 def plot_angular(ds, path, title: str | None = None):
-    """The seed's FOV figure: angular reflectance (sr⁻¹) of the background scattering and the
+    """The paper's FOV figure: angular reflectance (sr⁻¹) of the background scattering and the
     BF diffuse against emergence, with the 12° and 3° numerical FOVs.
 
     Scenarios are coloured and labelled as in ``waveform_figure`` (a legend, or a colour bar for

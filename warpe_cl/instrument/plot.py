@@ -1,4 +1,4 @@
-"""The seed's BELA figure (Barron et al. 2026, fig. WARPE_BELA) from instrument results.
+"""The paper's BELA figure (Barron et al. 2026, fig. WARPE_BELA) from instrument results.
 
 Three panels, one colour per case: (top) the surface response of a perfect instrument, log–log,
 diffuse R_d (ns⁻¹ sr⁻¹) as a line, the specular (drawn at 1e-6 ns) and BF-direct returns as
