@@ -81,3 +81,21 @@ def test_leading_dimensions_and_empty_waveforms():
     assert list(m["thickness"].values) == [0.01, 0.02]
     assert np.isfinite(m["mean_delay"][0, 0]) and np.isnan(m["mean_delay"][1, 0])
     assert np.isnan(m["peak_time"][1, 0]) and np.isnan(m["fraction_after"][1, 0, 0])
+
+
+def test_hemispherical_reflectance_takes_the_analog_counts():
+    """A result has no ``hemispherical_reflectance_stderr``: an analog one takes the Poisson
+    errors of its counts (the same as reflectance_stderr for the same rays), a weighted one
+    is refused."""
+    rng = np.random.default_rng(14)
+    ds = _synthetic(rng.exponential(1.0, RAYS))
+    ds["hemispherical_reflectance"] = ds["reflectance"]
+    ds["photons"] = RAYS
+    ds.attrs["mode"] = "analog"
+    fov = warpe_cl.metrics(ds)
+    any_angle = warpe_cl.metrics(ds, variable="hemispherical_reflectance")
+    for name in ("mean_delay", "mean_delay_stderr", "rms_width", "rms_width_stderr"):
+        assert np.allclose(any_angle[name], fov[name], rtol=1e-9), name
+    ds.attrs["mode"] = "weighted"
+    with pytest.raises(ValueError, match="only in the analog mode"):
+        warpe_cl.metrics(ds, variable="hemispherical_reflectance")

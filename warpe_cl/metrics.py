@@ -16,7 +16,8 @@ none of these numbers.
 
 Standard errors (``<name>_stderr``) come from the counts: each bin is independent with the
 variance var_i = (``reflectance_stderr`` x bin width)^2 (Poisson: s_i^2 / n_i for n_i rays;
-the sums of w^2 in the weighted mode), propagated to first order (the delta method):
+the sums of w^2 in the weighted mode; ``hemispherical_reflectance``, which has no stderr
+variable, takes s_i / N of an analog walk of N rays), propagated to first order (the delta method):
 var(mean) = sum(var_i (t_i - mean)^2) / S^2; var(rms^2) = sum(var_i ((t_i - mean)^2 -
 rms^2)^2) / S^2 and var(rms) = var(rms^2) / (4 rms^2); var(fraction) = sum(var_i (a_i - f)^2) /
 S^2 with a_i = 1 after the time, 0 before. For n rays drawn from one distribution these are
@@ -111,6 +112,21 @@ def _peaks(s, n, lo, hi, min_rays, resamples, rng):
     return peak, err
 
 
+def _bin_variances(ds, variable, signal, width):
+    """var_i of what each bin holds: from ``<variable>_stderr``, or, where a result has none
+    (``hemispherical_reflectance``), from the counts of an analog walk: bin i then holds
+    n_i = s_i N rays of weight 1 for N launched rays, so var_i = s_i^2 / n_i = s_i / N."""
+    if f"{variable}_stderr" in ds:
+        err = ds[f"{variable}_stderr"].transpose(..., "time").values.astype(float)
+        return (np.nan_to_num(err) * width) ** 2
+    if ds.attrs.get("mode") != "analog" or "photons" not in ds:
+        raise ValueError(f"{variable} has no {variable}_stderr in this result, and its "
+                         f"standard errors follow from the counts only in the analog mode "
+                         f"(mode: {ds.attrs.get('mode', 'not given')})")
+    per_ray = (signal / ds["photons"]).transpose(*signal.dims).values.astype(float)
+    return np.nan_to_num(per_ray) * width
+
+
 def metrics(ds, after=(), *, variable: str = "reflectance", min_rays: int = 100,
             resamples: int = 100, seed: int = 0):
     """Mean delay, RMS width, peak time and late fraction of each waveform of ``ds``.
@@ -126,7 +142,9 @@ def metrics(ds, after=(), *, variable: str = "reflectance", min_rays: int = 100,
     variable : str
         ``reflectance`` (inside the field of view, per sr: what an instrument sees) or
         ``hemispherical_reflectance`` (at any angle). ``ray_count`` counts the rays of
-        ``reflectance``: the peak's merging by ``min_rays`` uses it for either.
+        ``reflectance``: the peak's merging by ``min_rays`` uses it for either. A result with
+        no ``<variable>_stderr`` (``hemispherical_reflectance``) takes the Poisson errors of
+        its analog counts, var_i = s_i / ``photons``; a weighted one raises ValueError.
     min_rays : int
         Rays each merged bin of the peak search holds at least.
     resamples : int
@@ -152,8 +170,7 @@ def metrics(ds, after=(), *, variable: str = "reflectance", min_rays: int = 100,
     signal = ds[variable].transpose(..., "time")
     lead = signal.dims[:-1]
     s = np.nan_to_num(signal.values.astype(float)) * width
-    var = (np.nan_to_num(ds[f"{variable}_stderr"].transpose(..., "time").values.astype(float))
-           * width) ** 2
+    var = _bin_variances(ds, variable, signal, width)
     n = np.nan_to_num(ds["ray_count"].transpose(*lead, "time").values.astype(float))
     mean, mean_se, rms, rms_se = _moments(s, var, t)
     peak, peak_se = _peaks(s, n, lo, hi, min_rays, resamples, np.random.default_rng(seed))
