@@ -99,3 +99,39 @@ def test_hemispherical_reflectance_takes_the_analog_counts():
     ds.attrs["mode"] = "weighted"
     with pytest.raises(ValueError, match="only in the analog mode"):
         warpe_cl.metrics(ds, variable="hemispherical_reflectance")
+
+
+def test_reproduce_paper_metrics_table(tmp_path):
+    """tools/reproduce_paper.py's metrics.csv: one row per scenario, variable and diffuse
+    component holding rays, the numbers of warpe_cl.metrics; a run of some presets (--only)
+    keeps the rows of the others."""
+    import csv
+    import sys
+    from conftest import TOOLS
+    sys.path.insert(0, str(TOOLS))
+    import reproduce_paper as rp
+    rng = np.random.default_rng(15)
+    one = _synthetic(rng.exponential(1.0, RAYS))
+    ds = one.reindex(component=["specular", "bf_direct", "bf_diffuse", "scattering"],
+                     fill_value=0.0)
+    ds["time_edges"] = one["time_edges"]
+    ds["hemispherical_reflectance"] = ds["reflectance"]
+    ds["photons"] = RAYS
+    ds["fraction"] = ("component", [0.02, 0.0, 0.0, 1.0])
+    ds.attrs.update(mode="analog", name="synthetic")
+    rows = rp.metrics_rows("a", ds)
+    assert [(r["variable"], r["component"]) for r in rows] == [
+        ("reflectance", "scattering"), ("hemispherical_reflectance", "scattering")]
+    m = warpe_cl.metrics(ds).sel(component="scattering")
+    assert float(rows[0]["mean_delay_ns"]) == pytest.approx(float(m["mean_delay"]), rel=1e-3)
+    assert float(rows[0]["mean_delay_stderr_ns"]) == pytest.approx(
+        float(m["mean_delay_stderr"]), rel=0.05)   # 2 digits
+    assert rows[0]["waveform_rays"] == rows[1]["waveform_rays"] == RAYS
+    path = tmp_path / "metrics.csv"
+    rp.write_metrics(rows + rp.metrics_rows("b", ds), path)
+    rp.write_metrics([dict(r, mean_delay_ns="9") for r in rp.metrics_rows("b", ds)], path)
+    with open(path, newline="", encoding="utf-8") as f:
+        table = list(csv.DictReader(f))
+    assert [r["preset"] for r in table] == ["a", "a", "b", "b"]
+    assert [r["mean_delay_ns"] for r in table][2:] == ["9", "9"]
+    assert list(table[0]) == list(rp.METRICS_COLUMNS)
