@@ -111,7 +111,7 @@ typedef struct {
     int rule_time_window;        /* component rule time_window (else history) */
     REAL t1;                     /* first back-and-forth time 2 h n / c, ns
                                   * (docs/physics.md §5.7) */
-    REAL ns_per_m;               /* t = L n / c (docs/physics.md §5.7, seed eq. 4) */
+    REAL ns_per_m;               /* t = L n / c (docs/physics.md §5.7, paper eq. 4) */
 } tallies_t;
 
 /* A work-item's statistics, written to item_stats at the end. */
@@ -396,7 +396,7 @@ WALK_STEP void park_lanes(const rays_t *r, const carry_t *cy)
 }
 
 /* FLIGHT, the free flight of the lanes in fl (walk.md §3 steps 3.1-3.5, docs/physics.md §5.3,
- * §5.7-§5.8): the flight cap; the optical step -ln u0 and the physical step s = l/E (seed
+ * §5.7-§5.8): the flight cap; the optical step -ln u0 and the physical step s = l/E (paper
  * eq. 3); a collision if s is shorter than the way to the boundary, else the boundary; the path
  * L += s and its cap L_max; weighted, exp(-mu_a s) on the weight of every flight (walk.md §6).
  * Sets *coll and *bnd to the lanes that collide and that reach a boundary. */
@@ -701,7 +701,7 @@ __kernel void walk(const uint seed, const ulong scenario,
         .time_edges = time_edges, .n_edges = n_edges,
         .cos_fov = {cos_fov_specular, cos_fov_bf_direct, cos_fov_bf_diffuse, cos_fov_scattering},
         .rule_time_window = rule_time_window, .t1 = t1,
-        .ns_per_m = n / (REAL)WARPE_C_M_PER_NS};    /* seed eq. 4: t = L n_eff / c */
+        .ns_per_m = n / (REAL)WARPE_C_M_PER_NS};    /* paper eq. 4: t = L n_eff / c */
     const uint base_lo = (uint)first_photon, base_hi = (uint)(first_photon >> 32);
     /* the 64-bit scenario key: its low word keys Philox, its high word is counter word 3 */
     const uint key_lo = (uint)scenario, key_hi = (uint)(scenario >> 32);

@@ -92,7 +92,7 @@ def test_deposit_keeps_amount_and_time():
 
 # ------------------------------------------------------------------ geometry and radiometry
 
-def test_seed_aperture_ratios_with_the_half_angle():
+def test_paper_aperture_ratios_with_the_half_angle():
     """docs/physics.md §7.3 / docs/instrument.md §1: δ = 30 µrad (half of BELA's 60 µrad)."""
     bela = load_instrument("bela")
     div = bela["transmitter.divergence"]
@@ -526,7 +526,7 @@ def test_every_preset_parameter_carries_a_source_tag():
         for line in (instruments_dir() / f"{name}.yaml").read_text().splitlines():
             body = line.split("#")[0]
             if ":" in body and not body.rstrip().endswith(":") and body.startswith(" "):
-                assert re.search(r"#.*\[(C|S|K|D|A)", line), f"{name}: {line}"
+                assert re.search(r"#.*\[(C|P|K|D|A)", line), f"{name}: {line}"
 
 
 # ------------------------------------------------------------------ photon counting

@@ -7,6 +7,7 @@ import pytest
 import xarray as xr
 
 import warpe_cl
+from warpe_cl.errors import ConfigError
 
 RAYS = 100_000
 EDGES = np.arange(0.0, 40.0 + 1e-9, 0.01)      # ns
@@ -225,7 +226,6 @@ def test_the_instrument_chain_output_and_the_stages():
     numbers of the same file, per component; a Dataset without what a stage needs is refused
     with a ConfigError."""
     from conftest import synthetic_surface
-    from warpe_cl.errors import ConfigError
     from warpe_cl.instrument import apply_instrument
     ds = apply_instrument(synthetic_surface(diffuse_integral=0.05, scenarios=2), "bela",
                           shots=8, seed=1)
@@ -248,3 +248,56 @@ def test_the_instrument_chain_output_and_the_stages():
         warpe_cl.metrics(_synthetic(np.ones(3)), stage="instrument")
     with pytest.raises(ConfigError, match="not a stage"):
         warpe_cl.metrics(ds, stage="detector")
+
+def test_hemispherical_reflectance_takes_the_analog_counts():
+    """A result has no ``hemispherical_reflectance_stderr``: an analog one takes the Poisson
+    errors of its counts (the same as reflectance_stderr for the same rays), a weighted one
+    is refused."""
+    rng = np.random.default_rng(14)
+    ds = _synthetic(rng.exponential(1.0, RAYS))
+    ds["hemispherical_reflectance"] = ds["reflectance"]
+    ds["photons"] = RAYS
+    ds.attrs["mode"] = "analog"
+    fov = warpe_cl.metrics(ds)
+    any_angle = warpe_cl.metrics(ds, variable="hemispherical_reflectance")
+    for name in ("mean_delay", "mean_delay_stderr", "rms_width", "rms_width_stderr"):
+        assert np.allclose(any_angle[name], fov[name], rtol=1e-9), name
+    ds.attrs["mode"] = "weighted"
+    with pytest.raises(ConfigError, match="only in the analog mode"):
+        warpe_cl.metrics(ds, variable="hemispherical_reflectance")
+
+
+def test_reproduce_paper_metrics_table(tmp_path):
+    """tools/reproduce_paper.py's metrics.csv: one row per scenario, variable and diffuse
+    component holding rays, the numbers of warpe_cl.metrics; a run of some presets (--only)
+    keeps the rows of the others."""
+    import csv
+    import sys
+    from conftest import TOOLS
+    sys.path.insert(0, str(TOOLS))
+    import reproduce_paper as rp
+    rng = np.random.default_rng(15)
+    one = _synthetic(rng.exponential(1.0, RAYS))
+    ds = one.reindex(component=["specular", "bf_direct", "bf_diffuse", "scattering"],
+                     fill_value=0.0)
+    ds["time_edges"] = one["time_edges"]
+    ds["hemispherical_reflectance"] = ds["reflectance"]
+    ds["photons"] = RAYS
+    ds["fraction"] = ("component", [0.02, 0.0, 0.0, 1.0])
+    ds.attrs.update(mode="analog", name="synthetic")
+    rows = rp.metrics_rows("a", ds)
+    assert [(r["variable"], r["component"]) for r in rows] == [
+        ("reflectance", "scattering"), ("hemispherical_reflectance", "scattering")]
+    m = warpe_cl.metrics(ds).sel(component="scattering")
+    assert float(rows[0]["mean_delay_ns"]) == pytest.approx(float(m["mean_delay"]), rel=1e-3)
+    assert float(rows[0]["mean_delay_stderr_ns"]) == pytest.approx(
+        float(m["mean_delay_stderr"]), rel=0.05)   # 2 digits
+    assert rows[0]["waveform_rays"] == rows[1]["waveform_rays"] == RAYS
+    path = tmp_path / "metrics.csv"
+    rp.write_metrics(rows + rp.metrics_rows("b", ds), path)
+    rp.write_metrics([dict(r, mean_delay_ns="9") for r in rp.metrics_rows("b", ds)], path)
+    with open(path, newline="", encoding="utf-8") as f:
+        table = list(csv.DictReader(f))
+    assert [r["preset"] for r in table] == ["a", "a", "b", "b"]
+    assert [r["mean_delay_ns"] for r in table][2:] == ["9", "9"]
+    assert list(table[0]) == list(rp.METRICS_COLUMNS)

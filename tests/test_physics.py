@@ -91,7 +91,7 @@ def test_pure_slab_bf_direct_times_exact_in_double(engine):
 
 
 @pytest.mark.slow
-def test_co2_slab_seed_values(engine):
+def test_co2_slab_paper_values(engine):
     """§8 table: the pure CO2 slab of 1 m, A = 0.15: BF direct 0.02600 (first peak) and the
     BF diffuse of the first pass in the 3-degree FOV.
 
@@ -190,7 +190,7 @@ def test_time_cap_and_flight_cap_terminate_and_are_counted(engine):
     assert d.records["n_scat"][d.records["fate"] == 1].max() <= 4
 
 
-def test_seed_numbers():
+def test_paper_numbers():
     """§8 table: tau0 = 4 pi k h / lambda, the 'analytical solutions', t1 and the 1335 mm."""
     tau_h2o = 4 * np.pi * H2O["k"] * 1.0 / LAMBDA
     tau_co2 = 4 * np.pi * CO2["k"] * 1.0 / LAMBDA

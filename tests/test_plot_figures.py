@@ -192,6 +192,8 @@ def test_instrument_figure_titles_legends_and_deltas(tmp_path):
     ydata = np.concatenate([ln.get_ydata() for ln in frac_ax.get_lines() if len(ln.get_ydata())])
     assert np.any(np.isclose(ydata, spec))
     assert top.get_ylim()[1] < 1e8                                   # not stretched by it
+    _nothing_under_legends(fig)
+    _nothing_under_legends(waveform_figure(ds))      # the slab's BF direct, 0.026 at 14 ns
     long = "texture=slab, thickness=1500 mm, compacity=1, matrix=CO2, " * 3   # shrunk to fit
     _inside(instrument_figure([(long, ds.isel(scenario=1)), ("short", ds.isel(scenario=0))]))
 
@@ -233,3 +235,59 @@ def test_instrument_figure_many_scenarios_colour_bar(many):
     assert len(fig.axes) == 5 and fig.axes[4].get_ylabel() == "medium.thickness (mm)"
     assert fig.axes[3].get_legend() is None      # the colour bar names the top panel's colours
     _inside(fig)
+
+
+def _nothing_under_legends(fig):
+    """No point of a data line (a curve's bin, a delta return's marker) lies under a legend."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    for ax in fig.axes:
+        for line in ax.get_lines():
+            if line.get_transform() != ax.transData:
+                continue
+            xy = np.asarray(line.get_xydata(), dtype=float).reshape(-1, 2)
+            xy = xy[np.all(np.isfinite(xy), axis=1)]
+            if ax.get_yscale() == "log":
+                xy = xy[xy[:, 1] > 0]
+            at = ax.transData.transform(xy) if len(xy) else xy
+            inside = ax.get_window_extent(renderer)
+            for legend in legends:
+                if legend.axes.get_window_extent(renderer) != inside:   # another panel
+                    continue
+                box = legend.get_window_extent(renderer)
+                hidden = [(x, y) for (x, y), (px, py) in zip(xy, at)
+                          if box.x0 <= px <= box.x1 and box.y0 <= py <= box.y1]
+                assert not hidden, (ax.get_title(), line.get_label(), hidden[:3])
+
+
+def test_no_curve_or_marker_under_the_legend(single, many):
+    _nothing_under_legends(waveform_figure(single))
+    _nothing_under_legends(waveform_figure(many.isel(scenario=[0, 1, 2])))
+
+
+def test_instrument_figure_one_curve_per_surface_result(single):
+    """Cases that differ only in the instrument (a flat and a rough slab: roughness acts only
+    in the chain) share one surface response: the top panel draws it once, with one legend
+    entry that says so, and a scaled shape drawn over an identical one names it."""
+    from warpe_cl.instrument import apply_instrument
+    from warpe_cl.instrument.plot import instrument_figure, surface_groups
+    flat = apply_instrument(single, "bela", {"geometry.roughness": "0 deg"}, shots=2)
+    rough = apply_instrument(single, "bela", {"geometry.roughness": "0.01 deg"}, shots=2)
+    other = apply_instrument(single.isel(time=slice(None, None, -1)).assign_coords(
+        time=single["time"]), "bela", shots=2)   # another surface: the waveform reversed
+    cases = [("flat", flat), ("other", other), ("rough", rough)]
+    assert surface_groups(cases) == [[0, 2], [1]]
+    fig = instrument_figure(cases)
+    top, mid, bot, frac_ax = fig.axes
+    texts = [t.get_text() for t in frac_ax.get_legend().get_texts()]
+    assert texts == ["flat = rough:\none surface response (geometry.roughness acts only in the "
+                     "instrument chain)", "other"]
+    assert len(top.get_lines()) == 2                 # one curve per surface result
+    assert len(mid.get_lines()) == 3                 # the chain's panels: one per case
+    _inside(fig)
+    _nothing_under_legends(fig)
+    twice = [t.get_text() for t in instrument_figure([("a", flat), ("b", flat)]).axes[2]
+             .get_legend().get_texts()]
+    assert "\n(dashed: the same shape as a, drawn over it)" in twice[1]
+    assert "same shape" not in twice[0]

@@ -1,4 +1,4 @@
-"""Physical -> radiative parameters (docs/physics.md §3-§4): the worked values of §4.6, the seed's
+"""Physical -> radiative parameters (docs/physics.md §3-§4): the worked values of §4.6, the paper's
 tau, limits and trends, and bad or doubtful physical input."""
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ def test_worked_values_of_section_4_6(index):
         assert _close(value, expected, _last_digit(expected)), (value, expected)
 
 
-def test_seed_optical_depths():
+def test_paper_optical_depths():
     """'tau = 15' for 1 m of water ice and 'tau = 0.01' for CO2 ice (a_m = 4 pi k / lambda)."""
     assert radiative.radiative_parameters(slab("H2O", "CO2", 1.0, 100, 1))["tau0"] == \
         pytest.approx(15.023, abs=1e-3)
@@ -88,7 +88,7 @@ def test_seed_optical_depths():
 
 
 def test_limits_and_trends():
-    """gamma_c -> 1 gives omega -> 0 (the seed's 'at 0.9999, omega tends to 0'); larger grains
+    """gamma_c -> 1 gives omega -> 0 (the paper's 'at 0.9999, omega tends to 0'); larger grains
     give a smaller omega and a smaller tau0; C_gamma -> 1 as the particle fraction vanishes."""
     omegas = [radiative.radiative_parameters(slab("H2O", "S", g, 100, 1))["omega"]
               for g in (0.9, 0.99, 0.999, 0.9999)]

@@ -1,17 +1,27 @@
 #!/usr/bin/env python3
-"""Run every paper preset and draw every figure of the seed (Barron et al. 2026).
+"""Run every paper preset and draw every figure of the paper (Barron et al. 2026).
 
     python tools/reproduce_paper.py [--photons N] [--out docs/figures] [--only NAME ...]
 
 Writes ``NAME.nc`` (in --data, default a temporary folder) and ``NAME.png`` for each preset of
 ``presets/paper/`` (plus ``fov_numerical_angular.png``, the FOV figure, and
-``bela_cases_instrument.png``, the seed's three-panel BELA figure, whose claims it checks and
+``bela_cases_instrument.png``, the paper's three-panel BELA figure, whose claims it checks and
 prints), and prints the time each took. ``--photons`` overrides every preset's ray count per scenario (the presets' own
 counts are used otherwise).
+
+It also writes ``metrics.csv`` next to the figures: the waveform metrics of every result
+(``warpe_cl.metrics``: mean delay and RMS width in ns, each with its standard error), one row
+per preset, scenario, variable (``reflectance``, in the component's field of view, as the
+figures draw it; ``hemispherical_reflectance``, at any angle) and diffuse component
+(scattering, bf_diffuse) holding rays. The specular and BF-direct returns are left out: they
+are delta-like, at exact times (t = 0, 2 k h n_eff / c), which their binned centroid would
+only blur by a bin width. The rows of presets not run (``--only``) are kept from an existing
+file.
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 import tempfile
 import time
@@ -24,8 +34,75 @@ from warpe_cl.catalog import presets_dir
 from warpe_cl.plot import plot_angular, plot_waveform
 
 
+#: The columns of metrics.csv: ``rays`` launched; ``fraction`` of them in the component (any
+#: angle); ``waveform_rays`` in the waveform measured (a few: the errors mean little); times
+#: in ns.
+METRICS_COLUMNS = ("preset", "scenario", "label", "variable", "component", "rays", "fraction",
+                   "waveform_rays", "mean_delay_ns", "mean_delay_stderr_ns", "rms_width_ns", "rms_width_stderr_ns")
+METRICS_VARIABLES = ("reflectance", "hemispherical_reflectance")
+#: The diffuse components: the specular and BF-direct returns are delta-like (their times are
+#: exact), and a centroid of their bins would only measure the bin.
+METRICS_COMPONENTS = ("scattering", "bf_diffuse")
+
+
+def metrics_rows(name: str, ds) -> list:
+    """The rows of metrics.csv for the result ``ds`` of preset ``name``: ``warpe_cl.metrics``
+    of each scenario, for each variable of METRICS_VARIABLES and each component of
+    METRICS_COMPONENTS whose waveform holds rays (a finite mean delay); values with 4
+    significant digits, errors with 2."""
+    import numpy as np
+    from warpe_cl.plot import _scenarios
+    rows = []
+    for i, (label, sc) in enumerate(_scenarios(ds)):
+        for variable in METRICS_VARIABLES:
+            m = warpe_cl.metrics(sc, variable=variable, resamples=0)   # no peak_time error
+            for comp in METRICS_COMPONENTS:
+                one = m.sel(component=comp)
+                if not np.isfinite(float(one["mean_delay"])):
+                    continue
+                row = {"preset": name, "scenario": i, "label": label, "variable": variable,
+                       "component": comp, "rays": int(sc["photons"]),
+                       "fraction": f"{float(sc['fraction'].sel(component=comp)):.4g}",
+                       "waveform_rays": _waveform_rays(sc, variable, comp)}
+                for key in ("mean_delay", "rms_width"):
+                    row[f"{key}_ns"] = f"{float(one[key]):.4g}"
+                    row[f"{key}_stderr_ns"] = f"{float(one[f'{key}_stderr']):.2g}"
+                rows.append(row)
+    return rows
+
+
+def _waveform_rays(sc, variable: str, comp: str):
+    """Rays in the binned waveform of one component: ``ray_count`` for ``reflectance``; for
+    ``hemispherical_reflectance`` of an analog walk, its sum x bin width x rays launched
+    (weights of 1); else an empty field."""
+    import numpy as np
+    if variable == "reflectance":
+        return int(sc["ray_count"].sel(component=comp).sum())
+    if sc.attrs.get("mode") != "analog":
+        return ""
+    width = np.diff(sc["time_edges"].values)
+    held = float(np.nansum(sc[variable].sel(component=comp).values * width))
+    return int(round(held * float(sc["photons"])))
+
+
+def write_metrics(rows: list, path: Path) -> Path:
+    """Write ``rows`` to the CSV ``path``, keeping the rows an existing file holds for the
+    presets that ``rows`` lacks; rows sorted by preset, in their own order within one."""
+    presets = {r["preset"] for r in rows}
+    kept = []
+    if path.is_file():
+        with open(path, newline="", encoding="utf-8") as f:
+            kept = [r for r in csv.DictReader(f) if r["preset"] not in presets]
+    merged = sorted(kept + rows, key=lambda r: r["preset"])   # stable: order within a preset
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=METRICS_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(merged)
+    return path
+
+
 def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
-    """The seed's BELA figure (fig. WARPE_BELA) and the numbers behind its claims.
+    """The paper's BELA figure (fig. WARPE_BELA) and the numbers behind its claims.
 
     Three cases through the BELA chain at the preset's altitude: the granular CO2 layer, the
     perfect 1500 mm CO2 slab (roughness 0: beam-limited specular) and the same slab with 0.01°
@@ -50,7 +127,7 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
              ("perfect slab CO2 1500 mm", runs["0 deg"].isel(scenario=1)),
              ("slab, roughness 0.01°", runs["0.01 deg"].isel(scenario=1))]
     plot_instrument(cases, out / "bela_cases_instrument.png",
-                    title=f"BELA at {altitude}: {shots} shots, seed "
+                    title=f"BELA at {altitude}: {shots} shots, noise seed "
                           f"{runs['0 deg'].attrs['instrument_seed']}")
     facts = {}
     for label, sc in cases + [("slab, roughness 0.1°", runs["0.1 deg"].isel(scenario=1))]:
@@ -113,7 +190,7 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
             for r in (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)}
     perfect = facts["perfect slab CO2 1500 mm"]["unclipped_peak_mv"]
     rough001 = facts["slab, roughness 0.01°"]["unclipped_peak_mv"]
-    facts["gain_window_seed_figure"] = (1000.0 / perfect, 1000.0 / rough001)
+    facts["gain_window_paper_figure"] = (1000.0 / perfect, 1000.0 / rough001)
     print("bela_cases instrument:")
     for k, val in facts.items():
         print(f"    {k}: {val}")
@@ -135,6 +212,7 @@ def main(argv=None) -> int:
     data.mkdir(parents=True, exist_ok=True)
     overrides = {"simulation.photons": args.photons} if args.photons else None
     total = time.perf_counter()
+    rows = []
     for preset in sorted((presets_dir() / "paper").glob("*.yaml")):
         if args.only and preset.stem not in args.only:
             continue
@@ -149,9 +227,12 @@ def main(argv=None) -> int:
             plot_angular(ds, out / "fov_numerical_angular.png")
         if preset.stem == "bela_cases":
             bela_instrument(ds, out, data)
+        rows += metrics_rows(preset.stem, ds)
         photons = int(ds["photons"].sum()) if "scenario" in ds.dims else int(ds["photons"])
         print(f"{preset.stem:26s} {photons:>11,d} rays  {time.perf_counter() - t0:7.1f} s"
               + "".join(f"\n    warning: {w.message}" for w in caught), flush=True)
+    if rows:
+        print(f"waveform metrics: {write_metrics(rows, out / 'metrics.csv')}")
     print(f"all presets: {time.perf_counter() - total:.1f} s; results in {data}")
     return 0
 

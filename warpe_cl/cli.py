@@ -447,7 +447,7 @@ def make_parser() -> argparse.ArgumentParser:
     pl.add_argument("--out", required=True, help="output PNG")
     pl.add_argument("--kind", choices=("waveform", "angular", "instrument"), default=None,
                     help="waveform: reflectance against time; angular: the FOV figure; "
-                         "instrument: the seed's three-panel BELA figure (default for a file "
+                         "instrument: the paper's three-panel BELA figure (default for a file "
                          "written by `warpe-cl instrument`, else waveform)")
     pl.add_argument("--metrics", action="store_true",
                     help="draw the waveform metrics instead (mean delay, RMS width, peak time "

@@ -13,7 +13,7 @@ import numpy as np
 
 from .errors import ConfigError
 
-#: Built-in end-members at 1064 nm (seed Table 2; docs/physics.md §3.1): name -> (n, k)
+#: Built-in end-members at 1064 nm (paper Table 2; docs/physics.md §3.1): name -> (n, k)
 BUILTIN_1064NM = {
     "void": (1.0, 0.0),
     "H2O": (1.30042, 1.27200e-6),   # water ice, Schmitt et al. 1998

@@ -24,7 +24,9 @@ counts the bins that start at or after the time. Rays leaving before the first t
 
 Standard errors (``<name>_stderr``) come from the counts: each bin is independent with the
 variance var_i = (``reflectance_stderr`` x bin width)^2 (Poisson: s_i^2 / n_i for n_i rays;
-the sums of w^2 in the weighted mode), propagated to first order (the delta method):
+the sums of w^2 in the weighted mode; ``hemispherical_reflectance``, which has no stderr
+variable, takes s_i / N of an analog walk of N rays), propagated to first order (the delta
+method):
 var(mean) = sum(var_i (t_i - mean)^2) / S^2; var(rms^2) = sum(var_i ((t_i - mean)^2 -
 rms^2)^2) / S^2 and var(rms) = var(rms^2) / (4 rms^2); var(fraction) = sum(var_i (a_i - f)^2) /
 S^2 with a_i = 1 after the time, 0 before. For n rays drawn from one distribution these are
@@ -356,10 +358,24 @@ def _dataset(lead, values, coords, after, attrs):
     return out
 
 
+def _bin_variances(ds, variable, signal, width):
+    """var_i of what each bin holds: from ``<variable>_stderr``, or, where a result has none
+    (``hemispherical_reflectance``), from the counts of an analog walk: bin i then holds
+    n_i = s_i N rays of weight 1 for N launched rays, so var_i = s_i^2 / n_i = s_i / N."""
+    if f"{variable}_stderr" in ds:
+        err = ds[f"{variable}_stderr"].transpose(..., "time").values.astype(float)
+        return (np.nan_to_num(err) * width) ** 2
+    if ds.attrs.get("mode") != "analog" or "photons" not in ds:
+        raise ConfigError(f"has no {variable}_stderr, and the standard errors of {variable} "
+                          f"follow from the counts only in the analog mode (mode: "
+                          f"{ds.attrs.get('mode', 'not given')})")
+    per_ray = (signal / ds["photons"]).transpose(*signal.dims).values.astype(float)
+    return np.nan_to_num(per_ray) * width
+
+
 def _surface(ds, after, variable, min_rays, resamples, seed):
     """The numbers of each component's waveform of a surface result (module notes)."""
-    missing = [n for n in ("time_edges", variable, f"{variable}_stderr", "ray_count")
-               if n not in ds.variables]
+    missing = [n for n in ("time_edges", variable, "ray_count") if n not in ds.variables]
     if missing:
         raise ConfigError(f"has no {', '.join(missing)}; metrics need the time bins of a result "
                           "of `warpe-cl run` or the recorded signal of `warpe-cl instrument`")
@@ -370,8 +386,7 @@ def _surface(ds, after, variable, min_rays, resamples, seed):
     signal = ds[variable].transpose(..., "time")
     lead = signal.dims[:-1]
     s = np.nan_to_num(signal.values.astype(float)) * width
-    var = (np.nan_to_num(ds[f"{variable}_stderr"].transpose(..., "time").values.astype(float))
-           * width) ** 2
+    var = _bin_variances(ds, variable, signal, width)
     n = np.nan_to_num(ds["ray_count"].transpose(*lead, "time").values.astype(float))
     mean, mean_se, rms, rms_se = _moments(s, var, t)
     peak, peak_se = _peaks(s, n, lo, hi, min_rays, resamples, np.random.default_rng(seed))
@@ -459,7 +474,9 @@ def metrics(ds, after=(), *, stage: str | None = None, variable: str = "reflecta
     variable : str
         Surface: ``reflectance`` (inside the field of view, per sr: what an instrument sees) or
         ``hemispherical_reflectance`` (at any angle). ``ray_count`` counts the rays of
-        ``reflectance``: the peak's merging by ``min_rays`` uses it for either.
+        ``reflectance``: the peak's merging by ``min_rays`` uses it for either. A result with
+        no ``<variable>_stderr`` (``hemispherical_reflectance``) takes the Poisson errors of
+        its analog counts, var_i = s_i / ``photons``; a weighted one raises ConfigError.
     min_rays : int
         Rays (photon counting: recorded photons) each merged bin of the peak search holds at
         least.

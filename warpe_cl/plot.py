@@ -1,18 +1,20 @@
-"""Figures in the seed paper's style.
+"""Figures in the style of the paper (Barron et al. 2026, "Simulation of laser travel-time on
+Mercury for BELA").
 
 ``plot_waveform`` (drawn by ``waveform_figure``): log–log reflectance (ns⁻¹ sr⁻¹) against time
 (ns) of the diffuse components, one colour per scenario: scattering as solid lines, BF diffuse
 dashed; under each curve a shaded domain where a bin would hold fewer than ``MIN_RAYS`` rays
-(the Monte Carlo limit the seed shades), and the first back-and-forth time 2 h n_eff / c as a
+(the Monte Carlo limit the paper shades), and the first back-and-forth time 2 h n_eff / c as a
 dotted vertical line. The delta-like returns (the specular, which leaves at t = 0 before the
 first log bin, drawn at 1e-6 ns, and the BF-direct peaks) are drawn as markers on a secondary,
 right-hand axis as the fraction of the launched rays they hold, and the specular's fraction is
 written on the figure: divided by a bin width, their height would only measure that width
-(docs/interface.md §5.6). The left y-range is set by the diffuse curves alone. Up to
+(docs/interface.md §5.6). The left y-range is set by the diffuse curves alone, and both
+are raised where the legend would hide a curve or a marker. Up to
 ``MAX_CYCLE`` scenarios take the colour cycle and a legend entry each; more scenarios of one
 numeric swept key take a sequential colormap and a colour bar labelled with the key and unit.
 
-``plot_angular``: the seed's FOV figure: time-integrated angular reflectance of the
+``plot_angular``: the paper's FOV figure: time-integrated angular reflectance of the
 background scattering and the BF diffuse, with their numerical FOVs.
 
 ``select_scenarios``: the ``--scenarios`` selection of ``warpe-cl plot``.
@@ -26,7 +28,7 @@ import numpy as np
 from .errors import ConfigError
 from .units import same_quantity, split_quantity
 
-SPECULAR_TIME_NS = 1e-6   # the seed draws the t = 0 specular return at 1e-6 ns
+SPECULAR_TIME_NS = 1e-6   # the paper draws the t = 0 specular return at 1e-6 ns
 MIN_RAYS = 3              # the shaded Monte Carlo limit: fewer rays than this in a bin
 _FIRST = ("texture", "thickness")   # a swept block's entries shown first
 MAX_CYCLE = 6             # more scenarios of a numeric sweep: a colormap and a colour bar
@@ -266,6 +268,38 @@ def fit_legend(ax, legend, smallest: float = 5.5):
     return legend
 
 
+def clear_of_legend(legend, axes, margin: float = 0.03):
+    """Raise the upper limit of each log-y axis of ``axes`` until none of the points of its
+    data lines lies under ``legend`` (the legend, drawn in front with little transparency,
+    would hide them: a slab's BF-direct peak at 0.03 of the rays sat under the waveform
+    figure's legend). ``margin``: the gap kept below the legend, in axes height."""
+    fig = legend.figure
+    fig.draw_without_rendering()   # the final layout and legend size
+    for ax in axes:
+        to_axes = ax.transAxes.inverted()
+        box = legend.get_window_extent().transformed(to_axes)
+        bottom = box.y0 - margin
+        if bottom < 0.2:           # a legend as tall as the panel: nothing to gain
+            continue
+        highest = -np.inf
+        for line in ax.get_lines():
+            if line.get_transform() != ax.transData:   # axvline and the like
+                continue
+            xy = np.asarray(line.get_xydata(), dtype=float).reshape(-1, 2)
+            xy = xy[np.all(np.isfinite(xy), axis=1) & (xy[:, 1] > 0)]
+            if not len(xy):
+                continue
+            at = to_axes.transform(ax.transData.transform(xy))
+            under = ((at[:, 0] >= box.x0) & (at[:, 0] <= box.x1) & (at[:, 1] >= bottom)
+                     & (at[:, 1] <= 1.0))
+            if under.any():
+                highest = max(highest, float(np.log10(xy[under, 1].max())))
+        if np.isfinite(highest):
+            lo, hi = np.log10(ax.get_ylim())
+            ax.set_ylim(10 ** lo, 10 ** max(hi, lo + (highest - lo) / bottom))
+    return legend
+
+
 def delta_fractions(sc, comp: str):
     """Times (ns) and fractions of the launched rays of a delta-like return of one scenario.
 
@@ -314,7 +348,8 @@ def waveform_figure(ds, title: str | None = None):
         ``fig.axes[0]``: the diffuse reflectance (ns⁻¹ sr⁻¹), whose y-range the diffuse
         curves alone set; ``fig.axes[1]``: its twin, the fractions of the rays in the specular
         and BF-direct returns; a colour bar axis follows for a numeric sweep of more than
-        ``MAX_CYCLE`` scenarios.
+        ``MAX_CYCLE`` scenarios. Each y-range is raised where the legend would hide a point
+        (``clear_of_legend``).
     """
     plt = _pyplot()
     from matplotlib.patches import Patch
@@ -397,8 +432,9 @@ def waveform_figure(ds, title: str | None = None):
                          fontsize=7, color=colour)
     if bar is not None:
         fig.colorbar(bar[0], ax=[ax, frac_ax], label=bar[1], pad=0.02)
-    fit_legend(frac_ax, frac_ax.legend(handles, labels, fontsize=7, loc="upper right",
-                                       framealpha=0.85))
+    legend = fit_legend(frac_ax, frac_ax.legend(handles, labels, fontsize=7, loc="upper right",
+                                                framealpha=0.85))
+    clear_of_legend(legend, (ax, frac_ax))   # no curve nor marker hidden under the legend
     return fig
 
 
@@ -411,7 +447,7 @@ def plot_waveform(ds, path, title: str | None = None):
 
 
 def plot_angular(ds, path, title: str | None = None):
-    """The seed's FOV figure: angular reflectance (sr⁻¹) of the background scattering and the
+    """The paper's FOV figure: angular reflectance (sr⁻¹) of the background scattering and the
     BF diffuse against emergence, with the 12° and 3° numerical FOVs.
 
     Scenarios are coloured and labelled as in ``waveform_figure`` (a legend, or a colour bar for

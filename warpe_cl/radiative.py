@@ -172,7 +172,7 @@ def particle_albedo(n_rel: float, k_rel: float, absorption: float, diameter: flo
 
 
 def porosity_factor(compacity: float, texture: str) -> float:
-    """Close-packing factor C_γ (seed eqs. 1–2; docs/physics.md §4.2): −ln(1 − γ)/γ for a granular
+    """Close-packing factor C_γ (paper eqs. 1–2; docs/physics.md §4.2): −ln(1 − γ)/γ for a granular
     medium, ln(γ)/(γ − 1) for a slab (the granular form with the particle fraction 1 − γ).
     Its limit at a vanishing particle fraction is 1."""
     phi = compacity if texture == "granular" else 1.0 - compacity
@@ -194,7 +194,7 @@ def physical_parameters(cfg) -> dict:
     γ_c) and void pores. For each species i (relative proportion ρ_i, diameter d_i):
     N_i = φ ρ_i/(π d_i³/6) with φ the particle fraction, σ_i = Q_e π d_i²/4, w_i by Hapke's
     equivalent slab; E = C_γ Σ N_i σ_i + a_m, S = C_γ Σ N_i σ_i w_i, ω = S/E, τ0 = E h;
-    n_eff, k_eff by volume mixing (seed eqs. 5–6).
+    n_eff, k_eff by volume mixing (paper eqs. 5–6).
 
     Returns
     -------

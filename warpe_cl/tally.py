@@ -29,7 +29,7 @@ def fov_solid_angle(fov_deg: float, convention: str = "cone") -> float:
 def lobe_solid_angle(lobe_deg: float) -> float:
     """Ω_lobe = π tan²(θ_L), sr: the specular scaling of docs/physics.md §7.3.
 
-    The seed's peak height R = N_spec·r_ap/(N·Ω·Δt), with r_ap = (A_r/2)²/(H tan θ_L)² and Ω the
+    The paper's peak height R = N_spec·r_ap/(N·Ω·Δt), with r_ap = (A_r/2)²/(H tan θ_L)² and Ω the
     receiver's solid angle π(A_r/2)²/H² seen from the ground, is F/(Ω_lobe·Δt): the altitude H
     and the aperture A_r cancel (docs/physics.md A9). 5.98e-5 sr for θ_L = 0.25°.
     """

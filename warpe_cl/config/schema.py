@@ -124,7 +124,7 @@ SCHEMA: list[Field] = [
             "diffraction peak of packed or embedded particles is dropped; 2 counts it)."),
     _F("medium.matrix_absorption", "choice", "seed", choices=("seed", "volume_weighted"),
        help="Slab, physical form: the matrix absorption a_m = 4 pi k / lambda enters the "
-            "extinction as in the seed (seed), or weighted by the matrix volume fraction "
+            "extinction as in the paper (seed, the name of that rule), or weighted by the matrix volume fraction "
             "gamma_c (volume_weighted; docs/physics.md A5)."),
     _F("medium.inclusion_absorption", "choice", "absolute", choices=("absolute", "relative"),
        help="Physical form: the absorption inside an inclusion uses its own k (absolute, "
@@ -241,7 +241,7 @@ SCHEMA: list[Field] = [
             "reflectances (docs/physics.md §7.3)."),
     _F("simulation.mode", "choice", "analog", choices=("analog", "weighted"),
        help="Monte Carlo scheme: analog (every ray carries weight 1 and is absorbed or not; "
-            "the seed's scheme, with its 3-ray threshold) or weighted (survival weighting: "
+            "the paper's scheme, with its 3-ray threshold) or weighted (survival weighting: "
             "absorption applied as exp(-(1 - omega) E L) along the path and A at the floor, "
             "Russian roulette below simulation.roulette_weight; reaches deep tails, "
             "docs/walk.md §6)."),
@@ -324,7 +324,7 @@ def canonical(field: Field, value):
 DEFAULTS = {f.key: canonical(f, f.default) for f in SCHEMA if f.kind in SCALAR_KINDS}
 
 #: Keys a sweep may name: every scalar, whole inclusion lists, and whole media (a list of
-#: medium blocks: cases that differ in more than one key, such as the seed's BELA figure).
+#: medium blocks: cases that differ in more than one key, such as the paper's BELA figure).
 #: Instrument keys may be swept too (each scenario then has its own instrument).
 SWEEPABLE = tuple(f.key for f in SCHEMA
                   if (f.kind in SCALAR_KINDS or f.kind == "list")

@@ -20,7 +20,7 @@ module              stage
 ``photon_counting`` §3.9 ATLAS branch with dead time
 ``chain``           the stages in order, one scenario; per-shot random generators
 ``output``          the output Dataset
-``plot``            the seed's three-panel BELA figure
+``plot``            the paper's three-panel BELA figure
 ==================  ==========================================================================
 """
 from __future__ import annotations

@@ -19,7 +19,7 @@ def beam_sigma(divergence_full_deg: float) -> float:
 
 
 def half_angle(divergence_full_deg: float) -> float:
-    """Beam half-angle δ, rad (the seed's δ: 30 µrad for BELA, docs/instrument.md §1 item 1)."""
+    """Beam half-angle δ, rad (the paper's δ: 30 µrad for BELA, docs/instrument.md §1 item 1)."""
     return math.radians(divergence_full_deg) / 2.0
 
 
@@ -29,7 +29,7 @@ def slant_range(altitude_m: float, pointing_deg: float) -> float:
 
 
 def footprint_radius(altitude_m: float, half_angle_rad: float) -> float:
-    """Radius a = 2 H tan δ of the flat-surface specular spot at the receiver, m (seed eq. 7):
+    """Radius a = 2 H tan δ of the flat-surface specular spot at the receiver, m (paper eq. 7):
     24.0 m at 400 km and 84.0 m at 1400 km for BELA's δ = 30 µrad."""
     return 2.0 * altitude_m * math.tan(half_angle_rad)
 

@@ -74,7 +74,7 @@ SCHEMA: list[Field] = [
     _P("geometry.bf_lobe_factor", "float", 1.0, low=0.0,
        help="BF-direct lobe half-angle relative to the specular lobe"),
     _P("geometry.lobe_model", "choice", "uniform_cone", choices=("uniform_cone", "gaussian"),
-       help="uniform_cone (seed eqs. 7-11) or gaussian (docs/instrument.md §3.4 option 2)"),
+       help="uniform_cone (paper eqs. 7-11) or gaussian (docs/instrument.md §3.4 option 2)"),
     _P("geometry.atmosphere_transmission", "float", 1.0, low=0.0, high=1.0,
        help="one-way T_atm"),
     # §3.5 background

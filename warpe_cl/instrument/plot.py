@@ -1,14 +1,18 @@
-"""The seed's BELA figure (Barron et al. 2026, fig. WARPE_BELA) from instrument results.
+"""The paper's BELA figure (Barron et al. 2026, fig. WARPE_BELA) from instrument results.
 
 Three panels, one colour per case: (top) the surface response of a perfect instrument, log–log,
 diffuse R_d (ns⁻¹ sr⁻¹) as a line, the specular (drawn at 1e-6 ns) and BF-direct returns as
 markers on the right-hand axis, as the fraction of the rays they hold (docs/interface.md §5.6);
+cases with the same surface result (they differ only in the instrument: the BELA figure's
+perfect slab and the same slab with 0.01° of roughness, since roughness acts only in the
+chain) share one curve and one legend entry that says so;
 (middle) the received reflectance, ``received_reflectance``: the surface response seen through
 the pulse and the footprint kernel (ns⁻¹ sr⁻¹; specular and BF-direct scaled by their aperture
 fraction), log scale, the expected photons at the aperture per shot in the legend;
 (bottom) the sampled electric signal: the noiseless analog voltage clipped at saturation
 (line), the recorded samples of one shot (dots, at their true sampling times) and the
-saturation voltage (dotted). Photon counting (ATLAS): the histogram of time tags over all shots
+saturation voltage (dotted); the unclipped shape scaled under saturation (dashed), whose
+legend entry names the case whose identical shape it is drawn over. Photon counting (ATLAS): the histogram of time tags over all shots
 against the expected photoelectrons.
 """
 from __future__ import annotations
@@ -22,6 +26,61 @@ def cases_of(ds) -> list:
     """(label, single-scenario Dataset) for each scenario of an instrument result."""
     from ..plot import _scenarios
     return list(_scenarios(ds))
+
+
+#: Attributes of an instrument result that are provenance, not parameters of the chain.
+_PROVENANCE = {"instrument_" + k for k in ("source", "warpe_cl_version", "created_utc",
+                                           "numpy_version", "host", "command", "seed", "shots")}
+
+
+def _same_surface(a, b) -> bool:
+    """Whether two cases hold the same surface result (the same rays, whatever instrument)."""
+    if a["time"].shape != b["time"].shape or not np.array_equal(a["time"].values,
+                                                                 b["time"].values):
+        return False
+    return all(np.array_equal(np.asarray(a[v].values), np.asarray(b[v].values), equal_nan=True)
+               for v in ("reflectance", "early_fraction", "ray_count", "photons")
+               if v in a.variables or v in b.variables)
+
+
+def surface_groups(cases) -> list:
+    """The cases (label, Dataset) grouped by surface result: a list of lists of case indices,
+    in order of first appearance. Cases that differ only in the instrument (the BELA figure's
+    perfect slab and the same slab with 0.01° of roughness: roughness acts only in the chain)
+    share one surface response, which the top panel draws once."""
+    groups = []
+    for i, (_, sc) in enumerate(cases):
+        for group in groups:
+            if _same_surface(cases[group[0]][1], sc):
+                group.append(i)
+                break
+        else:
+            groups.append([i])
+    return groups
+
+
+def _instrument_differences(datasets) -> list:
+    """The instrument parameters (``geometry.roughness``) whose values differ between results
+    of the chain, read from their ``instrument_*`` attributes."""
+    from .params import SECTIONS
+    names = sorted({k for ds in datasets for k in ds.attrs
+                    if k.startswith("instrument_") and k not in _PROVENANCE})
+    out = []
+    for name in names:
+        if len({str(ds.attrs.get(name)) for ds in datasets}) > 1:
+            key = name[len("instrument_"):]
+            section = next((x for x in SECTIONS if key.startswith(x + "_")), None)
+            out.append(f"{section}.{key[len(section) + 1:]}" if section else key)
+    return out
+
+
+def _shared_label(cases, group) -> str:
+    """The top panel's legend label of a surface response shared by several cases."""
+    labels = " = ".join(cases[i][0] for i in group)
+    keys = _instrument_differences([cases[i][1] for i in group])
+    what = (" and ".join(keys) + " acts" if len(keys) == 1 else
+            " and ".join(keys) + " act" if keys else "they differ")
+    return f"{labels}:\none surface response ({what} only in the instrument chain)"
 
 
 def _xlim(cases):
@@ -68,7 +127,7 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
         one numeric swept key (colours from viridis), the colour bar. Every legend lies inside
         its panel.
     """
-    from ..plot import _colours, _pyplot, delta_fractions, fit_legend
+    from ..plot import _colours, _pyplot, clear_of_legend, delta_fractions, fit_legend
     plt = _pyplot()
     bar = None
     if not isinstance(cases, list):
@@ -79,23 +138,35 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
     else:
         cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
         colours = [cycle[i % len(cycle)] for i in range(len(cases))]
+    from matplotlib.legend_handler import HandlerTuple
     fig, axes = plt.subplots(3, 1, figsize=(8.5, 11), constrained_layout=True)
     top, mid, bot = axes
     frac_ax = top.twinx()
     lows, highs, fractions = [], [], []
     sat = None
+    shared = {g[0]: g for g in surface_groups(cases) if len(g) > 1}   # first case -> group
+    following = {i for g in shared.values() for i in g[1:]}
+    top_handles, top_labels = [], []
+    shapes = []   # (label, the unclipped shape scaled under saturation) drawn so far
     for i, (label, sc) in enumerate(cases):
         colour = colours[i]
-        # top: the surface response
+        style = dict(color=colour, lw=1.3, marker=".", ms=3, ls=("-", "--", ":")[i % 3])
+        # top: the surface response, drawn once for the cases that share it
         t = sc["time"].values
         rd = sum(sc["reflectance"].sel(component=c).values for c in ("scattering", "bf_diffuse"))
-        if np.any(rd > 0):
-            top.plot(t, np.where(rd > 0, rd, np.nan), color=colour, lw=1.3, label=label,
-                     marker=".", ms=3, ls=("-", "--", ":")[i % 3])
-            lows.append(np.nanmin(np.where(rd > 0, rd, np.nan)))
-            highs.append(rd.max())
-        else:
-            top.plot([], [], color=colour, lw=1.3, label=label)
+        if i not in following:
+            line, = top.plot(t, np.where(rd > 0, rd, np.nan), **style)
+            if np.any(rd > 0):
+                lows.append(np.nanmin(np.where(rd > 0, rd, np.nan)))
+                highs.append(rd.max())
+            if i in shared:   # one entry, a line per case in its colour and style
+                top_handles.append(tuple(
+                    plt.Line2D([], [], **dict(style, color=colours[k], ls=("-", "--", ":")[k % 3]))
+                    for k in shared[i]))
+                top_labels.append(_shared_label(cases, shared[i]))
+            else:
+                top_handles.append(line)
+                top_labels.append(label)
         for comp, marker in (("specular", "o"), ("bf_direct", "^")):
             tt, ff = delta_fractions(sc, comp)
             if ff.size:
@@ -113,14 +184,21 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
             base = float(sc["baseline_mv"])
             top_mv = analog.max() - base
             k = 0.9 * (sat - base) / top_mv if top_mv > 0 else None
+            shape = base + (analog - base) * k if k else None
+            # a scaled shape that another case's hides (the same surface, another gain) says so
+            under = next((other for other, drawn in shapes
+                          if drawn.shape == shape.shape and np.allclose(drawn, shape, rtol=1e-3,
+                                                                        atol=1e-3 * sat)),
+                         None) if k else None
             bot.plot(sc["fine_time"].values, np.minimum(analog, sat), color=colour, lw=1.3,
                      label=f"{label}: unclipped peak {analog.max():.4g} mV"
-                           + (f", shape x {k:.2g}" if k else ""))
+                           + (f", shape x {k:.2g}" if k else "")
+                           + (f"\n(dashed: the same shape as {under}, drawn over it)" if under else ""))
             at = sc["sample_time"].values + float(sc["sampling_phase"].values[shot])
             bot.plot(at, sc["signal_mv"].values[shot], ls="none", marker="o", ms=4, color=colour)
             if k:
-                bot.plot(sc["fine_time"].values, base + (analog - base) * k, color=colour, ls="--",
-                         lw=0.9)
+                bot.plot(sc["fine_time"].values, shape, color=colour, ls="--", lw=0.9)
+                shapes.append((label, shape))
         else:
             shots = sc.sizes["shot"]
             hist = sc["signal_counts"].values.sum(axis=0)
@@ -169,8 +247,10 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
         if ax is not top:
             fit_legend(ax, ax.legend(fontsize=7, loc="upper right", framealpha=0.85))
     if bar is None:
-        fit_legend(frac_ax, frac_ax.legend(*top.get_legend_handles_labels(), fontsize=7,
-                                           loc="upper right", framealpha=0.85))   # over markers
+        legend = fit_legend(frac_ax, frac_ax.legend(
+            top_handles, top_labels, fontsize=7, loc="upper right", framealpha=0.85,
+            handler_map={tuple: HandlerTuple(ndivide=None, pad=0.4)}))   # over the markers
+        clear_of_legend(legend, (top, frac_ax))
     else:
         fig.colorbar(bar[0], ax=list(axes), label=bar[1], pad=0.02, shrink=0.6)
     fig.suptitle(title or "")

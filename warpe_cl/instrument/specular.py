@@ -1,10 +1,10 @@
 """Specular and BF-direct returns: the fraction κ of the reflected beam that hits the aperture,
-docs/instrument.md §3.4 and docs/physics.md §7.3 (seed eqs. 7–11).
+docs/instrument.md §3.4 and docs/physics.md §7.3 (paper eqs. 7–11).
 
 WARPE hands over the fractions f_spec, f_BF (per launched ray) and their delays; the instrument
 turns each into photons at the aperture, E_t η_t T² f κ / (hν), here, in one place.
 
-uniform_cone (the seed's rule): the reflected light fills a cone. A flat surface returns the beam
+uniform_cone (the paper's rule): the reflected light fills a cone. A flat surface returns the beam
 itself, a spot of radius a = 2R tan δ (δ the half-angle, 30 µrad for BELA); a facet-rough surface
 spreads it into a lobe of half-angle θ_L, a spot of radius a_spec = R tan θ_L. The spot is the
 larger of the two; its centre moves by 2R tan θ_tilt, and
