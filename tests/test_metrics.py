@@ -301,3 +301,18 @@ def test_reproduce_paper_metrics_table(tmp_path):
     assert [r["preset"] for r in table] == ["a", "a", "b", "b"]
     assert [r["mean_delay_ns"] for r in table][2:] == ["9", "9"]
     assert list(table[0]) == list(rp.METRICS_COLUMNS)
+
+
+def test_peak_of_a_late_return_on_log_bins():
+    """All rays in 10-30 ns, on log bins from 1e-6 ns: the merging starts at the first bin that
+    holds a ray, so the peak lies inside the return (it fell at the geometric middle of the
+    empty span, ~0.3 ns, when the first merged bin began at 1e-6 ns)."""
+    from warpe_cl.metrics import _peak
+    edges = np.logspace(-6, 5, 221)
+    lo, hi = edges[:-1], edges[1:]
+    centre = np.sqrt(lo * hi)
+    n = np.where((centre > 10) & (centre < 30), 150.0, 0.0)
+    n[(centre > 15) & (centre < 20)] = 600.0
+    s = n.copy()                          # what each bin holds: one unit per ray
+    peak = _peak(s, n, lo, hi, 100)
+    assert 10.0 < peak < 30.0

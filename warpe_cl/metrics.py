@@ -33,7 +33,7 @@ S^2 with a_i = 1 after the time, 0 before. For n rays drawn from one distributio
 sigma^2/n, (mu_4 - sigma^4)/(4 sigma^2 n) and f(1 - f)/n.
 
 The peak is robust to the 1-2 rays a fine bin holds: consecutive bins are merged, from the
-first, until each merged bin holds at least ``min_rays`` rays (``ray_count``; the remainder
+first bin holding a ray to the last, until each merged bin holds at least ``min_rays`` rays (``ray_count``; the remainder
 joins the last), and the peak is the centre (geometric mean of its edges, or the arithmetic
 mean from 0) of the merged bin of largest s / width; with fewer than two merged bins (fewer
 than 2 ``min_rays`` rays in all) there is no peak (NaN). Its standard error is the standard
@@ -159,19 +159,26 @@ def _fraction_after(s, var, lo, after):
 
 
 def _peak(s, n, lo, hi, min_rays):
-    """Centre of the merged bin of largest density, one waveform (1-D arrays)."""
+    """Centre of the merged bin of largest density, one waveform (1-D arrays). The merging
+    runs from the first bin holding a ray to the last: empty bins before and after the
+    waveform would widen its first and last merged bins (a late return on log bins from 1e-6 ns
+    would peak at the middle of the axis)."""
+    held_any = np.flatnonzero(n > 0)
+    if held_any.size == 0:
+        return np.nan
+    first, end = int(held_any[0]), int(held_any[-1]) + 1
     groups = []
-    start, held = 0, 0.0
-    for i, count in enumerate(n):
-        held += count
+    start, held = first, 0.0
+    for i in range(first, end):
+        held += n[i]
         if held >= min_rays:
             groups.append((start, i + 1))
             start, held = i + 1, 0.0
-    if start < len(n):
+    if start < end:
         if groups and held < min_rays:
-            groups[-1] = (groups[-1][0], len(n))
+            groups[-1] = (groups[-1][0], end)
         else:
-            groups.append((start, len(n)))
+            groups.append((start, end))
     if len(groups) < 2 or not np.any(s > 0):     # one merged bin spans the record: no peak
         return np.nan
     density = [s[a:b].sum() / (hi[b - 1] - lo[a]) for a, b in groups]
