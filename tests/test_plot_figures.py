@@ -261,11 +261,13 @@ def _nothing_under_legends(fig):
                 assert not hidden, (ax.get_title(), line.get_label(), hidden[:3])
 
 
+@pytest.mark.slow
 def test_no_curve_or_marker_under_the_legend(single, many):
     _nothing_under_legends(waveform_figure(single))
     _nothing_under_legends(waveform_figure(many.isel(scenario=[0, 1, 2])))
 
 
+@pytest.mark.slow
 def test_instrument_figure_one_curve_per_surface_result(single):
     """Cases that differ only in the instrument (a flat and a rough slab: roughness acts only
     in the chain) share one surface response: the top panel draws it once, with one legend
