@@ -36,27 +36,43 @@ inline uint4 philox4x32_10(uint4 ctr, uint2 key)
 inline void philox_lanes(VUINT c0, VUINT c1, VUINT c2, uint c3w, uint k0, uint k1,
                          VUINT *x0, VUINT *x1, VUINT *x2, VUINT *x3)
 {
-    VUINT c3 = (VUINT)c3w;
+#if WARPE_LANES > 1
+    /* CPUs: each 32-bit word rides in the low half of a 64-bit lane for all ten rounds, so one
+     * 32x32 -> 64-bit vector product (vpmuludq, which reads only the low halves) gives both
+     * halves of a product with no conversion between rounds: a word's high half may hold
+     * garbage (the lo words are whole products), and only the low halves are kept at the end.
+     * The same words as mul_hi and a 32-bit multiply; 1.17x (Intel's runtime) and 1.25x (PoCL)
+     * the events/s of the whole walk on B1 against converting to and from 64 bits in every
+     * round (docs/performance.md, issue 13), which was itself 14 % faster than mul_hi on PoCL. */
+    const VULONG low = (VULONG)0xFFFFFFFFul;
+    VULONG d0 = CONVERT_VULONG(c0), d1 = CONVERT_VULONG(c1), d2 = CONVERT_VULONG(c2);
+    VULONG d3 = (VULONG)(ulong)c3w;
     for (int round = 0; round < 10; ++round) {
         if (round > 0) {
             k0 += PHILOX_W0;
             k1 += PHILOX_W1;
         }
-#if WARPE_LANES > 1
-        /* CPUs: one 32x32 -> 64-bit vector product (vpmuludq) gives both halves; measured
-         * 14 % faster on the whole walk than mul_hi plus a 32-bit multiply */
-        VULONG p0 = CONVERT_VULONG(c0) * (ulong)PHILOX_M0, p1 = CONVERT_VULONG(c2) * (ulong)PHILOX_M1;
-        VUINT hi0 = CONVERT_VUINT(p0 >> 32), lo0 = CONVERT_VUINT(p0);
-        VUINT hi1 = CONVERT_VUINT(p1 >> 32), lo1 = CONVERT_VUINT(p1);
+        VULONG p0 = (d0 & low) * (ulong)PHILOX_M0, p1 = (d2 & low) * (ulong)PHILOX_M1;
+        VULONG n0 = (p1 >> 32) ^ d1 ^ (ulong)k0, n2 = (p0 >> 32) ^ d3 ^ (ulong)k1;
+        d0 = n0; d1 = p1; d2 = n2; d3 = p0;
+    }
+    *x0 = CONVERT_VUINT(d0); *x1 = CONVERT_VUINT(d1); *x2 = CONVERT_VUINT(d2);
+    *x3 = CONVERT_VUINT(d3);
 #else
-        /* GPUs: mul_hi is one native instruction */
-        VUINT hi0 = mul_hi((VUINT)PHILOX_M0, c0), lo0 = (VUINT)PHILOX_M0 * c0;
-        VUINT hi1 = mul_hi((VUINT)PHILOX_M1, c2), lo1 = (VUINT)PHILOX_M1 * c2;
-#endif
-        VUINT n0 = hi1 ^ c1 ^ k0, n2 = hi0 ^ c3 ^ k1;
+    /* GPUs: mul_hi is one native instruction */
+    uint c3 = c3w;
+    for (int round = 0; round < 10; ++round) {
+        if (round > 0) {
+            k0 += PHILOX_W0;
+            k1 += PHILOX_W1;
+        }
+        uint hi0 = mul_hi(PHILOX_M0, c0), lo0 = PHILOX_M0 * c0;
+        uint hi1 = mul_hi(PHILOX_M1, c2), lo1 = PHILOX_M1 * c2;
+        uint n0 = hi1 ^ c1 ^ k0, n2 = hi0 ^ c3 ^ k1;
         c0 = n0; c1 = lo1; c2 = n2; c3 = lo0;
     }
     *x0 = c0; *x1 = c1; *x2 = c2; *x3 = c3;
+#endif
 }
 
 /* Philox words to uniforms U = (x + 1/2) 2^-32 in (0, 1], lane by lane (see uniform below). */

@@ -4,8 +4,9 @@
  * The rules, event by event, are docs/walk.md (cited "walk.md §N" below); the physics behind
  * them is docs/physics.md §5-§6, which walk.md cites rule by rule ("docs/physics.md §N" below).
  * Structure switches (-D): WARPE_TEXTURE_SLAB or WARPE_TEXTURE_GRANULAR (exactly one),
- * WARPE_DOUBLE (precision), WARPE_LANES (photons per work-item), WARPE_WEIGHTED (survival
- * weighting, walk.md §6), WARPE_RECORD (one record per photon, for the parity tests); the
+ * WARPE_DOUBLE (precision), WARPE_LANES (photons per work-item), WARPE_POOL (photons a
+ * work-item takes ahead, pool_t), WARPE_WEIGHTED (survival weighting, walk.md §6),
+ * WARPE_RECORD (one record per photon, for the parity tests); the
  * layouts the host reads back come as -D macros too (tally.h). Every physical value is a
  * kernel argument, so a new scenario never recompiles.
  *
@@ -189,30 +190,46 @@ WALK_STEP VMASK floor_toll(VMASK m, VREAL u, VUINT x, const scene_t *sc, rays_t 
 #endif
 }
 
-/* Every lane without a ray takes the next photon of the launch from the counter next_photon
- * (walk.md §5), launched at the top of the layer, straight down, with nothing done yet
- * (walk.md §3 step 1, docs/physics.md §5.1). Sets *exhausted once the launch has no photon
- * left. */
-WALK_STEP void refill_lanes(rays_t *r, int *exhausted, __global uint *next_photon,
+/* A work-item's photons of the launch taken from the counter next_photon but not yet
+ * walked: [next, end). A work-item takes photons WARPE_POOL at a time beyond those it wants
+ * (walk.md §5), so that its lanes rarely wait on the launch-wide atomic counter, whose cache
+ * line the cores pass to and fro; parked with the rays when the launch's budget is spent. */
+typedef struct {
+    uint next, end;
+} pool_t;
+
+/* Every lane without a ray takes the next photon of the work-item's pool (refilled from the
+ * launch's counter next_photon: walk.md §5), launched at the top of the layer, straight down,
+ * with nothing done yet (walk.md §3 step 1, docs/physics.md §5.1). Sets *exhausted once the
+ * launch has no photon left. */
+WALK_STEP void refill_lanes(rays_t *r, pool_t *pool, int *exhausted, __global uint *next_photon,
                          uint n_photons, uint base_lo, uint base_hi, IREAL phase_start)
 {
     IREAL a[WARPE_LANES], p[WARPE_LANES];
     VSTORE(r->alive, a);
     uint wanted = 0;
-    for (int j = 0; j < WARPE_LANES; ++j)
-        wanted += a[j] ? 0u : 1u;
-    uint next = atomic_add(next_photon, wanted);
     for (int j = 0; j < WARPE_LANES; ++j) {
+        wanted += a[j] ? 0u : 1u;
         p[j] = 0;
+    }
+    for (int j = 0; j < WARPE_LANES; ++j) {
         if (a[j])
             continue;
-        if (next < n_photons) {
-            p[j] = (IREAL)next;
-            a[j] = (IREAL)-1;    /* "true" in both mask conventions (lanes.h) */
-            next += 1;
-        } else {
-            *exhausted = 1;
+        if (pool->next == pool->end) {
+            /* the pool is empty: the photons still wanted and WARPE_POOL more */
+            const uint take = wanted + WARPE_POOL;
+            const uint first = atomic_add(next_photon, take);
+            pool->next = min(first, n_photons);
+            pool->end = first < n_photons ? min(first + take, n_photons) : n_photons;
+            if (pool->next == pool->end) {
+                *exhausted = 1;
+                break;
+            }
         }
+        p[j] = (IREAL)pool->next;
+        a[j] = (IREAL)-1;        /* "true" in both mask conventions (lanes.h) */
+        pool->next += 1;
+        wanted -= 1;
     }
     const VMASK fresh = VLOAD(a) & !r->alive;
     r->alive |= fresh;
@@ -355,12 +372,14 @@ WALK_STEP void resume_lanes(rays_t *r, const carry_t *cy, int *resuming)
     rows_to_rays(&l, r);
 }
 
-/* The live lanes' rays into rows of the park buffer, for the next launch (walk.md §5). */
-WALK_STEP void park_lanes(const rays_t *r, const carry_t *cy)
+/* The live lanes' rays, then the photons left in the work-item's pool as new rays, into rows
+ * of the park buffer, for the next launch (walk.md §5). */
+WALK_STEP void park_lanes(const rays_t *r, const pool_t *pool, const carry_t *cy, uint base_lo,
+                       uint base_hi, IREAL phase_start)
 {
     lane_rows_t l;
     rays_to_rows(r, &l);
-    uint count = 0;
+    uint count = pool->end - pool->next;
     for (int j = 0; j < WARPE_LANES; ++j)
         count += l.alive[j] ? 1u : 0u;
     if (count == 0)
@@ -392,6 +411,26 @@ WALK_STEP void park_lanes(const rays_t *r, const carry_t *cy)
         ri[STATE_P_LO] = l.p_lo[j];
         ri[STATE_P_HI] = l.p_hi[j];
         row += 1;
+    }
+    for (uint q = pool->next; q < pool->end; ++q, ++row) {
+        __global REAL *rr = cy->park_real + N_STATE_REAL * (size_t)row;
+        __global uint *ri = cy->park_int + N_STATE_INT * (size_t)row;
+        rr[STATE_Z] = (REAL)0;
+        rr[STATE_UX] = (REAL)0;
+        rr[STATE_UY] = (REAL)0;
+        rr[STATE_UZ] = (REAL)1;
+        rr[STATE_LS] = (REAL)0;
+        rr[STATE_LC] = (REAL)0;
+        rr[STATE_W] = (REAL)1;
+        ri[STATE_FLIGHTS] = 0;
+        ri[STATE_N_SCAT] = 0;
+        ri[STATE_N_LAMB] = 0;
+        ri[STATE_N_BSPEC] = 0;
+        ri[STATE_N_TOP] = 0;
+        ri[STATE_PHASE] = (uint)phase_start;
+        ri[STATE_EVENT] = 0;
+        ri[STATE_P_LO] = base_lo + q;          /* as refill_lanes numbers a photon */
+        ri[STATE_P_HI] = base_lo + q < base_lo ? base_hi + 1u : base_hi;
     }
 }
 
@@ -658,8 +697,8 @@ __kernel void walk(const uint seed, const ulong scenario,
                    __global const REAL *resume_real, /* [resume_count][N_STATE_REAL] */
                    __global const uint *resume_int,  /* [resume_count][N_STATE_INT] */
                    __global uint *parked,        /* [1] rays parked by this launch (starts at 0) */
-                   __global REAL *park_real,     /* [global size x lanes][N_STATE_REAL] */
-                   __global uint *park_int,      /* [global size x lanes][N_STATE_INT] */
+                   __global REAL *park_real,     /* [items x (lanes + WARPE_POOL)][N_STATE_REAL] */
+                   __global uint *park_int,      /* [items x (lanes + WARPE_POOL)][N_STATE_INT] */
                    __global uint *time_in_fov,   /* [N_COMPONENTS][n_edges - 1] */
                    __global uint *time_any,      /* [N_COMPONENTS][n_edges - 1] */
                    __global uint *angular,       /* [N_COMPONENTS][N_EMERGENCE] */
@@ -719,19 +758,20 @@ __kernel void walk(const uint seed, const ulong scenario,
     stats_t st = {{0}, 0, 0, 0};
     rays_t r = no_rays(phase_start);
     int exhausted = 0, resuming = resume_count > 0;
+    pool_t pool = {0, 0};
     uint events = 0;
 
     for (;;) {
         /* the launch's event budget spent: park the rays still walking (walk.md §5) */
         if (events == event_budget) {
-            park_lanes(&r, &carry);
+            park_lanes(&r, &pool, &carry, base_lo, base_hi, phase_start);
             break;
         }
         if (!exhausted && !ALL(r.alive)) {
             if (resuming)
                 resume_lanes(&r, &carry, &resuming);
             if (!ALL(r.alive))
-                refill_lanes(&r, &exhausted, next_photon, n_photons, base_lo, base_hi,
+                refill_lanes(&r, &pool, &exhausted, next_photon, n_photons, base_lo, base_hi,
                              phase_start);
         }
         if (!ANY(r.alive))

@@ -35,6 +35,15 @@ MAX_EVENT_BUDGET = 2 ** 32 - 1
 LANE_WIDTHS = (1, 2, 4, 8, 16)
 
 
+def photon_pool(lanes: int) -> int:
+    """Photons a work-item takes from the launch's counter beyond those its empty lanes want
+    (``WARPE_POOL``, cl/walk.cl ``pool_t``; docs/walk.md §5): as many as its lanes on CPUs, so
+    that most refills need no atomic on the counter, whose cache line the cores pass to and
+    fro (B1 1.06x; 16, 32 and 64 photons measured the same); none with one lane (GPUs: a
+    million work-items would hoard photons and park them). Results never depend on it."""
+    return lanes if lanes > 1 else 0
+
+
 def layout_options() -> tuple:
     """The ``-D`` macros of the layouts the host and the kernel share
     (:func:`warpe_cl.params.kernel_layout`), the same in every build."""
@@ -43,13 +52,14 @@ def layout_options() -> tuple:
 
 def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
                   weighted: bool = False) -> tuple:
-    """The ``-D`` switches of the walk kernel: its structure (texture, lane width, precision,
-    per-photon records, weighted mode), then the shared layouts of :func:`layout_options`.
+    """The ``-D`` switches of the walk kernel: its structure (texture, lane width and the
+    photon pool that goes with it, precision, per-photon records, weighted mode), then the
+    shared layouts of :func:`layout_options`.
     No physical value is compiled in."""
     if lanes not in LANE_WIDTHS:
         raise ValueError(f"lanes must be one of {LANE_WIDTHS}, got {lanes}")
     opts = ["-DWARPE_TEXTURE_SLAB" if texture == "slab" else "-DWARPE_TEXTURE_GRANULAR",
-            f"-DWARPE_LANES={lanes}"]
+            f"-DWARPE_LANES={lanes}", f"-DWARPE_POOL={photon_pool(lanes)}"]
     if precision == "double":
         opts.append("-DWARPE_DOUBLE")
     if records:
@@ -374,8 +384,9 @@ class Engine:
         hist = [a.name for a in args if a.name in HISTOGRAMS]
         weights = [a.name for a in args if a.only == "weighted"]
         itemsize = np.dtype(real).itemsize
-        # every lane of every work-item may park a ray at the end of a launch
-        capacity = gsize * lanes
+        # every lane of every work-item may park a ray at the end of a launch, and so may every
+        # photon left in its pool
+        capacity = gsize * (lanes + photon_pool(lanes))
         # the buffers, by kernel argument: uint32 histograms; weighted sums in FIXED_WORDS
         # uint64 words per cell (cl/tally.h); the statistics of every work-item; the counters
         counters = ("next_photon", "next_resume", "parked")
@@ -444,8 +455,10 @@ class Engine:
             kern(queue, (launch_items,), (local_size,) if local_size else None,
                  *argument_values(args, params, launch, real))
             taken, parked = np.empty(1, np.uint32), np.empty(1, np.uint32)
+            resumed = np.empty(1, np.uint32)
             cl.enqueue_copy(queue, taken, buffers["next_photon"])
             cl.enqueue_copy(queue, parked, buffers["parked"])
+            cl.enqueue_copy(queue, resumed, buffers["next_resume"])
             part = Counts(n_time=n_time, weighted=weighted)
             for name in hist:
                 host = np.empty(shapes[name], dtype=np.uint32)
@@ -467,9 +480,10 @@ class Engine:
             took = min(int(taken[0]), n)
             part.photons = took
             total += part
-            budget_spent = int(parked[0]) > 0 or took < n
             handed += took
-            carried = int(parked[0])
+            carried = _carry_unresumed(queue, carry, carried, int(resumed[0]), int(parked[0]),
+                                       itemsize)
+            budget_spent = carried > 0 or took < n
             carry.reverse()
             if progress is not None:
                 progress(handed - carried)
@@ -483,6 +497,25 @@ class Engine:
             total.records = _read_records(queue, records_of_walk, photons, real)
         self.last_walk_s = time.perf_counter() - t_walk
         return total
+
+
+def _carry_unresumed(queue, carry: list, count: int, taken: int, parked: int,
+                     itemsize: int) -> int:
+    """The rays to resume in the next launch: the ``parked`` rows of this launch (in
+    ``carry[1]``) and, after them, the rows of ``carry[0]`` that this launch did not resume
+    (``count`` rows, the first ``taken`` of them taken). A launch parks the photons left in its
+    work-items' pools as well as its rays (cl/walk.cl ``pool_t``), so the next launch may get
+    more rows than it has lanes; rows are left over only where no lane had room before the
+    budget was spent, so no work-item took a new photon and the two together are no more rows
+    than the buffers hold (docs/walk.md §5)."""
+    left = count - min(taken, count)
+    if left:
+        import pyopencl as cl
+        for buf, width in ((0, itemsize * len(STATE_REAL_COLUMNS)),
+                           (1, 4 * len(STATE_INT_COLUMNS))):
+            cl.enqueue_copy(queue, carry[1][buf], carry[0][buf], byte_count=width * left,
+                            src_offset=width * (count - left), dst_offset=width * parked)
+    return parked + left
 
 
 def _exact_sums(words: np.ndarray) -> np.ndarray:
