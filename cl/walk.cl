@@ -51,7 +51,6 @@ typedef struct {
 typedef struct {
     VREAL z, ux, uy, uz;         /* depth (m, 0 at the top, downwards) and direction */
     VREAL Ls, Lc;                /* path length L (m) and, in single precision, its Kahan carry */
-    VREAL cos_exit;              /* cos theta_e of an exit */
     VMASK flights, n_scat, n_lamb, n_bspec, n_top;   /* the counters of walk.md §3 */
     VMASK phase;                 /* PHASE_ENTRY, PHASE_FLIGHT or PHASE_GAP: the next event */
     VMASK event;                 /* the next event's Philox block (walk.md §2) */
@@ -72,7 +71,6 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
     r.uz = (VREAL)1;
     r.Ls = (VREAL)0;
     r.Lc = (VREAL)0;
-    r.cos_exit = (VREAL)1;
     r.flights = (VMASK)0;
     r.n_scat = (VMASK)0;
     r.n_lamb = (VMASK)0;
@@ -89,9 +87,11 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
     return r;
 }
 
-/* The lanes whose ray ends in this event, and their fate (FATE_*, tally.h). */
+/* The lanes whose ray ends in this event, their fate (FATE_*, tally.h) and, for an exit,
+ * cos theta_e. */
 typedef struct {
     VMASK done, fate;
+    VREAL cos_exit;
 } ends_t;
 
 /* Where exits are tallied, and the rules that place them (walk.md §4). */
@@ -244,7 +244,6 @@ WALK_STEP void refill_lanes(rays_t *r, pool_t *pool, int *exhausted, __global ui
     r->uz = SEL(r->uz, (VREAL)1, fresh);
     r->Ls = SEL(r->Ls, (VREAL)0, fresh);
     r->Lc = SEL(r->Lc, (VREAL)0, fresh);
-    r->cos_exit = SEL(r->cos_exit, (VREAL)1, fresh);
     r->flights = SEL(r->flights, (VMASK)0, fresh);
     r->n_scat = SEL(r->n_scat, (VMASK)0, fresh);
     r->n_lamb = SEL(r->n_lamb, (VMASK)0, fresh);
@@ -260,9 +259,8 @@ WALK_STEP void refill_lanes(rays_t *r, pool_t *pool, int *exhausted, __global ui
 /* The rays carried from one launch to the next (walk.md §5): a launch stops each work-item
  * after event_budget events and parks its unfinished rays, one row each (N_STATE_REAL REALs,
  * N_STATE_INT uints: columns STATE_* of warpe_cl/params.py); the next launch resumes them
- * before it takes new photons. A row holds the whole state of rays_t but the exit cosine
- * (set when a ray exits): the ray goes on from the same event block, so its history does not
- * depend on where launches cut it. */
+ * before it takes new photons. A row holds the whole state of rays_t: the ray goes on from the
+ * same event block, so its history does not depend on where launches cut it. */
 typedef struct {
     uint resume_count;                   /* rows in resume_real / resume_int */
     __global uint *next_resume;          /* rows taken so far (starts at 0) */
@@ -445,9 +443,10 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
     finish(e, fl & (r->flights == (VMASK)sc->max_flights), FATE_TERMINATED);
     fl &= !e->done;
     r->flights += ONE(fl);
-    const VREAL s = sc->E > (REAL)0 ? -LOG(u0) / sc->E : (VREAL)INFINITY;
-    const VREAL s_b = SEL(SEL((VREAL)INFINITY, -r->z / r->uz, r->uz < (REAL)0),
-                          (sc->h - r->z) / r->uz, r->uz > (REAL)0);
+    const VREAL s = SEL((VREAL)INFINITY, -LOG(u0) / sc->E, (VMASK)(sc->E > (REAL)0 ? -1 : 0));
+    /* the way to the boundary ahead: (h - z)/uz down, -z/uz up, none level (one division) */
+    const VREAL s_b = SEL((VREAL)INFINITY, SEL(-r->z, sc->h - r->z, r->uz > (REAL)0) / r->uz,
+                          (r->uz < (REAL)0) | (r->uz > (REAL)0));
     VMASK c = fl & (s < s_b);
     VMASK b = fl & !(s < s_b);
     const VREAL len = SEL(s_b, s, c);
@@ -502,11 +501,11 @@ WALK_STEP void reach_boundary(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos
     r->n_top += ONE(up);
     const VMASK out = top & !reflect;
     /* Snell: cos theta_e = sqrt(1 - n^2 (1 - mu^2)) (docs/physics.md §3.5) */
-    r->cos_exit = SEL(r->cos_exit, sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0)),
+    e->cos_exit = SEL(e->cos_exit, sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0)),
                       out);
     finish(e, out, FATE_ESCAPED);
 #else
-    r->cos_exit = SEL(r->cos_exit, -r->uz, top);
+    e->cos_exit = SEL(e->cos_exit, -r->uz, top);
     finish(e, top, FATE_ESCAPED);
 #endif
     if (ANY(bottom)) {
@@ -619,7 +618,7 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
     VSTORE(r->n_scat, ns);
     VSTORE(r->n_lamb, nl);
     VSTORE(r->Ls * tally->ns_per_m, t);
-    VSTORE(r->cos_exit, ce);
+    VSTORE(e->cos_exit, ce);
 #ifdef WARPE_WEIGHTED
     REAL wt[WARPE_LANES];
     VSTORE(r->w, wt);
@@ -758,6 +757,7 @@ __kernel void walk(const uint seed, const ulong scenario,
     stats_t st = {{0}, 0, 0, 0};
     rays_t r = no_rays(phase_start);
     int exhausted = 0, resuming = resume_count > 0;
+    int all_alive = 0;           /* every lane has a ray (known without testing the mask) */
     pool_t pool = {0, 0};
     uint events = 0;
 
@@ -767,15 +767,18 @@ __kernel void walk(const uint seed, const ulong scenario,
             park_lanes(&r, &pool, &carry, base_lo, base_hi, phase_start);
             break;
         }
-        if (!exhausted && !ALL(r.alive)) {
-            if (resuming)
-                resume_lanes(&r, &carry, &resuming);
-            if (!ALL(r.alive))
-                refill_lanes(&r, &pool, &exhausted, next_photon, n_photons, base_lo, base_hi,
-                             phase_start);
+        if (!all_alive) {
+            if (!exhausted) {
+                if (resuming)
+                    resume_lanes(&r, &carry, &resuming);
+                if (!ALL(r.alive))
+                    refill_lanes(&r, &pool, &exhausted, next_photon, n_photons, base_lo, base_hi,
+                                 phase_start);
+            }
+            all_alive = ALL(r.alive);
+            if (!all_alive && !ANY(r.alive))
+                break;
         }
-        if (!ANY(r.alive))
-            break;
         events += 1;
 
         /* one event of every live lane, from block `event` of its stream (walk.md §2) */
@@ -788,6 +791,7 @@ __kernel void walk(const uint seed, const ulong scenario,
         ends_t e;
         e.done = (VMASK)0;
         e.fate = (VMASK)0;
+        e.cos_exit = (VREAL)1;
         const VMASK in_flight = r.alive & (r.phase == (VMASK)PHASE_FLIGHT);
 
 #ifdef WARPE_TEXTURE_SLAB
@@ -811,7 +815,7 @@ __kernel void walk(const uint seed, const ulong scenario,
          * deflection (u2) and the azimuth (u3) */
         coll = medium_toll(coll, u1, x1, &sc, &r, &e);
         r.n_scat += ONE(coll);
-        if (ANY(coll)) {
+        {   /* some lane collides in almost every event: no test */
             VREAL vx = r.ux, vy = r.uy, vz = r.uz;
             rotate_direction(&vx, &vy, &vz, hg_cos_theta(sc.g, u2), cos_psi, sin_psi);
             r.ux = SEL(r.ux, vx, coll);
@@ -829,6 +833,7 @@ __kernel void walk(const uint seed, const ulong scenario,
         if (ANY(e.done)) {
             tally_exits(&r, &e, &tally, &st);
             r.alive &= !e.done;
+            all_alive = 0;
         }
     }
 
