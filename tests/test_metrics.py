@@ -293,6 +293,9 @@ def test_reproduce_paper_metrics_table(tmp_path):
     assert float(rows[0]["mean_delay_stderr_ns"]) == pytest.approx(
         float(m["mean_delay_stderr"]), rel=0.05)   # 2 digits
     assert rows[0]["waveform_rays"] == rows[1]["waveform_rays"] == RAYS
+    # a result that went through the instrument (bela_cases) still gives the surface's rows
+    recorded = ds.assign(signal_mv=(("shot", "sample_time"), np.zeros((2, 3))))
+    assert rp.metrics_rows("a", recorded) == rows
     path = tmp_path / "metrics.csv"
     rp.write_metrics(rows + rp.metrics_rows("b", ds), path)
     rp.write_metrics([dict(r, mean_delay_ns="9") for r in rp.metrics_rows("b", ds)], path)

@@ -55,7 +55,8 @@ def metrics_rows(name: str, ds) -> list:
     rows = []
     for i, (label, sc) in enumerate(_scenarios(ds)):
         for variable in METRICS_VARIABLES:
-            m = warpe_cl.metrics(sc, variable=variable, resamples=0)   # no peak_time error
+            m = warpe_cl.metrics(sc, stage="surface", variable=variable,
+                                 resamples=0)                 # no peak_time error
             for comp in METRICS_COMPONENTS:
                 one = m.sel(component=comp)
                 if not np.isfinite(float(one["mean_delay"])):
