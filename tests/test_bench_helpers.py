@@ -102,6 +102,7 @@ def test_toy_command_has_b1s_medium(tmp_path):
     opt = dict(zip(cmd[2::2], cmd[3::2]))
     assert cmd[0] == sys.executable and opt["--variants"] == "vec16"
     assert opt["--photons"] == "4e+06" and opt["--platform"] == "Intel(R) OpenCL"
+    assert opt["--wait"] == "block"      # the toy on every core, as ours
     assert float(opt["--mus"]) == pytest.approx(1.0, rel=1e-5)
     assert float(opt["--mua"]) == pytest.approx(0.005, rel=1e-3)
     assert (opt["--g"], opt["--n"], opt["--h"], opt["--albedo"]) == ("0.8", "1.3", "60", "0.15")

@@ -38,7 +38,8 @@ ratio of events/s.
 
 ``--compare toy`` runs the hand-vectorised toy layer walk ``toy_walk.py`` (a performance anchor
 that is not part of warpe-cl: --toy-script PATH, default $WARPE_TOY_WALK) with this Python, as
-``toy_walk.py --photons 4e6 --variants vec16 --platform P --json FILE`` (--toy-photons), with
+``toy_walk.py --photons 4e6 --variants vec16 --platform P --wait block --json FILE``
+(--toy-photons; ``--wait block`` so that the toy, like ours, runs on every core), with
 B1's medium (mus, mua, g, n, h, A and the 5 ns cap passed explicitly) on our device's OpenCL
 platform P, once per round after our scenes. It prints the toy's scattering events/s (its
 ``scat/s``: scatterings / kernel wall time, build and warm-up excluded), our B1 events/s and
@@ -231,12 +232,15 @@ def toy_script_path(given: str | None) -> Path:
 
 
 def toy_command(script: Path, params, photons: int, platform_name: str, json_path) -> list:
-    """The toy's command line: B1's medium (``params``) passed explicitly, lengths in mm."""
+    """The toy's command line: B1's medium (``params``) passed explicitly, lengths in mm, and
+    ``--wait block``: with its default ``--wait poll`` Intel's CPU runtime ran the toy on one
+    thread, ours on two (docs/performance.md, issue 13)."""
     mus = params.extinction * params.omega * 1e-3
     mua = params.extinction * (1.0 - params.omega) * 1e-3
     dt_ns = 0.05
     return [sys.executable, str(script), "--photons", f"{photons:g}",
-            "--variants", TOY_VARIANT, "--platform", platform_name, "--json", str(json_path),
+            "--variants", TOY_VARIANT, "--platform", platform_name, "--wait", "block",
+            "--json", str(json_path),
             "--mus", f"{mus:.9g}", "--mua", f"{mua:.9g}", "--g", f"{params.g:g}",
             "--n", f"{params.n:g}", "--h", f"{params.thickness * 1e3:g}",
             "--albedo", f"{params.albedo:g}", "--tend", f"{params.max_time:g}",
