@@ -124,8 +124,8 @@ SCHEMA: list[Field] = [
             "diffraction peak of packed or embedded particles is dropped; 2 counts it)."),
     _F("medium.matrix_absorption", "choice", "seed", choices=("seed", "volume_weighted"),
        help="Slab, physical form: the matrix absorption a_m = 4 pi k / lambda enters the "
-            "extinction as in the paper (seed, the name of that rule), or weighted by the matrix volume fraction "
-            "gamma_c (volume_weighted; docs/physics.md A5)."),
+            "extinction as in the paper (seed, the name of that rule), or weighted by the "
+            "matrix volume fraction gamma_c (volume_weighted; docs/physics.md A5)."),
     _F("medium.inclusion_absorption", "choice", "absolute", choices=("absolute", "relative"),
        help="Physical form: the absorption inside an inclusion uses its own k (absolute, "
             "docs/physics.md A6) or its k relative to the matrix (relative)."),
