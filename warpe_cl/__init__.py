@@ -23,7 +23,8 @@ from .api import simulate
 from .io import package_version, as_grid
 from .database import open_database
 from .metrics import metrics
+from .inversion.invert import invert
 
 __version__ = package_version()
 __all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "as_grid", "metrics",
-           "__version__"]
+           "invert", "__version__"]

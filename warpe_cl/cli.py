@@ -208,6 +208,32 @@ def cmd_instrument(args) -> int:
     return EXIT_OK
 
 
+def cmd_invert(args) -> int:
+    """``warpe-cl invert``: recorded shots + a sweep database -> FIT.nc (docs/inversion.md)."""
+    from .config.keys import parse_overrides
+    from .inversion.invert import invert
+    from .inversion.observed import load_observed
+    from .inversion.plot import plot_fit
+    out = _check_outputs(args)
+    scenario = None
+    if args.scenario is not None:
+        try:
+            scenario = int(args.scenario)
+        except ValueError:
+            raise ConfigError(f"{args.scenario!r} is not a scenario index (an integer >= 0)",
+                              key="--scenario") from None
+    fix = parse_overrides(args.fix or [])
+    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
+    t0 = time.perf_counter()
+    obs = load_observed(args.observed, scenario=scenario)
+    ds = invert(obs, args.database, args.instrument, free=free, fix=fix)
+    say = _say(args)
+    for line in report.inversion_lines(ds):
+        say(line)
+    _write_outputs(ds, out, args.plot, plot_fit, say, started=t0)
+    return EXIT_OK
+
+
 def cmd_sweep(args) -> int:
     """``warpe-cl sweep``: a grid as a resumable database (warpe_cl/sweep.py, docs/cluster.md).
 
@@ -474,6 +500,28 @@ def make_parser() -> argparse.ArgumentParser:
     ins.add_argument("--plot", help="also draw the three-panel figure to this PNG")
     ins.add_argument("--quiet", action="store_true", help="print nothing but errors")
     ins.set_defaults(func=cmd_instrument)
+
+    inv = sub.add_parser("invert", help="the surface parameters compatible with recorded "
+                                        "shots, from a sweep database")
+    inv.add_argument("observed", nargs="+",
+                     help="a `warpe-cl instrument` file, or CSV files of samples "
+                          "(docs/interface.md §5.7)")
+    inv.add_argument("--database", required=True,
+                     help="a `warpe-cl sweep` database folder (or sweep file)")
+    inv.add_argument("--out", required=True, help="output NetCDF file (FIT.nc)")
+    inv.add_argument("--plot", help="also draw the fit and the pairwise posterior to this PNG")
+    inv.add_argument("--instrument",
+                     help="bela, gala, or an instrument YAML file (default: the observed "
+                          "file's instrument)")
+    inv.add_argument("--free", action="append", metavar="KEY[,KEY...]",
+                     help="swept keys to report (default: all not fixed; the others are "
+                          "marginalised)")
+    inv.add_argument("--fix", action="append", metavar="KEY=VALUE",
+                     help='hold a swept key, e.g. --fix medium.compacity=0.5, or a nuisance: '
+                          'amplitude=1, pulse_fwhm="6.5 ns" (repeatable)')
+    inv.add_argument("--scenario", help="the scenario of an instrument file holding a sweep")
+    inv.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    inv.set_defaults(func=cmd_invert)
     return p
 
 

@@ -248,3 +248,39 @@ def sweep_summary_lines(summary) -> list:
     if summary.combined is not None:
         lines.append(f"wrote {summary.combined} (all {summary.total} scenarios)")
     return lines
+
+
+def inversion_lines(ds) -> list:
+    """The result of ``warpe-cl invert``: each parameter's best value and intervals (in the
+    unit of the database, mm and um for lengths), the nuisances and the goodness of fit.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A result of :func:`warpe_cl.inversion.invert.invert`.
+
+    Returns
+    -------
+    list of str
+    """
+    def show(value, units):
+        if units == "m":
+            return f"{value * 1e3:.4g} mm" if value >= 1e-3 else f"{value * 1e6:.4g} um"
+        return f"{value:.4g}" + ("" if units in ("1", "") else f" {units}")
+    lines = [f"inversion: {ds.attrs['shots_used']} of {ds.attrs['shots_total']} shots, "
+             f"{ds.attrs['instrument_name']}, database {ds.attrs['database']}"]
+    for key in ds["parameter"].values:
+        r = ds.sel(parameter=key)
+        u = str(r["units"].values)
+        flag = "" if bool(r["constrained"]) else "  (not constrained: 95 % interval spans " \
+            f"{float(r['interval_fraction']):.0%} of the grid)"
+        lines.append(f"  {key:<34} best {show(float(r['best']), u):>10}   68 % "
+                     f"[{show(float(r['low68']), u)}, {show(float(r['high68']), u)}]   95 % "
+                     f"[{show(float(r['low95']), u)}, {show(float(r['high95']), u)}]{flag}")
+    lines.append(f"  nuisances: amplitude {float(ds['amplitude']):.3g}, pulse FWHM "
+                 f"{float(ds['pulse_fwhm']):.3g} ns (or footprint sigma "
+                 f"{float(ds['footprint_sigma']):.3g} ns), arrival {float(ds['arrival_time']):.3g} ns")
+    lines.append(f"  fit: chi2/dof {float(ds['chi2_per_dof']):.3f} ({int(ds['dof'])} dof), "
+                 f"p = {float(ds['p_value']):.3g}; {ds.attrs['evaluations']} model evaluations "
+                 f"in {ds.attrs['elapsed_s']:.2f} s")
+    return lines

@@ -1,0 +1,153 @@
+"""The noiseless instrument model of the inversion: a surface response -> the expected samples of
+a linear-mode receiver and their variance, with the pulse width as a free nuisance
+(docs/inversion.md §3).
+
+The chain of docs/instrument.md §3 is linear in the surface response up to saturation, so the
+expected analog voltage is
+
+    v(t) = baseline + a · μ(t),    μ = G_T q M 10⁹ η [h_e ⊗ (p_v ⊗ g ⊗ n)] / δt   (mV)
+
+with n the photons at the aperture per fine bin for the surface response (per_reflectance ×
+R_d rebinned, plus the specular and back-and-forth returns times their aperture fractions κ),
+p_v ⊗ g the pulse and footprint kernels with their variance changed by the nuisance ``v``
+(ns²), and ``a`` the shot's amplitude (1 = the instrument's radiometry exactly; the fitted
+overall amplitude times the shot's speckle factor). The photoelectron shot noise with APD excess
+F gives the signal-dependent variance
+
+    Var v(t) = σ_n² + a · ν(t),    ν = (G_T q M)² F η [h_e² ⊗ (p_v ⊗ g ⊗ n)] / δt² · 10⁶ (mV²)
+
+(σ_n: electronic, background and dark noise and quantisation, as in §3.8). For a Gaussian pulse
+p_v is the Gaussian of variance σ_p² + v (a different pulse width); for a tabulated pulse the
+footprint's Gaussian gets the variance σ_g² + v (more or less footprint broadening). Both act
+as a convolution with a Gaussian, so one nuisance covers the pulse width and the slope and
+roughness broadening: a Gaussian-pulse waveform cannot tell them apart. At v = 0 the kernels are
+the chain's own and v(t) is the chain's ``expected_analog_mv`` (tests/test_inversion.py).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.signal import fftconvolve
+
+from ..instrument import adc, detection, detector, electronics, pulse, radiometry
+from ..instrument.chain import Geometry, check_wavelength
+from ..instrument.grid import deposit, make_grid, rebin_density
+from ..instrument.radiometry import ELEMENTARY_CHARGE
+
+#: Default prior range of the pulse FWHM relative to the instrument's (Gaussian pulse).
+PULSE_RANGE = (0.5, 1.5)
+#: Default largest extra Gaussian broadening (footprint, slope, roughness), ns.
+BROADENING_MAX_NS = 10.0
+
+
+class Forward:
+    """Expected samples and their variance for one linear-mode instrument.
+
+    Parameters
+    ----------
+    params : InstrumentParams
+        The instrument (:func:`warpe_cl.instrument.load_instrument`).
+    pulse_range : (float, float)
+        Prior range of the pulse FWHM relative to the instrument's (Gaussian pulse).
+    broadening_max : float
+        Largest extra Gaussian broadening σ, ns (footprint, slope, roughness).
+
+    Attributes
+    ----------
+    v_bounds : (float, float)
+        Range of the nuisance v, ns².
+    sigma_n, baseline, ceiling : float
+        Per-sample noise, baseline and clipped level (saturation or the top ADC code), mV.
+    modes : float
+        Speckle modes M (per-shot amplitude variance 1/M); inf without speckle.
+    """
+
+    def __init__(self, params, pulse_range=PULSE_RANGE, broadening_max=BROADENING_MAX_NS):
+        p = self.params = params
+        self.step = p["window.fine_step"]
+        self.interval = p["adc.sampling_interval"]
+        self.geo = Geometry(p)
+        self.gaussian_pulse = p["transmitter.pulse_shape"] == "gaussian"
+        self.sigma_p = pulse.sigma_from_fwhm(p["transmitter.pulse_fwhm"])
+        self.fwhm = p["transmitter.pulse_fwhm"]
+        if self.gaussian_pulse:
+            lo = self.sigma_p ** 2 * (pulse_range[0] ** 2 - 1.0)
+            hi = self.sigma_p ** 2 * (pulse_range[1] ** 2 - 1.0) + broadening_max ** 2
+        else:
+            lo, hi = -self.geo.sigma_g ** 2, broadening_max ** 2
+        self.v_bounds = (lo, hi)
+        self.h, self.h_origin = electronics.filter_kernel(p["electronics.filter"],
+                                                          p["electronics.bandwidth"], self.step)
+        widest = math.sqrt(self.sigma_p ** 2 + self.geo.sigma_g ** 2 + max(hi, 0.0))
+        margin = self.step * self.h.size + 8.0 * widest + 2.0 * self.interval + 5.0
+        self.grid = make_grid(p["window.start"], p["window.stop"], self.step, margin)
+        self.t = self.grid.centres
+        gain = p["detector.gain"]
+        excess = p["detector.excess_noise"] or detector.excess_noise_factor(gain, p["detector.k_eff"])
+        g_t = p["electronics.transimpedance"]
+        self.eta = radiometry.detection_efficiency(p)
+        self.per_reflectance = radiometry.photons_per_reflectance(p)
+        self.n_tx = radiometry.transmitted_photons(p) * p["geometry.atmosphere_transmission"] ** 2
+        dt_s = self.step * 1e-9
+        self.mv_per_pe = g_t * ELEMENTARY_CHARGE * gain / dt_s * 1e3         # mV per pe per bin
+        self.mv2_per_pe = (g_t * ELEMENTARY_CHARGE * gain / dt_s) ** 2 * excess * 1e6
+        dc_rate = radiometry.background_rate(p) + detector.dark_rate(p["detector.bulk_dark_current"])
+        i_ds = p["detector.surface_dark_current"]
+        bandwidth = electronics.noise_bandwidth(self.h, self.step)
+        sigma_el = g_t * p["electronics.current_noise"] * math.sqrt(bandwidth)
+        self.sigma_n = detection.sample_noise_sigma(
+            sigma_el, dc_rate, gain, excess, g_t, bandwidth,
+            adc.lsb(p["adc.full_scale"], p["adc.bits"])) * 1e3
+        self.baseline = (g_t * detector.expected_current(dc_rate, gain, i_ds)
+                         + p["electronics.offset"]) * 1e3
+        v_sat, full_scale = p["electronics.saturation"], p["adc.full_scale"]
+        self.ceiling = float(adc.quantise(np.array([min(v_sat, full_scale)]) * 1e3,
+                                          full_scale * 1e3, p["adc.bits"])[0])
+        self.modes = radiometry.speckle_modes(p)
+        self.excess = excess
+
+    def photons(self, surface) -> np.ndarray:
+        """Photons at the aperture per fine bin (amplitude 1) for a surface response, before the
+        pulse: the chain's ``amounts`` (docs/instrument.md §3.3, §3.4)."""
+        check_wavelength(surface, self.params)
+        diffuse = rebin_density(surface.edges, surface.diffuse, self.grid.edges)
+        n = self.per_reflectance * diffuse
+        returns = [(t, self.n_tx * f * self.geo.kappa[c]) for c, t, f in surface.returns]
+        if returns:
+            n = n + deposit(self.grid, [t for t, _ in returns], [a for _, a in returns])
+        return n
+
+    def kernel(self, v: float) -> tuple[np.ndarray, int]:
+        """The pulse and footprint kernel with its variance changed by ``v`` (ns²): amount per
+        bin (Σ = 1) and origin index (the chain's own at v = 0)."""
+        p = self.params
+        if self.gaussian_pulse:
+            p_k, p_o = pulse.gaussian_kernel(math.sqrt(max(self.sigma_p ** 2 + v, 0.0)), self.step)
+            g_k, g_o = pulse.gaussian_kernel(self.geo.sigma_g, self.step)
+        else:
+            p_k, p_o = pulse.pulse_kernel(p, self.step)
+            g_k, g_o = pulse.gaussian_kernel(math.sqrt(max(self.geo.sigma_g ** 2 + v, 0.0)),
+                                             self.step)
+        return np.convolve(p_k, g_k), p_o + g_o
+
+    def waveform(self, photons: np.ndarray, v: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """μ (mV) and ν (mV²) of the module docstring on the fine grid (``self.t``)."""
+        k, k_o = self.kernel(v)
+        pe = np.clip(self._convolve(photons, k, k_o), 0.0, None) * self.eta
+        mu = self.mv_per_pe * self._convolve(pe, self.h, self.h_origin)
+        nu = self.mv2_per_pe * self._convolve(pe, self.h ** 2, self.h_origin)
+        return mu, np.clip(nu, 0.0, None)
+
+    @staticmethod
+    def _convolve(signal, kernel, origin):
+        full = fftconvolve(signal, kernel, mode="full")
+        return full[origin: origin + signal.size]
+
+    def fwhm_of(self, v: float) -> float:
+        """The pulse FWHM (ns) that ``v`` means for a Gaussian pulse at the nominal footprint."""
+        return pulse.FWHM_PER_SIGMA * math.sqrt(max(self.sigma_p ** 2 + v, 0.0))
+
+    def footprint_of(self, v: float) -> float:
+        """The footprint σ_g (ns) that ``v`` means at the nominal pulse width."""
+        return math.sqrt(max(self.geo.sigma_g ** 2 + v, 0.0))

@@ -1,0 +1,202 @@
+"""``warpe_cl.invert``: recorded shots + a sweep database -> the parameters compatible with them
+(docs/inversion.md).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..errors import ConfigError
+from .forward import BROADENING_MAX_NS, PULSE_RANGE, Forward
+from .likelihood import Shots
+from .posterior import Problem, intervals, marginal, nearest_node_mass, refine
+
+#: Nuisances that ``fix`` may hold, and their units.
+NUISANCES = {"amplitude": "1", "pulse_fwhm": "ns", "broadening": "ns2"}
+#: A shot is used when its largest sample rises this many σ_n above the baseline.
+DETECTION_SIGMA = 5.0
+
+
+def invert(observed, database, instrument=None, *, free=None, fix=None, budget: int = 600,
+           pulse_range=PULSE_RANGE, broadening_max: float = BROADENING_MAX_NS,
+           observed_source: str | None = None, database_source: str | None = None):
+    """The surface parameters compatible with recorded shots.
+
+    Parameters
+    ----------
+    observed : Observed, path, or list of paths
+        Recorded shots (:func:`warpe_cl.inversion.observed.load_observed`): a
+        ``warpe-cl instrument`` file or CSV files.
+    database : xarray.Dataset or path
+        A ``warpe-cl sweep`` database (folder) or sweep file; its swept keys are the
+        parameters.
+    instrument : str, path, dict or InstrumentParams, optional
+        The receiving instrument (``bela``, ``gala``, a YAML file); default: the one named by
+        the observed file. Refused if it does not match the observed sampling.
+    free : list of str, optional
+        Swept keys to report (default: every swept key not fixed). Swept keys neither free nor
+        fixed are marginalised.
+    fix : dict, optional
+        Dotted key -> value to hold a swept key (a number in the database's unit, m for
+        lengths, or text such as ``"100 um"``), or a nuisance: ``amplitude`` (1: the
+        instrument's radiometry is trusted), ``pulse_fwhm`` (ns, or text ``"6.5 ns"``).
+    budget : int
+        Largest number of points of a refined grid.
+    pulse_range : (float, float)
+        Prior range of the pulse FWHM relative to the instrument's.
+    broadening_max : float
+        Largest extra footprint broadening σ, ns.
+
+    Returns
+    -------
+    xarray.Dataset
+        docs/inversion.md §6: ``best``, ``low68``, ``high68``, ``low95``, ``high95`` on the
+        ``parameter`` coordinate, marginal posteriors, nuisances, the best-fit waveform and the
+        goodness of fit.
+    """
+    from ..instrument import InstrumentParams, load_instrument
+    from .observed import Observed, load_observed
+    from .result import build_result
+    from .space import Space
+
+    started = time.perf_counter()
+    obs = observed if isinstance(observed, Observed) else load_observed(observed)
+    db, db_source = _database(database, database_source)
+    params = instrument if isinstance(instrument, InstrumentParams) else \
+        load_instrument(instrument or obs.instrument or _no_instrument(obs))
+    if obs.kind != "mv":
+        raise ConfigError("photon-counting shots (signal_counts) are not inverted yet: give "
+                          "linear-mode samples (signal_mv)", key=observed_source or obs.source)
+    if abs(obs.interval_ns - params["adc.sampling_interval"]) > 1e-6 * obs.interval_ns:
+        raise ConfigError(f"the observed samples are {obs.interval_ns:g} ns apart but "
+                          f"{params['name']} samples every {params['adc.sampling_interval']:g} "
+                          "ns: give the instrument that recorded them (--instrument)",
+                          key=observed_source or obs.source)
+    fix = dict(fix or {})
+    nuisance = {k: fix.pop(k) for k in list(fix) if k in NUISANCES}
+    space = Space(db, _parse_fixed(fix, db), source=db_source)
+    free_axes = space.free_axes
+    keys = [a.key for a in free_axes]
+    report = list(free) if free else keys
+    bad = [k for k in report if k not in keys]
+    if bad:
+        raise ConfigError(f"--free {bad[0]}: not a free swept key of the database (free: "
+                          f"{', '.join(keys) or 'none'})", key=db_source)
+    if not keys:
+        raise ConfigError("every swept key is fixed: nothing to invert", key="--fix")
+    if space.wavelength is not None:
+        from ..instrument.chain import at_wavelength
+        if not at_wavelength(space.wavelength, params["wavelength"]):
+            raise ConfigError(f"the database was computed at {space.wavelength * 1e9:g} nm but "
+                              f"{params['name']} works at {params['wavelength'] * 1e9:g} nm",
+                              key=db_source)
+    forward = Forward(params, pulse_range, broadening_max)
+    v_fixed = _fixed_v(nuisance, forward)
+    used = _detected(obs.shots, forward)
+    if not used.any():
+        raise ConfigError(f"no shot rises {DETECTION_SIGMA:g} σ_n ({forward.sigma_n:.3g} mV) "
+                          "above the baseline: nothing to invert", key=obs.source)
+    shots = Shots(obs.time_ns, obs.shots[used], forward)
+    overall = nuisance.get("amplitude")
+    problem = Problem(space, forward, shots, overall=None if overall is None else float(overall),
+                      v=v_fixed)
+    nodes, final = refine(problem, budget=budget)
+    summary = _summarise(problem, nodes, final, report)
+    summary["elapsed_s"] = time.perf_counter() - started
+    summary["evaluations"] = problem.count
+    return build_result(obs, params, space, problem, nodes, final, summary, used,
+                        db_source=db_source, db_attrs=dict(db.attrs))
+
+
+def _no_instrument(obs):
+    raise ConfigError("the observed file does not name its instrument: give --instrument",
+                      key=obs.source)
+
+
+def _database(database, source):
+    """(Dataset, name) of a database folder, a sweep file or a Dataset."""
+    from pathlib import Path
+    if hasattr(database, "dims"):
+        return database, source or "<database>"
+    path = Path(database)
+    if path.is_dir():
+        from ..database import open_database
+        return open_database(path), source or str(path)
+    if not path.is_file():
+        raise ConfigError("no such database folder or file", key=str(path))
+    import xarray as xr
+    try:
+        return xr.load_dataset(path, engine="h5netcdf"), source or str(path)
+    except Exception as err:  # noqa: BLE001 - any unreadable file: one line
+        raise ConfigError(f"not a warpe-cl NetCDF file ({type(err).__name__})",
+                          key=str(path)) from None
+
+
+def _parse_fixed(fix: dict, db) -> dict:
+    """--fix values of swept keys -> numbers in the database's unit (text kept for
+    non-numeric keys)."""
+    from ..io import _field_kind
+    from ..units import DIMENSIONS, parse_quantity
+    out = {}
+    for key, value in fix.items():
+        if key in db.coords and np.issubdtype(db[key].dtype, np.number):
+            kind = _field_kind(key)
+            try:
+                out[key] = (parse_quantity(value, kind) if kind in DIMENSIONS and
+                            isinstance(value, str) else float(value))
+            except (ValueError, ConfigError):
+                raise ConfigError(f"--fix {key}={value}: not a number"
+                                  + (f" with a {kind} unit" if kind in DIMENSIONS else ""),
+                                  key="--fix") from None
+        else:
+            out[key] = value
+    return out
+
+
+def _fixed_v(nuisance: dict, forward: Forward):
+    """The broadening nuisance v (ns²) that ``--fix pulse_fwhm=`` or ``broadening=`` sets."""
+    from ..units import parse_quantity
+    if "pulse_fwhm" in nuisance:
+        value = nuisance["pulse_fwhm"]
+        fwhm = parse_quantity(value, "time") if isinstance(value, str) else float(value)
+        if not forward.gaussian_pulse or not 0 < fwhm:
+            raise ConfigError(f"--fix pulse_fwhm={value}: needs a Gaussian pulse and a positive "
+                              "width in ns", key="--fix")
+        from ..instrument.pulse import sigma_from_fwhm
+        return sigma_from_fwhm(fwhm) ** 2 - forward.sigma_p ** 2
+    if "broadening" in nuisance:
+        return float(nuisance["broadening"])
+    return None
+
+
+def _detected(samples: np.ndarray, forward: Forward) -> np.ndarray:
+    """Shots whose largest sample rises DETECTION_SIGMA σ_n above the baseline."""
+    return (samples - forward.baseline).max(axis=1) > DETECTION_SIGMA * forward.sigma_n
+
+
+def _summarise(problem, nodes, final, report) -> dict:
+    """Best point, intervals and marginals of the reported axes."""
+    axes = problem.space.free_axes
+    best_index = final.best()
+    best_u = np.array([c[i] for c, i in zip(final.coords, best_index)])
+    rows = []
+    for j, axis in enumerate(axes):
+        u, mass = marginal(final, j)
+        iv = intervals(u, mass)
+        lo_u, hi_u = axis.nodes[0], axis.nodes[-1]
+        span = hi_u - lo_u
+        width95 = (iv[0.95][1] - iv[0.95][0]) / span if span > 0 else 0.0
+        rows.append({
+            "key": axis.key, "units": axis.units, "log": axis.log,
+            "best": float(axis.value(best_u[j])), "median": float(axis.value(iv[0.5])),
+            "low68": float(axis.value(iv[0.68][0])), "high68": float(axis.value(iv[0.68][1])),
+            "low95": float(axis.value(iv[0.95][0])), "high95": float(axis.value(iv[0.95][1])),
+            "prior_low": float(axis.values[0]), "prior_high": float(axis.values[-1]),
+            "interval_fraction": float(width95),
+            "node_mass": nearest_node_mass(u, mass, axis.nodes),
+            "reported": axis.key in report,
+        })
+    return {"rows": rows, "best_u": best_u, "best": final.evaluations[best_index],
+            "best_index": best_index}

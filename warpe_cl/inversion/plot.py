@@ -1,0 +1,100 @@
+"""The figure of ``warpe-cl invert --plot``: the recorded shots with the best fit and its 68 %
+band, and the pairwise posterior (corner style, drawn with matplotlib: the grid posterior is
+already a density on a grid, which is what a corner plot of samples would first have to
+estimate)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def _label(ds, dim: str) -> tuple[str, float, str]:
+    """(axis label, scale, key) of a posterior dimension: lengths in mm or um."""
+    coord = ds[dim]
+    key = coord.attrs.get("sweep_key", dim)
+    units = coord.attrs.get("units", "1")
+    short = key.rsplit(".", 1)[-1]
+    if units == "m":
+        scale, unit = (1e3, "mm") if float(coord.max()) >= 1e-3 else (1e6, "um")
+        return f"{short} ({unit})", scale, key
+    return short if units in ("1", "") else f"{short} ({units})", 1.0, key
+
+
+def plot_fit(ds, path) -> None:
+    """Draw the fit (top) and the corner plot (below) of an inversion result to ``path``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    dims = list(ds["posterior"].dims)
+    n = len(dims)
+    fig = plt.figure(figsize=(3.0 * max(n, 2) + 1.0, 3.0 * n + 3.2))
+    grid = fig.add_gridspec(n + 1, max(n, 1), height_ratios=[1.3] + [1.0] * n)
+    ax = fig.add_subplot(grid[0, :])
+    amp = ds["shot_amplitude"].values
+    big_a = float(ds["amplitude"])
+    base = float(ds["fit_mv"].values[0])
+    t = ds["sample_time"].values[None, :] - ds["shot_arrival"].values[:, None]
+    y = base + (ds["observed_mv"].values - base) * (big_a / amp)[:, None]
+    ax.plot(t.ravel(), y.ravel(), ".", ms=2, color="0.5", alpha=0.5,
+            label=f"{ds.sizes['shot']} shots, aligned on their arrival, scaled to amplitude A")
+    ft = ds["fit_time"].values
+    ax.fill_between(ft, ds["fit_low68_mv"].values, ds["fit_high68_mv"].values, color="C1",
+                    alpha=0.35, label="68 % band of the posterior")
+    ax.plot(ft, ds["fit_mv"].values, color="C3", lw=1.2,
+            label=f"best fit (chi2/dof {float(ds['chi2_per_dof']):.2f})")
+    peak = ft[np.argmax(ds["fit_mv"].values)]
+    ax.set_xlim(peak - 40, peak + 80)
+    ax.set_xlabel("time from the shot's arrival (ns)")
+    ax.set_ylabel("signal (mV)")
+    ax.set_title(f"{ds.attrs.get('instrument_name', '')}: {ds.attrs.get('observed', '')}",
+                 fontsize=9)
+    ax.legend(fontsize=7, loc="upper right")
+    post = ds["posterior"].values
+    for i in range(n):
+        for j in range(i + 1):
+            axc = fig.add_subplot(grid[i + 1, j])
+            xi_label, xi_scale, _ = _label(ds, dims[j])
+            x = ds[dims[j]].values * xi_scale
+            if i == j:
+                other = tuple(k for k in range(n) if k != i)
+                m = (post.sum(axis=other) if other else post) / _cells(ds[dims[i]].values,
+                                                                      _is_log(ds, dims[i]))
+                axc.plot(x, m / m.max(), "-o", ms=2, color="C0")
+                name = str(ds[dims[i]].attrs.get("sweep_key", dims[i]))
+                if name in ds["parameter"].values:
+                    r = ds.sel(parameter=name)
+                    for lo, hi, alpha in (("low95", "high95", 0.15), ("low68", "high68", 0.3)):
+                        axc.axvspan(float(r[lo]) * xi_scale, float(r[hi]) * xi_scale,
+                                    color="C0", alpha=alpha)
+                axc.set_yticks([])
+            else:
+                yl, ys, _ = _label(ds, dims[i])
+                other = tuple(k for k in range(n) if k not in (i, j))
+                # the remaining axes are (j, i), j < i: pcolormesh wants (y, x) = (i, j)
+                m = (post.sum(axis=other) if other else post).T
+                axc.pcolormesh(x, ds[dims[i]].values * ys, m, shading="nearest", cmap="Blues")
+                axc.set_ylabel(yl if j == 0 else "")
+                if ds[dims[i]].values.min() > 0 and _is_log(ds, dims[i]):
+                    axc.set_yscale("log")
+            if ds[dims[j]].values.min() > 0 and _is_log(ds, dims[j]):
+                axc.set_xscale("log")
+            axc.set_xlabel(xi_label if i == n - 1 else "")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _is_log(ds, dim: str) -> bool:
+    """Whether the posterior axis ``dim`` was interpolated in log (its parameter's log_scale)."""
+    key = ds[dim].attrs.get("sweep_key")
+    if key in ds["parameter"].values:
+        return bool(ds["log_scale"].sel(parameter=key))
+    v = ds[dim].values
+    return v.size > 2 and np.allclose(np.diff(np.log(v)), np.diff(np.log(v))[0], rtol=1e-6)
+
+
+def _cells(values: np.ndarray, log: bool) -> np.ndarray:
+    """Trapezoid widths of the points in their interpolation coordinate: mass / width is the
+    density the prior is uniform in."""
+    from .posterior import _trapezoid
+    return _trapezoid(np.log(values) if log else values) if values.size > 1 else np.ones(1)

@@ -1,0 +1,281 @@
+"""The parameter space of a sweep database and the surface response anywhere inside it
+(docs/inversion.md §2).
+
+Each swept numeric key of the database is an axis. Its interpolation coordinate is ln(value)
+for an axis whose values are positive and more evenly spaced in logarithm than linearly (grain
+sizes, thicknesses), the value itself otherwise (compacity). A point inside the grid is a
+multilinear combination of the 2^d corners of its cell in those coordinates.
+
+What is combined is not the waveform but the surface response, in the form in which it moves
+smoothly with the parameters:
+
+- the diffuse response R_d(t) as its total ∫R_d dt (combined in logarithm) and its shape as the
+  quantile function of the normalised cumulative return, ln t(q) (displacement interpolation:
+  a response whose delays grow with thickness moves along the time axis between grid points
+  instead of fading from one shape into the other, which a weighted sum of waveforms does);
+- the specular fraction and, for each k-th back-and-forth passage, its delay and fraction
+  (linear).
+
+At a grid point the corner weights are (1, 0, …) and every step is exact: the response is the
+node's own, to rounding (tests/test_inversion.py).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..instrument.surface import SurfaceResponse, check_variables, response
+
+
+@dataclass
+class Axis:
+    """One swept key of the database.
+
+    Attributes
+    ----------
+    key : str
+        The dotted key (``medium.inclusions[0].grain_size``).
+    values : array
+        Its grid values, increasing, in the database's unit (``units``: m, ns, deg or 1).
+    units : str
+    log : bool
+        Whether the interpolation coordinate is ln(value).
+    """
+    key: str
+    values: np.ndarray
+    units: str
+    log: bool
+
+    def coord(self, x):
+        """The interpolation coordinate of value(s) ``x``."""
+        x = np.asarray(x, float)
+        return np.log(x) if self.log else x
+
+    def value(self, u):
+        """The value at interpolation coordinate(s) ``u``."""
+        u = np.asarray(u, float)
+        return np.exp(u) if self.log else u
+
+    @property
+    def nodes(self) -> np.ndarray:
+        """The grid values in the interpolation coordinate."""
+        return self.coord(self.values)
+
+    @property
+    def short(self) -> str:
+        """The last part of the key (``grain_size``)."""
+        return self.key.rsplit(".", 1)[-1]
+
+
+def log_spaced(values: np.ndarray) -> bool:
+    """Whether positive ``values`` are closer to evenly spaced in logarithm than linearly
+    (two values: whether their ratio exceeds 3)."""
+    v = np.asarray(values, float)
+    if v.size < 2 or np.any(v <= 0.0):
+        return False
+    if v.size == 2:
+        return bool(v[1] / v[0] > 3.0)
+
+    def unevenness(x):
+        d = np.diff(x)
+        return float(np.std(d) / np.mean(d))
+    return unevenness(np.log(v)) < unevenness(v)
+
+
+def swept_keys(ds) -> list:
+    """The dotted keys swept along ``scenario`` (coordinates with a ``sweep_key`` attribute)."""
+    return [name for name, c in ds.coords.items()
+            if "sweep_key" in c.attrs and c.dims == ("scenario",)]
+
+
+def _corner_weights(u: np.ndarray, nodes: list) -> tuple[list, list]:
+    """Multilinear weights of point ``u`` (one coordinate per axis) in its grid cell.
+
+    Returns
+    -------
+    (indices, weights)
+        Index tuples of the cell's corners with a non-zero weight and their weights (sum 1).
+    """
+    per_axis = []
+    for x, n in zip(u, nodes):
+        if n.size == 1:
+            per_axis.append([(0, 1.0)])
+            continue
+        j = int(np.clip(np.searchsorted(n, x, side="right") - 1, 0, n.size - 2))
+        f = float((x - n[j]) / (n[j + 1] - n[j]))
+        f = min(max(f, 0.0), 1.0)
+        per_axis.append([(j, 1.0 - f), (j + 1, f)])
+    indices, weights = [()], [1.0]
+    for options in per_axis:
+        indices = [i + (j,) for i in indices for j, _ in options]
+        weights = [w * f for w in weights for _, f in options]
+    keep = [k for k, w in enumerate(weights) if w > 0.0]
+    return [indices[k] for k in keep], [weights[k] for k in keep]
+
+
+def _quantile(cdf: np.ndarray, edges: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """t(q) = inf{t : F(t) ≥ q} of a CDF linear in t inside each bin (a piecewise-constant
+    density), F given at ``edges`` (non-decreasing, from 0 to 1), for q in [0, 1]."""
+    i = np.clip(np.searchsorted(cdf, q, side="left"), 1, cdf.size - 1)
+    lo, hi = cdf[i - 1], cdf[i]
+    frac = np.where(hi > lo, (q - lo) / np.where(hi > lo, hi - lo, 1.0), 1.0)
+    start = np.searchsorted(cdf, 0.0, side="right") - 1      # the edge where the mass begins
+    t = edges[i - 1] + np.clip(frac, 0.0, 1.0) * (edges[i] - edges[i - 1])
+    return np.where(q <= 0.0, edges[max(start, 0)], t)
+
+
+class NodeResponse:
+    """One scenario's surface response in the form that is interpolated (module docstring)."""
+
+    def __init__(self, r: SurfaceResponse, first_bf_time: float):
+        self.surface = r
+        amount = r.diffuse * np.diff(r.edges)
+        self.total = float(amount.sum())
+        cdf = np.concatenate([[0.0], np.cumsum(amount)])
+        self.cdf = cdf / cdf[-1] if cdf[-1] > 0 else cdf
+        self.specular = sum(f for c, _, f in r.returns if c == "specular")
+        self.first_bf = first_bf_time
+        self.passages = {}
+        for c, t, f in r.returns:
+            if c == "bf_direct":
+                k = max(1, round(t / first_bf_time)) if first_bf_time > 0 else 1
+                delay, frac = self.passages.get(k, (t, 0.0))
+                self.passages[k] = (delay, frac + f)
+
+
+class Space:
+    """The database's grid: axes, fixed keys, and the surface response at any point.
+
+    Parameters
+    ----------
+    db : xarray.Dataset
+        A sweep database (:func:`warpe_cl.open_database`) or a ``warpe-cl run`` sweep file.
+    fix : dict, optional
+        Dotted key -> value (float in the axis unit, or text for a non-numeric key): the key is
+        held there (a grid value, or any value inside its range for a numeric key).
+    source : str
+        Name of the database, for messages.
+    """
+
+    def __init__(self, db, fix: dict | None = None, source: str = "database"):
+        check_variables(db, source)
+        if "scenario" not in db.dims:
+            raise ConfigError("holds one scenario, not a sweep: give a `warpe-cl sweep` "
+                              "database (a folder) or a sweep file", key=source)
+        fix = dict(fix or {})
+        keys = swept_keys(db)
+        unknown = [k for k in fix if k not in keys]
+        if unknown:
+            raise ConfigError(f"--fix {unknown[0]}: not a swept key of the database (swept: "
+                              f"{', '.join(keys)})", key=source)
+        self.source = source
+        self.edges = np.asarray(db["time_edges"].values, float)
+        keep = np.ones(db.sizes["scenario"], bool)
+        numeric = []
+        self.fixed = {}
+        for key in keys:
+            values = db[key].values
+            if not np.issubdtype(values.dtype, np.number):
+                if key not in fix:
+                    raise ConfigError(f"{key} is swept over non-numeric values "
+                                      f"({', '.join(sorted(set(map(str, values))))}); choose one "
+                                      f"with --fix {key}=VALUE", key=source)
+                keep &= values.astype(str) == str(fix[key])
+                if not keep.any():
+                    raise ConfigError(f"--fix {key}={fix[key]}: not one of its values "
+                                      f"({', '.join(sorted(set(map(str, values))))})", key=source)
+                self.fixed[key] = str(fix[key])
+            else:
+                numeric.append(key)
+        sub = db.isel(scenario=np.nonzero(keep)[0])
+        self.axes = []
+        for key in numeric:
+            v = np.unique(np.asarray(sub[key].values, float))
+            self.axes.append(Axis(key, v, sub[key].attrs.get("units", "1"), log_spaced(v)))
+        shape = tuple(a.values.size for a in self.axes)
+        if int(np.prod(shape)) != sub.sizes["scenario"]:
+            raise ConfigError(f"its {sub.sizes['scenario']} finished scenarios do not fill the "
+                              f"grid of {' x '.join(map(str, shape))} points (an unfinished sweep? "
+                              "run `warpe-cl sweep --resume` first)", key=source)
+        self.nodes = np.empty(shape, object)
+        t1 = (sub["first_bf_time_ns"].values if "first_bf_time_ns" in sub.variables
+              else np.full(sub.sizes["scenario"], math.nan))
+        for i in range(sub.sizes["scenario"]):
+            index = tuple(int(np.searchsorted(a.values, float(sub[a.key].values[i])))
+                          for a in self.axes)
+            self.nodes[index] = NodeResponse(response(sub, i), float(t1[i]))
+        self.wavelength = self.nodes.flat[0].surface.wavelength
+        self.point = {}
+        for key, value in fix.items():
+            if key in self.fixed:
+                continue
+            axis = self.axis(key)
+            lo, hi = axis.values[0], axis.values[-1]
+            if not lo * (1 - 1e-9) <= value <= hi * (1 + 1e-9):
+                raise ConfigError(f"--fix {key}={value:g} {axis.units}: outside the database's "
+                                  f"range [{lo:g}, {hi:g}] {axis.units}", key=source)
+            self.point[key] = float(value)
+
+    def axis(self, key: str) -> Axis:
+        """The axis of dotted ``key``."""
+        for a in self.axes:
+            if a.key == key:
+                return a
+        raise KeyError(key)
+
+    @property
+    def free_axes(self) -> list:
+        """The axes not held by ``fix``."""
+        return [a for a in self.axes if a.key not in self.point]
+
+    def coords_of(self, point: dict) -> np.ndarray:
+        """Interpolation coordinates of every axis for ``point`` (free keys) plus the fixed
+        values."""
+        values = {**self.point, **point}
+        return np.array([a.coord(values[a.key]) for a in self.axes], float)
+
+    def surface(self, point: dict) -> SurfaceResponse:
+        """The surface response at ``point`` (dotted key -> value of every free axis, in the
+        axis unit), by the interpolation of the module docstring."""
+        idx, w = _corner_weights(self.coords_of(point), [a.nodes for a in self.axes])
+        nodes = [self.nodes[i] for i in idx]
+        if len(nodes) == 1:
+            return nodes[0].surface
+        return combine(nodes, w, self.edges)
+
+
+def combine(nodes: list, weights: list, edges: np.ndarray) -> SurfaceResponse:
+    """The displacement interpolation of the module docstring for ``nodes`` (NodeResponse)
+    with ``weights`` (sum 1) on the common time ``edges`` (ns)."""
+    w = np.asarray(weights, float)
+    totals = np.array([n.total for n in nodes])
+    if np.all(totals > 0):
+        total = float(np.exp(np.sum(w * np.log(totals))))
+        q = np.unique(np.concatenate([n.cdf for n in nodes]))
+        positive = edges > 0
+        log_t = sum(wi * np.log(np.maximum(_quantile(n.cdf, edges, q), edges[positive][0]))
+                    for wi, n in zip(w, nodes))
+        t = np.exp(log_t)
+        cdf = np.interp(edges, t, q, left=0.0, right=1.0)
+        diffuse = total * np.diff(cdf) / np.diff(edges)
+    else:
+        diffuse = sum(wi * n.surface.diffuse for wi, n in zip(w, nodes))
+    returns = []
+    specular = float(np.sum(w * [n.specular for n in nodes]))
+    if specular > 0:
+        returns.append(("specular", 0.0, specular))
+    ks = sorted(set(k for n in nodes for k in n.passages))
+    for k in ks:
+        delay, frac = 0.0, 0.0
+        for wi, n in zip(w, nodes):
+            t_k = n.passages[k][0] if k in n.passages else k * n.first_bf
+            if not math.isfinite(t_k):      # a node without this passage nor a known period
+                t_k = np.mean([m.passages[k][0] for m in nodes if k in m.passages])
+            delay += wi * t_k
+            frac += wi * (n.passages[k][1] if k in n.passages else 0.0)
+        if frac > 0:
+            returns.append(("bf_direct", float(delay), float(frac)))
+    return SurfaceResponse(edges, diffuse, returns, nodes[0].surface.wavelength)
