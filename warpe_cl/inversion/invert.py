@@ -103,7 +103,7 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     problem = Problem(space, forward, shots, overall=None if overall is None else float(overall),
                       v=v_fixed)
     nodes, final = refine(problem, budget=budget)
-    summary = _summarise(problem, nodes, final, report)
+    summary = _summarise(problem, final, report)
     summary["elapsed_s"] = time.perf_counter() - started
     summary["evaluations"] = problem.count
     return build_result(obs, params, space, problem, nodes, final, summary, used,
@@ -176,7 +176,7 @@ def _detected(samples: np.ndarray, forward: Forward) -> np.ndarray:
     return (samples - forward.baseline).max(axis=1) > DETECTION_SIGMA * forward.sigma_n
 
 
-def _summarise(problem, nodes, final, report) -> dict:
+def _summarise(problem, final, report) -> dict:
     """Best point, intervals and marginals of the reported axes."""
     axes = problem.space.free_axes
     best_index = final.best()

@@ -15,7 +15,7 @@ UNCONSTRAINED = 0.9
 BAND_POINTS = 64
 
 
-def _band(problem, final, best_fit, rng_seed: int = 0):
+def _band(problem, final, rng_seed: int = 0):
     """The 68 % band of the expected waveform (baseline + A μ) over the posterior: models at
     BAND_POINTS points drawn from the final grid's posterior mass (a fixed seed: the same
     band for the same input), each with its own profiled nuisances."""
@@ -50,7 +50,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     fit = shots.fit(mu, nu, problem.overall)
     expected = f.baseline + fit.amplitude[:, None] * shots._interp(mu, fit.arrival)
     expected = np.minimum(expected, f.ceiling)
-    low, high = _band(problem, final, fit)
+    low, high = _band(problem, final)
     n_shots = int(used.sum())
     dof = fit.samples - 2 * n_shots - 2 - len(space.free_axes)
     rows = [r for r in summary["rows"] if r["reported"]]
