@@ -252,7 +252,7 @@ def sweep_summary_lines(summary) -> list:
 
 def inversion_lines(ds) -> list:
     """The result of ``warpe-cl invert``: each parameter's best value and intervals (in the
-    unit of the database, mm and um for lengths), the nuisances and the goodness of fit.
+    unit of the database; lengths as :func:`_length` writes them), the nuisances and the goodness of fit.
 
     Parameters
     ----------
@@ -265,7 +265,7 @@ def inversion_lines(ds) -> list:
     """
     def show(value, units):
         if units == "m":
-            return f"{value * 1e3:.4g} mm" if value >= 1e-3 else f"{value * 1e6:.4g} um"
+            return _length(value)
         return f"{value:.4g}" + ("" if units in ("1", "") else f" {units}")
     lines = [f"inversion: {ds.attrs['shots_used']} of {ds.attrs['shots_total']} shots, "
              f"{ds.attrs['instrument_name']}, database {ds.attrs['database']}"]
