@@ -14,6 +14,7 @@ from pathlib import Path
 
 from . import report
 from .errors import ConfigError, DeviceError, WarpeError
+from .io import load_result
 
 EXIT_OK, EXIT_OTHER, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
 EXIT_SIGINT, EXIT_SIGTERM = 130, 143
@@ -170,21 +171,6 @@ def cmd_run(args) -> int:
     return EXIT_OK
 
 
-def _load_result(path: Path):
-    """A result file of ``run`` or ``instrument``, or a sweep database folder (docs/interface.md
-    §5.5), as a Dataset; one line (exit 2) for anything else."""
-    import xarray as xr
-    if path.is_dir():
-        from .database import open_database
-        return open_database(path)
-    if not path.is_file():
-        raise ConfigError("no such file", key=str(path))
-    try:
-        return xr.load_dataset(path, engine="h5netcdf")
-    except Exception as err:  # noqa: BLE001
-        raise ConfigError(f"not a warpe-cl NetCDF file ({type(err).__name__})", key=str(path))
-
-
 def cmd_instrument(args) -> int:
     from .instrument import apply_instrument, check_parameter, load_instrument
     from .instrument.plot import plot_instrument
@@ -199,7 +185,7 @@ def cmd_instrument(args) -> int:
     seed = None if args.seed is None else check_parameter("seed", args.seed, where="--seed")
     out = _check_outputs(args)
     path = Path(args.file)
-    ds = _load_result(path)
+    ds = load_result(path)
     say = _say(args)
     ds = apply_instrument(ds, params, shots=shots, seed=seed, source=str(path))
     for line in report.instrument_lines(ds):
@@ -376,7 +362,7 @@ def cmd_plot(args) -> int:
     path = Path(args.file)
     if args.after and not args.metrics:
         raise ConfigError("applies to --metrics only", key="--after")
-    ds = _load_result(path)          # a file, or a sweep database folder
+    ds = load_result(path)           # a file, or a sweep database folder
     if args.scenarios is not None:
         from .plot import select_scenarios
         ds = select_scenarios(ds, args.scenarios)

@@ -413,6 +413,30 @@ def as_grid(ds):
     return out.transpose(*dims, ...)
 
 
+def load_result(path):
+    """A result file of ``run``, ``sweep`` or ``instrument``, or a sweep database folder
+    (docs/interface.md §5.5), as a Dataset.
+
+    Raises
+    ------
+    ConfigError
+        One line (exit 2) for a path that is neither: missing, or not a readable NetCDF file.
+    """
+    import xarray as xr
+    from .errors import ConfigError
+    path = Path(path)
+    if path.is_dir():
+        from .database import open_database
+        return open_database(path)
+    if not path.is_file():
+        raise ConfigError("no such file", key=str(path))
+    try:
+        return xr.load_dataset(path, engine="h5netcdf")
+    except Exception as err:  # noqa: BLE001 - any unreadable file: one line
+        raise ConfigError(f"not a warpe-cl NetCDF file ({type(err).__name__})",
+                          key=str(path)) from None
+
+
 def write_netcdf(ds, path) -> Path:
     """Write ``ds`` as NetCDF-4 (h5netcdf) atomically: a temporary file in the same folder,
     renamed over ``path`` only once complete, so a crash or Ctrl-C never leaves a partial

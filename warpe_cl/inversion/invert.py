@@ -117,21 +117,10 @@ def _no_instrument(obs):
 
 def _database(database, source):
     """(Dataset, name) of a database folder, a sweep file or a Dataset."""
-    from pathlib import Path
     if hasattr(database, "dims"):
         return database, source or "<database>"
-    path = Path(database)
-    if path.is_dir():
-        from ..database import open_database
-        return open_database(path), source or str(path)
-    if not path.is_file():
-        raise ConfigError("no such database folder or file", key=str(path))
-    import xarray as xr
-    try:
-        return xr.load_dataset(path, engine="h5netcdf"), source or str(path)
-    except Exception as err:  # noqa: BLE001 - any unreadable file: one line
-        raise ConfigError(f"not a warpe-cl NetCDF file ({type(err).__name__})",
-                          key=str(path)) from None
+    from ..io import load_result
+    return load_result(database), source or str(database)
 
 
 def _parse_fixed(fix: dict, db) -> dict:
