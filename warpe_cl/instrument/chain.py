@@ -9,6 +9,7 @@ number of shots or the order they are computed in.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -87,6 +88,69 @@ def _photon_rate(amounts, kernel, origin, step):
     return np.clip(convolve(amounts, kernel, origin), 0.0, None) / step
 
 
+def aperture_photons(surface: SurfaceResponse, params, grid: FineGrid,
+                     geo: Geometry) -> tuple[np.ndarray, list]:
+    """Photons at the aperture per fine bin before the pulse, §3.3 and §3.4.
+
+    Returns
+    -------
+    (amounts, returns)
+        Photons per bin of ``grid``: the diffuse response times E_t η_t T² Ω_r / (hν), plus the
+        specular and BF-direct returns deposited at their delays; and those returns as
+        (component, delay ns, photons), their fractions times the transmitted photons and
+        the aperture fractions κ of ``geo``.
+    """
+    per_reflectance = radiometry.photons_per_reflectance(params)
+    n_tx = radiometry.transmitted_photons(params) * params["geometry.atmosphere_transmission"] ** 2
+    diffuse = rebin_density(surface.edges, surface.diffuse, grid.edges)          # sr⁻¹ per bin
+    returns = [(c, t, n_tx * f * geo.kappa[c]) for c, t, f in surface.returns]
+    amounts = per_reflectance * diffuse
+    if returns:
+        amounts = amounts + deposit(grid, [t for _, t, _ in returns], [n for _, _, n in returns])
+    return amounts, returns
+
+
+def steady_rate(params) -> float:
+    """Steady primary rate (pe ns⁻¹) besides the signal: background, plus the dark counts of a
+    photon-counting detector or the APD's bulk dark current I_db/q."""
+    rate = radiometry.background_rate(params)
+    if params["detector.type"] == "photon_counting":
+        return rate + params["detector.dark_count_rate"] * 1e-9
+    return rate + detector.dark_rate(params["detector.bulk_dark_current"])
+
+
+@dataclass(frozen=True)
+class Levels:
+    """The linear-mode receiver's fixed levels, §3.6–3.8: APD excess F, electronic noise
+    σ_v (V), per-sample noise σ_n, baseline and clipped level (mV)."""
+    excess: float
+    sigma_electronic: float
+    noise_mv: float
+    baseline_mv: float
+    ceiling_mv: float
+
+
+def receiver_levels(params, h: np.ndarray, step: float, dc_rate: float) -> Levels:
+    """:class:`Levels` of ``params`` with the filter ``h`` on a grid of ``step`` (ns) and the
+    steady rate ``dc_rate`` (pe ns⁻¹). The ceiling is the saturation voltage or the top ADC
+    code, whichever is lower, as recorded."""
+    p = params
+    gain = p["detector.gain"]
+    excess = p["detector.excess_noise"] or detector.excess_noise_factor(gain, p["detector.k_eff"])
+    g_t = p["electronics.transimpedance"]
+    full_scale = p["adc.full_scale"]
+    bits = p["adc.bits"]
+    bandwidth = electronics.noise_bandwidth(h, step)
+    sigma_el = g_t * p["electronics.current_noise"] * math.sqrt(bandwidth)
+    sigma_n = detection.sample_noise_sigma(sigma_el, dc_rate, gain, excess, g_t, bandwidth,
+                                           adc.lsb(full_scale, bits)) * 1e3          # mV
+    baseline = (g_t * detector.expected_current(dc_rate, gain, p["detector.surface_dark_current"])
+                + p["electronics.offset"]) * 1e3
+    top = adc.quantise(np.array([min(p["electronics.saturation"], full_scale)]) * 1e3,
+                       full_scale * 1e3, bits)[0]
+    return Levels(excess, sigma_el, sigma_n, baseline, float(top))
+
+
 def run_scenario(surface: SurfaceResponse, params, shots: int, seed: int,
                  scenario_key: int = 0) -> dict:
     """Every output array of one scenario (names as in the Dataset)."""
@@ -108,24 +172,15 @@ def run_scenario(surface: SurfaceResponse, params, shots: int, seed: int,
 
     # §3.3, §3.4: photons at the aperture per fine bin, before the pulse
     per_reflectance = radiometry.photons_per_reflectance(p)
-    n_tx = radiometry.transmitted_photons(p) * p["geometry.atmosphere_transmission"] ** 2
-    diffuse = rebin_density(surface.edges, surface.diffuse, grid.edges)          # sr⁻¹ per bin
     total_diffuse = surface.diffuse_integral
-    returns = [(c, t, n_tx * f * geo.kappa[c]) for c, t, f in surface.returns]
-    amounts = per_reflectance * diffuse
-    if returns:
-        amounts = amounts + deposit(grid, [t for _, t, _ in returns], [n for _, _, n in returns])
+    amounts, returns = aperture_photons(surface, p, grid, geo)
     photon_rate = _photon_rate(amounts, kernel, k_origin, step)
     photons_part = np.array([per_reflectance * total_diffuse]
                             + [sum(n for c, _, n in returns if c == part)
                                for part in PARTS[1:]])
     eta = radiometry.detection_efficiency(p)
     modes = radiometry.speckle_modes(p)
-    dc_rate = radiometry.background_rate(p)
-    if counting:
-        dc_rate += p["detector.dark_count_rate"] * 1e-9
-    else:
-        dc_rate += detector.dark_rate(p["detector.bulk_dark_current"])
+    dc_rate = steady_rate(p)
     signal_rate = eta * photon_rate                                                # pe ns⁻¹
 
     lo = grid.edges[grid.crop.start]
@@ -184,7 +239,6 @@ def _linear_mode(p, grid, amounts, kernel, k_origin, h, h_origin, signal_rate, d
     step = grid.step
     t_fine = grid.centres
     gain = p["detector.gain"]
-    excess = p["detector.excess_noise"] or detector.excess_noise_factor(gain, p["detector.k_eff"])
     g_t = p["electronics.transimpedance"]
     i_ds = p["detector.surface_dark_current"]
     v_sat = p["electronics.saturation"]
@@ -198,18 +252,14 @@ def _linear_mode(p, grid, amounts, kernel, k_origin, h, h_origin, signal_rate, d
     ts = adc.sample_times(p["window.start"], p["window.stop"], interval)
     expected_mv = np.minimum(adc.sample(t_fine, v_exp, ts), v_sat) * 1e3
 
-    bandwidth = electronics.noise_bandwidth(h, step)
-    sigma_el = g_t * p["electronics.current_noise"] * math.sqrt(bandwidth)
-    sigma_n = detection.sample_noise_sigma(sigma_el, dc_rate, gain, excess, g_t, bandwidth,
-                                           adc.lsb(full_scale, bits)) * 1e3          # mV
-    baseline_mv = (g_t * detector.expected_current(dc_rate, gain, i_ds) + offset) * 1e3
+    levels = receiver_levels(p, h, step, dc_rate)
+    excess, sigma_el, sigma_n = levels.excess, levels.sigma_electronic, levels.noise_mv
+    baseline_mv, top = levels.baseline_mv, levels.ceiling_mv
     template, t_peak, t_width = _template(kernel, k_origin, h, h_origin, step, interval)
     model = _continuous_template(kernel, k_origin, h, h_origin, step)
     m = p["detection.threshold_sigma"]
     threshold = m * sigma_n
     y_exp = detection.matched_filter(expected_mv - baseline_mv, template)
-    # the clipped level: saturation or the top ADC code, whichever is lower, as recorded (mV)
-    top = adc.quantise(np.array([min(v_sat, full_scale)]) * 1e3, full_scale * 1e3, bits)[0]
 
     signal = np.empty((shots, ts.size))
     phase = np.empty(shots)

@@ -30,9 +30,10 @@ import math
 import numpy as np
 from scipy.signal import fftconvolve
 
-from ..instrument import adc, detection, detector, electronics, pulse, radiometry
-from ..instrument.chain import Geometry, check_wavelength
-from ..instrument.grid import deposit, make_grid, rebin_density
+from ..instrument import electronics, pulse, radiometry
+from ..instrument.chain import (Geometry, aperture_photons, check_wavelength, receiver_levels,
+                               steady_rate)
+from ..instrument.grid import make_grid
 from ..instrument.radiometry import ELEMENTARY_CHARGE
 
 #: Default prior range of the pulse FWHM relative to the instrument's (Gaussian pulse).
@@ -84,39 +85,22 @@ class Forward:
         self.grid = make_grid(p["window.start"], p["window.stop"], self.step, margin)
         self.t = self.grid.centres
         gain = p["detector.gain"]
-        excess = p["detector.excess_noise"] or detector.excess_noise_factor(gain, p["detector.k_eff"])
         g_t = p["electronics.transimpedance"]
+        levels = receiver_levels(p, self.h, self.step, steady_rate(p))
         self.eta = radiometry.detection_efficiency(p)
-        self.per_reflectance = radiometry.photons_per_reflectance(p)
-        self.n_tx = radiometry.transmitted_photons(p) * p["geometry.atmosphere_transmission"] ** 2
         dt_s = self.step * 1e-9
         self.mv_per_pe = g_t * ELEMENTARY_CHARGE * gain / dt_s * 1e3         # mV per pe per bin
-        self.mv2_per_pe = (g_t * ELEMENTARY_CHARGE * gain / dt_s) ** 2 * excess * 1e6
-        dc_rate = radiometry.background_rate(p) + detector.dark_rate(p["detector.bulk_dark_current"])
-        i_ds = p["detector.surface_dark_current"]
-        bandwidth = electronics.noise_bandwidth(self.h, self.step)
-        sigma_el = g_t * p["electronics.current_noise"] * math.sqrt(bandwidth)
-        self.sigma_n = detection.sample_noise_sigma(
-            sigma_el, dc_rate, gain, excess, g_t, bandwidth,
-            adc.lsb(p["adc.full_scale"], p["adc.bits"])) * 1e3
-        self.baseline = (g_t * detector.expected_current(dc_rate, gain, i_ds)
-                         + p["electronics.offset"]) * 1e3
-        v_sat, full_scale = p["electronics.saturation"], p["adc.full_scale"]
-        self.ceiling = float(adc.quantise(np.array([min(v_sat, full_scale)]) * 1e3,
-                                          full_scale * 1e3, p["adc.bits"])[0])
+        self.mv2_per_pe = (g_t * ELEMENTARY_CHARGE * gain / dt_s) ** 2 * levels.excess * 1e6
+        self.sigma_n = levels.noise_mv
+        self.baseline = levels.baseline_mv
+        self.ceiling = levels.ceiling_mv
         self.modes = radiometry.speckle_modes(p)
-        self.excess = excess
 
     def photons(self, surface) -> np.ndarray:
         """Photons at the aperture per fine bin (amplitude 1) for a surface response, before the
         pulse: the chain's ``amounts`` (docs/instrument.md §3.3, §3.4)."""
         check_wavelength(surface, self.params)
-        diffuse = rebin_density(surface.edges, surface.diffuse, self.grid.edges)
-        n = self.per_reflectance * diffuse
-        returns = [(t, self.n_tx * f * self.geo.kappa[c]) for c, t, f in surface.returns]
-        if returns:
-            n = n + deposit(self.grid, [t for t, _ in returns], [a for _, a in returns])
-        return n
+        return aperture_photons(surface, self.params, self.grid, self.geo)[0]
 
     def kernel(self, v: float) -> tuple[np.ndarray, int]:
         """The pulse and footprint kernel with its variance changed by ``v`` (ns²): amount per
