@@ -44,11 +44,9 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     f = problem.forward
     best = summary["best"]
     photons = f.photons(space.surface(problem.point(summary["best_u"])))
-    mu, nu = f.waveform(photons, best.v)
-    shots = problem.shots
-    shots.amplitude, shots.arrival = best.fit.amplitude.copy(), best.fit.arrival.copy()
-    fit = shots.fit(mu, nu, problem.overall)
-    expected = f.baseline + fit.amplitude[:, None] * shots._interp(mu, fit.arrival)
+    mu, _ = f.waveform(photons, best.v)
+    fit = best.fit          # the nuisances of the evaluation that ranked the best point
+    expected = f.baseline + fit.amplitude[:, None] * problem.shots._interp(mu, fit.arrival)
     expected = np.minimum(expected, f.ceiling)
     low, high = _band(problem, final)
     n_shots = int(used.sum())
