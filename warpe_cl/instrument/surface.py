@@ -10,6 +10,7 @@ configuration stored with the result.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -71,9 +72,16 @@ def wavelength_of(ds, scenario: int | None = None) -> float | None:
             return float(value)
         return parse_quantity(str(value), "length")             # as written (older files)
     text = ds.attrs.get("config")
-    if not text:
-        return None
+    return _config_wavelength(text) if text else None
+
+
+@functools.lru_cache(maxsize=8)
+def _config_wavelength(text: str) -> float | None:
+    """The ``wavelength`` (m) of a stored configuration's YAML text; None if it has none or
+    cannot be read. Cached: every scenario of a database carries the same text."""
     import yaml
+
+    from ..units import parse_quantity
     try:
         value = (yaml.safe_load(text) or {}).get("wavelength")
         return parse_quantity(str(value), "length") if value is not None else None
@@ -83,33 +91,64 @@ def wavelength_of(ds, scenario: int | None = None) -> float | None:
 
 def response(ds, scenario: int | None = None) -> SurfaceResponse:
     """The :class:`SurfaceResponse` of one scenario of ``ds`` (``scenario`` None: no sweep)."""
-    sc = ds.isel(scenario=scenario) if scenario is not None else ds
-    edges = np.asarray(ds["time_edges"].values, float)
-    refl = sc["reflectance"]
-    diffuse = sum(np.asarray(refl.sel(component=c).values, float) for c in DIFFUSE)
-    photons = float(sc["photons"])
-    t1 = float(sc["first_bf_time_ns"]) if "first_bf_time_ns" in sc.variables else \
-        float(sc.attrs.get("first_bf_time_ns", ds.attrs.get("first_bf_time_ns", math.nan)))
-    returns = []
-    # the specular return leaves at t = 0, before the first edge of log bins (an early exit,
-    # in no time bin): its fraction is the component's whole fraction when the file has it
-    if "fraction" in sc.variables:
-        spec_fraction = float(sc["fraction"].sel(component="specular"))
-    else:
-        spec_fraction = float(np.asarray(sc["ray_count"].sel(component="specular").values,
-                                         float).sum()) / photons
-    if spec_fraction > 0:
-        returns.append(("specular", 0.0, spec_fraction))
-    bf = np.asarray(sc["ray_count"].sel(component="bf_direct").values, float)
-    merged: dict[float, float] = {}
-    for j in np.nonzero(bf)[0]:
-        lo, hi = edges[j], edges[j + 1]
-        t = math.sqrt(lo * hi) if lo > 0 else 0.5 * (lo + hi)
-        if math.isfinite(t1) and t1 > 0:
-            k = max(1, round(t / t1))
-            # the exact passage time 2 k h n_eff / c, when it lies in (or next to) the bin
-            if lo / 1.2 <= k * t1 <= hi * 1.2:
-                t = k * t1
-        merged[t] = merged.get(t, 0.0) + bf[j] / photons
-    returns += [("bf_direct", t, f) for t, f in sorted(merged.items())]
-    return SurfaceResponse(edges, diffuse, returns, wavelength_of(ds, scenario))
+    return _Arrays(ds).response(scenario)
+
+
+def responses(ds) -> list:
+    """The :class:`SurfaceResponse` of every scenario of the sweep ``ds``, each equal to
+    ``response(ds, i)``; the arrays are read once (a database of 1,000 scenarios in a
+    fraction of a second)."""
+    arrays = _Arrays(ds)
+    return [arrays.response(i) for i in range(ds.sizes["scenario"])]
+
+
+class _Arrays:
+    """The variables :func:`response` reads, as numpy arrays (a leading scenario axis for a
+    sweep)."""
+
+    def __init__(self, ds):
+        self.ds = ds
+        self.edges = np.asarray(ds["time_edges"].values, float)
+        comps = [str(c) for c in ds["component"].values]
+        refl = ds["reflectance"].transpose(..., "component", "time").values
+        self.diffuse = sum(np.asarray(refl[..., comps.index(c), :], float) for c in DIFFUSE)
+        counts = ds["ray_count"].transpose(..., "component", "time").values
+        self.bf = np.asarray(counts[..., comps.index("bf_direct"), :], float)
+        self.photons = np.asarray(ds["photons"].values, float)
+        if "fraction" in ds.variables:
+            self.specular = np.asarray(ds["fraction"].sel(component="specular").values, float)
+        else:
+            self.specular = np.asarray(counts[..., comps.index("specular"), :], float).sum(-1) \
+                / self.photons
+        if "first_bf_time_ns" in ds.variables:
+            self.t1 = np.asarray(ds["first_bf_time_ns"].values, float)
+        else:
+            self.t1 = np.asarray(float(ds.attrs.get("first_bf_time_ns", math.nan)))
+
+    def response(self, scenario: int | None) -> SurfaceResponse:
+        pick = (lambda a: a) if scenario is None else \
+            (lambda a: a[scenario] if np.ndim(a) and a.shape[0] == self.ds.sizes["scenario"]
+             else a)
+        edges = self.edges
+        photons = float(pick(self.photons))
+        t1 = float(pick(self.t1))
+        returns = []
+        # the specular return leaves at t = 0, before the first edge of log bins (an early
+        # exit, in no time bin): its fraction is the component's whole fraction
+        spec_fraction = float(pick(self.specular))
+        if spec_fraction > 0:
+            returns.append(("specular", 0.0, spec_fraction))
+        bf = pick(self.bf)
+        merged: dict[float, float] = {}
+        for j in np.nonzero(bf)[0]:
+            lo, hi = edges[j], edges[j + 1]
+            t = math.sqrt(lo * hi) if lo > 0 else 0.5 * (lo + hi)
+            if math.isfinite(t1) and t1 > 0:
+                k = max(1, round(t / t1))
+                # the exact passage time 2 k h n_eff / c, when it lies in (or next to) the bin
+                if lo / 1.2 <= k * t1 <= hi * 1.2:
+                    t = k * t1
+            merged[t] = merged.get(t, 0.0) + bf[j] / photons
+        returns += [("bf_direct", t, f) for t, f in sorted(merged.items())]
+        return SurfaceResponse(edges, np.array(pick(self.diffuse), float), returns,
+                               wavelength_of(self.ds, scenario))

@@ -32,6 +32,18 @@ import numpy as np
 from scipy.special import log_ndtr
 
 LOG_2PI = math.log(2.0 * math.pi)
+#: Gauss–Newton stops when no shot's log-likelihood rises by more than this in a step ...
+TOLERANCE = 1e-4
+#: ... or after this many steps.
+MAX_ITERATIONS = 60
+#: Arrival integral of clipped shots: coarse and fine steps (ns), the part of the coarse grid
+#: kept (log units below its maximum), Newton steps in a at each arrival.
+ARRIVAL_COARSE = 0.5
+ARRIVAL_FINE = 0.1
+ARRIVAL_RANGE = 12.0
+ARRIVAL_NEWTON = 3
+#: Speckle modes above this count as this many: without speckle (M = inf) every a_s is A.
+MODES_CAP = 1e10
 
 
 @dataclass
@@ -65,6 +77,7 @@ class Shots:
         self.x = np.asarray(samples, float)
         self.f = forward
         self.censored = self.x >= forward.ceiling - 1e-9
+        self.uncensored = int(np.count_nonzero(~self.censored))
         self.y = self.x - forward.baseline           # baseline-subtracted
         self.arrival = None
         self.amplitude = None
@@ -92,7 +105,7 @@ class Shots:
             reach = np.where(self.censored & (m > 0), c / np.where(m > 0, m, 1.0), 0.0).max(1)
             reach = np.where((self.censored & (m <= 0)).any(1), np.inf, reach)
             a = np.maximum(np.maximum(a, reach), 1e-6)
-            r = self.y - a[:, None] * m
+            r = self.y - np.where(np.isfinite(a), a, 0.0)[:, None] * m
             r = np.where(self.censored, np.maximum(r, 0.0), r)     # clipped: only below c counts
             chi = np.where(np.isfinite(a), np.einsum("sk,sk->s", r, r), np.inf)
             better = chi < best
@@ -103,97 +116,197 @@ class Shots:
 
     def _interp(self, values: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """``values`` (fine grid) at t_k − δ_s, shape (S, K); 0 outside the grid."""
-        return self._gather([values], delta)[0]
+        return self._gather(padded([values]), delta)[0]
 
-    def _gather(self, arrays: list, delta: np.ndarray) -> list:
-        """Each of ``arrays`` (on the uniform fine grid) linearly interpolated at t_k − δ_s,
-        shape (S, K), 0 outside the grid: the index arithmetic of np.interp on a uniform grid,
-        done once for all of them."""
+    def _gather(self, table: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """The rows of ``table`` (:func:`padded` arrays of the uniform fine grid) linearly
+        interpolated at t_k − δ_s: shape (rows, S, K). The index arithmetic of np.interp on a
+        uniform grid, done once for all rows; beyond the grid the zero padding gives 0."""
         grid = self.f.t
-        x = (self.t[None, :] - np.asarray(delta)[:, None] - grid[0]) / (grid[1] - grid[0])
-        i = np.floor(x).astype(np.intp)
+        x = (self.t[None, :] - np.asarray(delta)[:, None] - grid[0]) / (grid[1] - grid[0]) + 1.0
+        np.clip(x, 0.0, grid.size + 1.0, out=x)
+        i = x.astype(np.intp)
         frac = x - i
-        inside = (i >= 0) & (i < grid.size - 1)
-        i = np.where(inside, i, 0)
-        out = []
-        for values in arrays:
-            lo, hi = values[i], values[i + 1]
-            out.append(np.where(inside, lo + frac * (hi - lo), 0.0))
-        return out
+        lo = np.take(table, i, axis=1)
+        return lo + frac * (np.take(table, i + 1, axis=1) - lo)
 
     def fit(self, mu: np.ndarray, nu: np.ndarray, overall: float | None = None,
-            iterations: int = 4) -> ShotFit:
-        """Gauss–Newton on each shot's (a_s, δ_s) from the last fit, then the Laplace
-        log-likelihood of the module docstring. ``overall``: A fixed (None: profiled)."""
+            iterations: int = MAX_ITERATIONS) -> ShotFit:
+        """The Laplace log-likelihood of the module docstring at model (``mu``, ``nu``).
+
+        Gauss–Newton on each shot's (a_s, δ_s), from the last fit, for the largest
+        ℓ_s(a_s, δ_s) + log N(a_s; A, A²/M), alternating with A's maximum-likelihood update
+        (:func:`overall_amplitude`; ``overall`` holds A instead), until no shot's objective
+        rises by more than ``TOLERANCE`` (at most ``iterations`` steps).
+
+        The speckle prior is part of the mode and of its Hessian, not convolved afterwards:
+        a shot with clipped samples may keep only one edge sample above the noise, and its
+        likelihood alone is then a ridge in (a, δ) (a larger amplitude further from that
+        sample) ending at the clipping constraint, where no Gaussian approximation of the
+        likelihood holds; the prior bounds the ridge, and the Laplace approximation of the
+        product holds. Converging matters for the same shots: a fixed small number of steps
+        leaves a model-dependent part of the way undone, noise of a few units in log L from
+        one pulse width to the next (docs/inversion.md §4)."""
         if self.arrival is None:
             self.start(mu)
-        dmu = np.gradient(mu, self.f.t)
+        table = padded([mu, np.gradient(mu, self.f.t), nu])
         a, d = self.amplitude.copy(), self.arrival.copy()
         sig2 = self.f.sigma_n ** 2
         c = self.f.ceiling - self.f.baseline
         limit = 0.5 * self.f.interval
-        h, g, ell, chi2, n_unc = self._normal(a, d, mu, dmu, nu, sig2, c)
+        modes = min(self.f.modes, MODES_CAP)
+        big_a = float(overall) if overall is not None else overall_amplitude(a, modes)
+
+        def with_prior(a_, lik):
+            """The objective's Hessian, gradient and value per shot: the likelihood's
+            (:meth:`_normal`) plus the speckle prior's at the current A."""
+            h_aa, h_ad, h_dd, g_a, g_d, ell_, _ = lik
+            prec = modes / big_a ** 2                       # speckle prior precision of a_s
+            prior = -0.5 * (LOG_2PI - math.log(prec) + prec * (a_ - big_a) ** 2)
+            return (h_aa + prec, h_ad, h_dd), (g_a - prec * (a_ - big_a), g_d), ell_ + prior
+
+        lik = self._normal(a, d, table, sig2, c)
+        h, g, obj = with_prior(a, lik)
         for _ in range(iterations):
+            before = obj
             det = h[0] * h[2] - h[1] ** 2
             ok = det > 0
             da = np.where(ok, (h[2] * g[0] - h[1] * g[1]) / np.where(ok, det, 1.0), 0.0)
             dd = np.where(ok, (h[0] * g[1] - h[1] * g[0]) / np.where(ok, det, 1.0), 0.0)
             da = np.clip(da, -0.5 * a, 0.5 * a + 1e-3)
             dd = np.clip(dd, -limit, limit)
-            # a step is kept for a shot only where it raises ℓ_s; else a quarter, a sixteenth
+            # a step is kept for a shot only where it raises its objective; else a quarter,
+            # a sixteenth
             pending = np.ones(a.size, bool)
             for shrink in (1.0, 0.25, 0.0625):
                 trial_a = np.where(pending, np.maximum(a + shrink * da, 1e-9), a)
                 trial_d = np.where(pending, d + shrink * dd, d)
-                t_h, t_g, t_ell, _, _ = self._normal(trial_a, trial_d, mu, dmu, nu, sig2, c)
-                better = pending & (t_ell > ell)
+                t_lik = self._normal(trial_a, trial_d, table, sig2, c)
+                better = pending & (with_prior(trial_a, t_lik)[2] > obj)
                 a, d = np.where(better, trial_a, a), np.where(better, trial_d, d)
-                h = tuple(np.where(better, x, y) for x, y in zip(t_h, h))
-                g = tuple(np.where(better, x, y) for x, y in zip(t_g, g))
-                ell = np.where(better, t_ell, ell)
+                lik = [np.where(better, x, y) for x, y in zip(t_lik, lik)]
+                h, g, obj = with_prior(a, lik)
                 pending &= ~better
                 if not pending.any():
                     break
+            moved = float(np.max(obj - before))
+            if overall is None:
+                new_a = overall_amplitude(a, modes)
+                # what A's change is worth in log L: ½ n M (ΔA/A)² (its curvature)
+                moved = max(moved, 0.5 * a.size * modes * ((new_a - big_a) / big_a) ** 2)
+                big_a = new_a
+                h, g, obj = with_prior(a, lik)
+            if moved < TOLERANCE:
+                break
         self.amplitude, self.arrival = a, d
-        h, _, ell, chi2, n_unc = self._normal(a, d, mu, dmu, nu, sig2, c)
         det = np.maximum(h[0] * h[2] - h[1] ** 2, 1e-300)
-        p_a = det / np.maximum(h[2], 1e-300)
-        spread = 0.0 if not math.isfinite(self.f.modes) else 1.0 / self.f.modes
-        if overall is None:
-            big_a = float(np.sum(p_a * a) / np.sum(p_a))
-            for _ in range(3):
-                w = 1.0 / (1.0 / p_a + big_a ** 2 * spread)
-                big_a = float(np.sum(w * a) / np.sum(w))
-        else:
-            big_a = float(overall)
-        var_a = 1.0 / p_a + big_a ** 2 * spread
-        amp_term = -0.5 * (LOG_2PI + np.log(var_a) + (a - big_a) ** 2 / var_a)
-        total = float(np.sum(ell + LOG_2PI - 0.5 * np.log(det) + amp_term))
-        return ShotFit(a, d, total, big_a, float(chi2), int(n_unc), int(self.censored.sum()))
+        per_shot = obj + LOG_2PI - 0.5 * np.log(det)
+        clipped = np.nonzero(self.censored.any(axis=1))[0]
+        if clipped.size:
+            per_shot[clipped] = self._arrival_integral(table, a, d, clipped, big_a,
+                                                       modes / big_a ** 2, sig2, c)
+        total = float(np.sum(per_shot))
+        return ShotFit(a, d, total, big_a, float(np.sum(lik[6])), self.uncensored,
+                       self.x.size - self.uncensored)
 
-    def _normal(self, a, d, mu, dmu, nu, sig2, c):
-        """Per shot: the Gauss–Newton Hessian of −ℓ_s in (a, δ) as (H_aa, H_aδ, H_δδ), the
-        gradient of ℓ_s, ℓ_s itself, and (all shots) Σ r²/Var and the number of uncensored
-        samples. A censored sample contributes log Φ(z), z = (m − c)/√Var, whose derivative in
-        the model m is λ(z)/√Var and whose curvature is λ(z)(z + λ(z))/Var, λ = φ/Φ (the
-        Tobit terms), so that the steps follow the same ℓ_s that is reported."""
-        m, dm, n = self._gather([mu, dmu, nu], d)
-        var = sig2 + a[:, None] * n
-        model = a[:, None] * m
-        r = self.y - model
-        cens = self.censored
-        sd = np.sqrt(var)
-        z = (model - c) / sd
-        log_phi_z = log_ndtr(z)
-        mills = np.exp(-0.5 * z * z - 0.5 * LOG_2PI - log_phi_z)
-        grad_m = np.where(cens, mills / sd, r / var)               # ∂ℓ/∂m
-        weight = np.where(cens, mills * (z + mills) / var, 1.0 / var)
-        j_a, j_d = m, -a[:, None] * dm
-        h = (np.sum(weight * j_a * j_a, 1), np.sum(weight * j_a * j_d, 1),
-             np.sum(weight * j_d * j_d, 1))
-        g = (np.sum(grad_m * j_a, 1), np.sum(grad_m * j_d, 1))
-        gauss = -0.5 * (r * r / var + np.log(var) + LOG_2PI)
-        ell = np.sum(np.where(cens, log_phi_z, gauss), 1)
-        unc = ~cens
-        chi2 = float(np.sum(np.where(unc, r * r / var, 0.0)))
-        return h, g, ell, chi2, int(unc.sum())
+    def _arrival_integral(self, table, a, d, rows, big_a, prec, sig2, c) -> np.ndarray:
+        """log ∫∫ exp(ℓ_s(a, δ)) N(a; A, A²/M) da dδ for the shots ``rows`` that have
+        clipped samples: Laplace in a at each δ (the objective is concave in a), the
+        trapezoid rule in δ.
+
+        Clipping leaves such a shot's arrival on a plateau: any δ that keeps the clipped
+        samples above the ceiling and the unclipped ones at their values fits about as well,
+        and the plateau ends at a cliff where a clipped sample would fall below the ceiling.
+        No Gaussian approximation in δ holds there. The integral is taken on a coarse grid
+        (``ARRIVAL_COARSE`` ns over ± half a sampling interval around the fitted δ_s), then
+        on a fine one (``ARRIVAL_FINE`` ns) over the part within ``ARRIVAL_RANGE`` of the
+        coarse maximum, where the mass is."""
+        half = 0.5 * self.f.interval
+        coarse = np.arange(-half, half + 1e-9, ARRIVAL_COARSE)
+        logv, _ = self._on_arrivals(table, a[rows], d[rows][:, None] + coarse[None, :], rows,
+                                    big_a, prec, sig2, c)
+        keep = logv > logv.max(axis=1, keepdims=True) - ARRIVAL_RANGE
+        first = np.argmax(keep, axis=1)
+        last = keep.shape[1] - 1 - np.argmax(keep[:, ::-1], axis=1)
+        lo = d[rows] + coarse[np.maximum(first - 1, 0)]
+        hi = d[rows] + coarse[np.minimum(last + 1, coarse.size - 1)]
+        count = int(np.ceil(np.max(hi - lo) / ARRIVAL_FINE)) + 1
+        frac = np.linspace(0.0, 1.0, count)
+        grid = lo[:, None] + (hi - lo)[:, None] * frac[None, :]
+        logv, _ = self._on_arrivals(table, a[rows], grid, rows, big_a, prec, sig2, c)
+        step = (hi - lo) / (count - 1)
+        w = np.full(count, 1.0)
+        w[[0, -1]] = 0.5                                    # trapezoid weights
+        top = logv.max(axis=1)
+        return top + np.log(np.sum(w * np.exp(logv - top[:, None]), axis=1) * step)
+
+    def _on_arrivals(self, table, a0, deltas, rows, big_a, prec, sig2, c):
+        """For shots ``rows`` at arrivals ``deltas`` (rows × D, ns): the log of the Laplace
+        integral over a, max_a [ℓ + log prior] + ½ log(2π / H_aa), by Newton steps in a
+        from ``a0``; and that a. Shape (rows, D)."""
+        n_rows, n_d = deltas.shape
+        m, _, n = self._gather(table, deltas.ravel())
+        y = np.repeat(self.y[rows], n_d, axis=0)
+        cens = np.repeat(self.censored[rows], n_d, axis=0)
+        a = np.repeat(a0, n_d)
+        for step in range(ARRIVAL_NEWTON + 1):
+            grad_m, weight, ell_k, _ = _terms(y, cens, a, m, n, sig2, c)
+            h = (weight * m * m).sum(1) + prec
+            if step == ARRIVAL_NEWTON:
+                break
+            g = (grad_m * m).sum(1) - prec * (a - big_a)
+            a = np.maximum(a + g / h, 1e-9)
+        obj = ell_k.sum(1) - 0.5 * (LOG_2PI - math.log(prec) + prec * (a - big_a) ** 2)
+        logv = obj + 0.5 * (LOG_2PI - np.log(h))
+        return logv.reshape(n_rows, n_d), a.reshape(n_rows, n_d)
+
+    def _normal(self, a, d, table, sig2, c) -> list:
+        """Per shot: the Gauss–Newton Hessian of −ℓ_s in (a, δ) (H_aa, H_aδ, H_δδ), the
+        gradient of ℓ_s (g_a, g_δ), ℓ_s itself and Σ r²/Var over its uncensored samples. A
+        censored sample contributes log Φ(z), z = (m − c)/√Var, whose derivative in the model
+        m is λ(z)/√Var and whose curvature is λ(z)(z + λ(z))/Var, λ = φ/Φ (the Tobit terms),
+        so that the steps follow the same ℓ_s that is reported."""
+        m, dm, n = self._gather(table, d)
+        grad_m, weight, ell_k, chi2 = _terms(self.y, self.censored if self.uncensored <
+                                             self.x.size else None, a, m, n, sig2, c)
+        j_d = -a[:, None] * dm
+        wm = weight * m
+        wj = weight * j_d
+        return [(wm * m).sum(1), (wm * j_d).sum(1), (wj * j_d).sum(1), (grad_m * m).sum(1),
+                (grad_m * j_d).sum(1), ell_k.sum(1), chi2.sum(1)]
+
+
+def overall_amplitude(a: np.ndarray, modes: float) -> float:
+    """The A that maximises Σ_s log N(a_s; A, A²/M): the positive root of
+    n A² + M S₁ A − M S₂ = 0 (S₁ = Σ a_s, S₂ = Σ a_s²), written without cancellation; S₂/S₁
+    for M → inf."""
+    s1, s2 = float(np.sum(a)), float(np.sum(a * a))
+    return 2.0 * s2 / (s1 + math.sqrt(s1 * s1 + 4.0 * a.size * s2 / modes))
+
+
+def padded(arrays: list) -> np.ndarray:
+    """Arrays of the fine grid as the rows of one table with a zero column before and two
+    after (what :meth:`Shots._gather` reads)."""
+    table = np.zeros((len(arrays), arrays[0].size + 3))
+    for row, values in zip(table, arrays):
+        row[1:-2] = values
+    return table
+
+
+def _terms(y, cens, a, m, n, sig2, c):
+    """Per sample, for amplitudes ``a`` (per row) and model ``m``, ``n`` (rows × K): ∂ℓ/∂m,
+    the Gauss–Newton weight, ℓ and r²/Var (0 where censored). ``cens`` None: nothing is
+    censored (the Tobit terms are skipped)."""
+    var = sig2 + a[:, None] * n
+    r = y - a[:, None] * m
+    r_var = r / var
+    chi2 = r * r_var
+    gauss = -0.5 * (chi2 + np.log(var) + LOG_2PI)
+    if cens is None:
+        return r_var, 1.0 / var, gauss, chi2
+    sd = np.sqrt(var)
+    z = (a[:, None] * m - c) / sd
+    log_phi_z = log_ndtr(z)
+    mills = np.exp(-0.5 * z * z - 0.5 * LOG_2PI - log_phi_z)
+    return (np.where(cens, mills / sd, r_var), np.where(cens, mills * (z + mills) / var, 1.0 / var),
+            np.where(cens, log_phi_z, gauss), np.where(cens, 0.0, chi2))

@@ -23,6 +23,8 @@ import numpy as np
 
 #: Points with log L below the best minus this hold a negligible share of the posterior.
 SIGNIFICANT = 20.0
+#: The profile over v stops when a further step would raise log L by less than this.
+V_GAIN = 0.01
 
 
 @dataclass
@@ -106,11 +108,10 @@ class Problem:
 
         def neg(v):
             mu, nu = self.forward.waveform(photons, v)
-            iterations = 4
             if fresh[0]:
                 self.shots.start(mu)
-                fresh[0], iterations = False, 12
-            fit = self.shots.fit(mu, nu, self.overall, iterations)
+                fresh[0] = False
+            fit = self.shots.fit(mu, nu, self.overall)
             fits[v] = fit
             self.count += 1
             return -fit.loglike
@@ -126,7 +127,8 @@ class Problem:
         """The v (ns²) minimising ``neg`` in ``forward.v_bounds``: successive parabolas
         through the three best points, started at the last point's v (neighbouring points of
         the grid have nearly the same one), steps capped at 4 h and kept inside the bounds;
-        stops when a step is below 1e-3 σ_p² (a 0.05 % change of the pulse width)."""
+        stops when the parabola promises less than ``V_GAIN`` in log L, or a step is below
+        1e-3 σ_p² (a 0.05 % change of the pulse width)."""
         lo, hi = self.forward.v_bounds
         scale = self.forward.sigma_p ** 2
         h = 0.1 * scale
@@ -141,6 +143,11 @@ class Problem:
             curvature = ((f2 - f1) / (x2 - x1) - (f1 - f0) / (x1 - x0)) / (x2 - x0)
             if curvature > 0 and denom != 0:            # convex: the parabola's vertex
                 step = x1 - 0.5 * numer / denom - best
+                vertex = best + step
+                promised = seen[best] - (f1 + (vertex - x1) * ((f2 - f1) / (x2 - x1)
+                                                                + curvature * (vertex - x2)))
+                if promised < V_GAIN and lo <= vertex <= hi:
+                    break
             else:                                       # downhill, towards the better end
                 step = (x0 - x2) if f0 < f2 else (x2 - x0)
             step = max(-4 * h, min(4 * h, step))

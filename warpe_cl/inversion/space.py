@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
-from ..instrument.surface import SurfaceResponse, check_variables, response
+from ..instrument.surface import SurfaceResponse, check_variables, responses
 
 
 @dataclass
@@ -203,10 +203,10 @@ class Space:
         self.nodes = np.empty(shape, object)
         t1 = (sub["first_bf_time_ns"].values if "first_bf_time_ns" in sub.variables
               else np.full(sub.sizes["scenario"], math.nan))
-        for i in range(sub.sizes["scenario"]):
-            index = tuple(int(np.searchsorted(a.values, float(sub[a.key].values[i])))
-                          for a in self.axes)
-            self.nodes[index] = NodeResponse(response(sub, i), float(t1[i]))
+        values = [np.asarray(sub[a.key].values, float) for a in self.axes]
+        for i, r in enumerate(responses(sub)):
+            index = tuple(int(np.searchsorted(a.values, v[i])) for a, v in zip(self.axes, values))
+            self.nodes[index] = NodeResponse(r, float(t1[i]))
         self.wavelength = self.nodes.flat[0].surface.wavelength
         self.point = {}
         for key, value in fix.items():
