@@ -30,6 +30,16 @@ from ..errors import ConfigError
 from ..instrument.surface import SurfaceResponse, check_variables, responses
 
 
+#: Interpolation coordinates of an axis: name -> (coordinate of a value, value of a
+#: coordinate). ``log1m`` is -ln(1 - x), for values crowding towards 1 (compacities of
+#: compact slabs, 0.9 ... 0.999).
+SCALES = {
+    "linear": (lambda x: x, lambda u: u),
+    "log": (np.log, np.exp),
+    "log1m": (lambda x: -np.log1p(-x), lambda u: -np.expm1(-u)),
+}
+
+
 @dataclass
 class Axis:
     """One swept key of the database.
@@ -41,23 +51,27 @@ class Axis:
     values : array
         Its grid values, increasing, in the database's unit (``units``: m, ns, deg or 1).
     units : str
-    log : bool
-        Whether the interpolation coordinate is ln(value).
+    scale : str
+        The interpolation coordinate, a key of ``SCALES``: the value, ln(value) or
+        -ln(1 - value) (:func:`axis_scale`). The prior is uniform in it.
     """
     key: str
     values: np.ndarray
     units: str
-    log: bool
+    scale: str = "linear"
+
+    @property
+    def log(self) -> bool:
+        """Whether the interpolation coordinate is ln(value)."""
+        return self.scale == "log"
 
     def coord(self, x):
         """The interpolation coordinate of value(s) ``x``."""
-        x = np.asarray(x, float)
-        return np.log(x) if self.log else x
+        return SCALES[self.scale][0](np.asarray(x, float))
 
     def value(self, u):
         """The value at interpolation coordinate(s) ``u``."""
-        u = np.asarray(u, float)
-        return np.exp(u) if self.log else u
+        return SCALES[self.scale][1](np.asarray(u, float))
 
     @property
     def nodes(self) -> np.ndarray:
@@ -70,19 +84,29 @@ class Axis:
         return self.key.rsplit(".", 1)[-1]
 
 
-def log_spaced(values: np.ndarray) -> bool:
-    """Whether positive ``values`` are closer to evenly spaced in logarithm than linearly
-    (two values: whether their ratio exceeds 3)."""
+def axis_scale(values: np.ndarray) -> str:
+    """The coordinate of ``SCALES`` in which the grid ``values`` are closest to evenly spaced:
+    ``log`` for positive values closer to even in ln (two values: a ratio above 3),
+    ``log1m`` for values in (0, 1) closer to even in -ln(1 - x) than in both others (three
+    values at least), else ``linear``."""
     v = np.asarray(values, float)
-    if v.size < 2 or np.any(v <= 0.0):
-        return False
+    if v.size < 2:
+        return "linear"
     if v.size == 2:
-        return bool(v[1] / v[0] > 3.0)
+        if np.all(v > 0) and v[1] / v[0] > 3.0:
+            return "log"
+        return "linear"
 
     def unevenness(x):
         d = np.diff(x)
         return float(np.std(d) / np.mean(d))
-    return unevenness(np.log(v)) < unevenness(v)
+    score = {"linear": unevenness(v)}
+    if np.all(v > 0):
+        score["log"] = unevenness(np.log(v))
+    if np.all((v > 0) & (v < 1)):
+        score["log1m"] = unevenness(-np.log1p(-v))
+    best = min(score, key=score.get)
+    return best if score[best] < score["linear"] else "linear"
 
 
 def swept_keys(ds) -> list:
@@ -194,7 +218,7 @@ class Space:
         self.axes = []
         for key in numeric:
             v = np.unique(np.asarray(sub[key].values, float))
-            self.axes.append(Axis(key, v, sub[key].attrs.get("units", "1"), log_spaced(v)))
+            self.axes.append(Axis(key, v, sub[key].attrs.get("units", "1"), axis_scale(v)))
         shape = tuple(a.values.size for a in self.axes)
         if int(np.prod(shape)) != sub.sizes["scenario"]:
             raise ConfigError(f"its {sub.sizes['scenario']} finished scenarios do not fill the "
