@@ -222,3 +222,19 @@ def test_cli_refuses_bad_input_in_one_line(files, capsys, args, words):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and words in err, err
+
+
+@pytest.mark.parametrize("values, scale", [
+    (np.geomspace(25e-6, 400e-6, 5), "log"),
+    (np.linspace(0.1, 0.9, 5), "linear"),
+    ([0.9, 0.95, 0.99, 0.995, 0.999], "log1m"),
+    ([1e-3, 0.0316, 1.0], "log"),
+    ([0.3, 0.9], "linear"),
+])
+def test_axis_coordinate_follows_the_grid_spacing(values, scale):
+    """The interpolation coordinate (and the prior) is the one the grid is evenly spaced in:
+    compact-slab compacities 0.9 ... 0.999 are spaced in -ln(1 - c)."""
+    from warpe_cl.inversion.space import Axis, axis_scale
+    assert axis_scale(values) == scale
+    axis = Axis("k", np.asarray(values, float), "1", scale)
+    np.testing.assert_allclose(axis.value(axis.nodes), values, rtol=1e-12)

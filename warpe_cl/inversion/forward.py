@@ -78,23 +78,32 @@ class Forward:
         else:
             lo, hi = -self.geo.sigma_g ** 2, broadening_max ** 2
         self.v_bounds = (lo, hi)
-        self.h, self.h_origin = electronics.filter_kernel(p["electronics.filter"],
-                                                          p["electronics.bandwidth"], self.step)
+        self.counting = p["detector.type"] == "photon_counting"
+        if self.counting:       # time tags: no receiver filter, a Gaussian timing jitter
+            self.h, self.h_origin = pulse.gaussian_kernel(p["detector.timing_jitter"], self.step) \
+                if p["detector.timing_jitter"] > 0 else (np.ones(1), 0)
+        else:
+            self.h, self.h_origin = electronics.filter_kernel(
+                p["electronics.filter"], p["electronics.bandwidth"], self.step)
         widest = math.sqrt(self.sigma_p ** 2 + self.geo.sigma_g ** 2 + max(hi, 0.0))
         margin = self.step * self.h.size + 8.0 * widest + 2.0 * self.interval + 5.0
         self.grid = make_grid(p["window.start"], p["window.stop"], self.step, margin)
         self.t = self.grid.centres
+        self.eta = radiometry.detection_efficiency(p)
+        self.modes = radiometry.speckle_modes(p)
+        self.dc_rate = steady_rate(p)                  # pe ns⁻¹: background and dark counts
+        if self.counting:
+            self.sigma_n = self.baseline = self.ceiling = math.nan
+            return
         gain = p["detector.gain"]
         g_t = p["electronics.transimpedance"]
-        levels = receiver_levels(p, self.h, self.step, steady_rate(p))
-        self.eta = radiometry.detection_efficiency(p)
+        levels = receiver_levels(p, self.h, self.step, self.dc_rate)
         dt_s = self.step * 1e-9
         self.mv_per_pe = g_t * ELEMENTARY_CHARGE * gain / dt_s * 1e3         # mV per pe per bin
         self.mv2_per_pe = (g_t * ELEMENTARY_CHARGE * gain / dt_s) ** 2 * levels.excess * 1e6
         self.sigma_n = levels.noise_mv
         self.baseline = levels.baseline_mv
         self.ceiling = levels.ceiling_mv
-        self.modes = radiometry.speckle_modes(p)
 
     def photons(self, surface) -> np.ndarray:
         """Photons at the aperture per fine bin (amplitude 1) for a surface response, before the
@@ -116,9 +125,13 @@ class Forward:
         return np.convolve(p_k, g_k), p_o + g_o
 
     def waveform(self, photons: np.ndarray, v: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """μ (mV) and ν (mV²) of the module docstring on the fine grid (``self.t``)."""
+        """μ (mV) and ν (mV²) of the module docstring on the fine grid (``self.t``); for a
+        photon-counting detector, the signal photoelectrons per ns (amplitude 1) with the
+        timing jitter, and None."""
         k, k_o = self.kernel(v)
         pe = np.clip(self._convolve(photons, k, k_o), 0.0, None) * self.eta
+        if self.counting:
+            return np.clip(self._convolve(pe, self.h, self.h_origin), 0.0, None) / self.step, None
         mu = self.mv_per_pe * self._convolve(pe, self.h, self.h_origin)
         nu = self.mv2_per_pe * self._convolve(pe, self.h ** 2, self.h_origin)
         return mu, np.clip(nu, 0.0, None)

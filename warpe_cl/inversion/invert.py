@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError
+from .counting import CountShots
 from .forward import BROADENING_MAX_NS, PULSE_RANGE, Forward
 from .likelihood import Shots
 from .posterior import Problem, intervals, marginal, nearest_node_mass, refine
@@ -66,9 +67,13 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     db, db_source = _database(database, database_source)
     params = instrument if isinstance(instrument, InstrumentParams) else \
         load_instrument(instrument or obs.instrument or _no_instrument(obs))
-    if obs.kind != "mv":
-        raise ConfigError("photon-counting shots (signal_counts) are not inverted yet: give "
-                          "linear-mode samples (signal_mv)", key=observed_source or obs.source)
+    counting = params["detector.type"] == "photon_counting"
+    if counting != (obs.kind == "counts"):
+        raise ConfigError(f"{params['name']} is a {'photon-counting' if counting else 'linear-mode'}"
+                          f" receiver but the observed shots are "
+                          f"{'photon counts' if obs.kind == 'counts' else 'samples in mV'}: give "
+                          "the instrument that recorded them (--instrument)",
+                          key=observed_source or obs.source)
     if abs(obs.interval_ns - params["adc.sampling_interval"]) > 1e-6 * obs.interval_ns:
         raise ConfigError(f"the observed samples are {obs.interval_ns:g} ns apart but "
                           f"{params['name']} samples every {params['adc.sampling_interval']:g} "
@@ -94,11 +99,17 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
                               key=db_source)
     forward = Forward(params, pulse_range, broadening_max)
     v_fixed = _fixed_v(nuisance, forward)
-    used = _detected(obs.shots, forward)
-    if not used.any():
-        raise ConfigError(f"no shot rises {DETECTION_SIGMA:g} σ_n ({forward.sigma_n:.3g} mV) "
-                          "above the baseline: nothing to invert", key=obs.source)
-    shots = Shots(obs.time_ns, obs.shots[used], forward)
+    if counting:
+        used = np.ones(obs.shots.shape[0], bool)     # a shot without tags counts too
+        if not obs.shots.sum() > 0:
+            raise ConfigError("the shots hold no photon: nothing to invert", key=obs.source)
+        shots = CountShots(obs.time_ns, obs.shots, forward)
+    else:
+        used = _detected(obs.shots, forward)
+        if not used.any():
+            raise ConfigError(f"no shot rises {DETECTION_SIGMA:g} σ_n ({forward.sigma_n:.3g} "
+                              "mV) above the baseline: nothing to invert", key=obs.source)
+        shots = Shots(obs.time_ns, obs.shots[used], forward)
     overall = nuisance.get("amplitude")
     problem = Problem(space, forward, shots, overall=None if overall is None else float(overall),
                       v=v_fixed)
@@ -178,7 +189,7 @@ def _summarise(problem, final, report) -> dict:
         span = hi_u - lo_u
         width95 = (iv[0.95][1] - iv[0.95][0]) / span if span > 0 else 0.0
         rows.append({
-            "key": axis.key, "units": axis.units, "log": axis.log,
+            "key": axis.key, "units": axis.units, "scale": axis.scale,
             "best": float(axis.value(best_u[j])), "median": float(axis.value(iv[0.5])),
             "low68": float(axis.value(iv[0.68][0])), "high68": float(axis.value(iv[0.68][1])),
             "low95": float(axis.value(iv[0.95][0])), "high95": float(axis.value(iv[0.95][1])),

@@ -30,6 +30,49 @@ def plot_fit(ds, path) -> None:
     fig = plt.figure(figsize=(3.0 * max(n, 2) + 1.0, 3.0 * n + 3.2))
     grid = fig.add_gridspec(n + 1, max(n, 1), height_ratios=[1.3] + [1.0] * n)
     ax = fig.add_subplot(grid[0, :])
+    if "fit_counts" in ds:
+        _counts_panel(ax, ds)
+    else:
+        _mv_panel(ax, ds)
+    ax.set_title(f"{ds.attrs.get('instrument_name', '')}: {ds.attrs.get('observed', '')}",
+                 fontsize=9)
+    ax.legend(fontsize=7, loc="upper right")
+    post = ds["posterior"].values
+    for i in range(n):
+        for j in range(i + 1):
+            axc = fig.add_subplot(grid[i + 1, j])
+            xi_label, xi_scale, _ = _label(ds, dims[j])
+            x = ds[dims[j]].values * xi_scale
+            if i == j:
+                other = tuple(k for k in range(n) if k != i)
+                m = (post.sum(axis=other) if other else post) / _cells(ds[dims[i]].values,
+                                                                      _scale_of(ds, dims[i]))
+                axc.plot(x, m / m.max(), "-o", ms=2, color="C0")
+                name = str(ds[dims[i]].attrs.get("sweep_key", dims[i]))
+                if name in ds["parameter"].values:
+                    r = ds.sel(parameter=name)
+                    for lo, hi, alpha in (("low95", "high95", 0.15), ("low68", "high68", 0.3)):
+                        axc.axvspan(float(r[lo]) * xi_scale, float(r[hi]) * xi_scale,
+                                    color="C0", alpha=alpha)
+                axc.set_yticks([])
+            else:
+                yl, ys, _ = _label(ds, dims[i])
+                other = tuple(k for k in range(n) if k not in (i, j))
+                # the remaining axes are (j, i), j < i: pcolormesh wants (y, x) = (i, j)
+                m = (post.sum(axis=other) if other else post).T
+                axc.pcolormesh(x, ds[dims[i]].values * ys, m, shading="nearest", cmap="Blues")
+                axc.set_ylabel(yl if j == 0 else "")
+                _set_scale(axc.set_yscale, ds, dims[i])
+            _set_scale(axc.set_xscale, ds, dims[j])
+            axc.set_xlabel(xi_label if i == n - 1 else "")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _mv_panel(ax, ds) -> None:
+    """Linear-mode shots aligned on their arrivals and scaled to amplitude A, the best fit and
+    its 68 % band."""
     amp = ds["shot_amplitude"].values
     big_a = float(ds["amplitude"])
     base = float(ds["fit_mv"].values[0])
@@ -46,55 +89,51 @@ def plot_fit(ds, path) -> None:
     ax.set_xlim(peak - 40, peak + 80)
     ax.set_xlabel("time from the shot's arrival (ns)")
     ax.set_ylabel("signal (mV)")
-    ax.set_title(f"{ds.attrs.get('instrument_name', '')}: {ds.attrs.get('observed', '')}",
-                 fontsize=9)
-    ax.legend(fontsize=7, loc="upper right")
-    post = ds["posterior"].values
-    for i in range(n):
-        for j in range(i + 1):
-            axc = fig.add_subplot(grid[i + 1, j])
-            xi_label, xi_scale, _ = _label(ds, dims[j])
-            x = ds[dims[j]].values * xi_scale
-            if i == j:
-                other = tuple(k for k in range(n) if k != i)
-                m = (post.sum(axis=other) if other else post) / _cells(ds[dims[i]].values,
-                                                                      _is_log(ds, dims[i]))
-                axc.plot(x, m / m.max(), "-o", ms=2, color="C0")
-                name = str(ds[dims[i]].attrs.get("sweep_key", dims[i]))
-                if name in ds["parameter"].values:
-                    r = ds.sel(parameter=name)
-                    for lo, hi, alpha in (("low95", "high95", 0.15), ("low68", "high68", 0.3)):
-                        axc.axvspan(float(r[lo]) * xi_scale, float(r[hi]) * xi_scale,
-                                    color="C0", alpha=alpha)
-                axc.set_yticks([])
-            else:
-                yl, ys, _ = _label(ds, dims[i])
-                other = tuple(k for k in range(n) if k not in (i, j))
-                # the remaining axes are (j, i), j < i: pcolormesh wants (y, x) = (i, j)
-                m = (post.sum(axis=other) if other else post).T
-                axc.pcolormesh(x, ds[dims[i]].values * ys, m, shading="nearest", cmap="Blues")
-                axc.set_ylabel(yl if j == 0 else "")
-                if ds[dims[i]].values.min() > 0 and _is_log(ds, dims[i]):
-                    axc.set_yscale("log")
-            if ds[dims[j]].values.min() > 0 and _is_log(ds, dims[j]):
-                axc.set_xscale("log")
-            axc.set_xlabel(xi_label if i == n - 1 else "")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
-def _is_log(ds, dim: str) -> bool:
-    """Whether the posterior axis ``dim`` was interpolated in log (its parameter's log_scale)."""
+def _counts_panel(ax, ds) -> None:
+    """Photon counts of all shots summed per histogram bin against the best fit (the
+    expected counts of a bin of the same width, all shots) and its 68 % band."""
+    n = ds.sizes["shot"]
+    width = float(np.diff(ds["sample_time"].values[:2])[0])
+    t = ds["sample_time"].values + 0.5 * width - float(ds["arrival_time"])
+    ax.step(t, ds["observed_counts"].values.sum(axis=0), where="mid", color="0.4", lw=0.8,
+            label=f"time tags of {n} shots per {width:g} ns bin")
+    ft = ds["fit_time"].values
+    ax.fill_between(ft, n * ds["fit_low68_counts"].values, n * ds["fit_high68_counts"].values,
+                    color="C1", alpha=0.35, label="68 % band of the posterior")
+    ax.plot(ft, n * ds["fit_counts"].values, color="C3", lw=1.2,
+            label=f"best fit (chi2/dof {float(ds['chi2_per_dof']):.2f})")
+    peak = ft[np.argmax(ds["fit_counts"].values)]
+    ax.set_xlim(peak - 10, peak + 30)
+    ax.set_xlabel("time from the fitted arrival (ns)")
+    ax.set_ylabel("counts per bin (all shots)")
+
+
+def _scale_of(ds, dim: str) -> str:
+    """The interpolation coordinate of the posterior axis ``dim`` (its parameter's ``scale``;
+    ``log_scale`` in files written before it; else detected from the values)."""
+    from .space import axis_scale
     key = ds[dim].attrs.get("sweep_key")
     if key in ds["parameter"].values:
-        return bool(ds["log_scale"].sel(parameter=key))
-    v = ds[dim].values
-    return v.size > 2 and np.allclose(np.diff(np.log(v)), np.diff(np.log(v))[0], rtol=1e-6)
+        if "scale" in ds:
+            return str(ds["scale"].sel(parameter=key).values)
+        return "log" if bool(ds["log_scale"].sel(parameter=key)) else "linear"
+    return axis_scale(ds[dim].values)
 
 
-def _cells(values: np.ndarray, log: bool) -> np.ndarray:
+def _set_scale(setter, ds, dim: str) -> None:
+    """A log axis for ln-interpolated values, a logit axis for -ln(1 - x) ones."""
+    scale, values = _scale_of(ds, dim), ds[dim].values
+    if scale == "log" and values.min() > 0:
+        setter("log")
+    elif scale == "log1m" and values.min() > 0 and values.max() < 1:
+        setter("logit")
+
+
+def _cells(values: np.ndarray, scale: str) -> np.ndarray:
     """Trapezoid widths of the points in their interpolation coordinate: mass / width is the
     density the prior is uniform in."""
     from .posterior import _trapezoid
-    return _trapezoid(np.log(values) if log else values) if values.size > 1 else np.ones(1)
+    from .space import SCALES
+    return _trapezoid(SCALES[scale][0](values)) if values.size > 1 else np.ones(1)

@@ -30,9 +30,17 @@ def _band(problem, final, rng_seed: int = 0):
         u = np.array([c[i] for c, i in zip(final.coords, index)])
         photons = f.photons(problem.space.surface(problem.point(u)))
         mu, _ = f.waveform(photons, e.v)
-        curves.append(f.baseline + e.fit.overall * mu)
+        curves.append(_curve(f, mu, e.fit.overall))
     curves = np.array(curves)
     return np.percentile(curves, 16, axis=0), np.percentile(curves, 84, axis=0)
+
+
+def _curve(f, mu, amplitude):
+    """The expected waveform at amplitude A on the fine grid: mV (baseline + A μ), or for a
+    photon-counting receiver counts per histogram bin per shot (A r Δ + b Δ)."""
+    if f.counting:
+        return (amplitude * mu + f.dc_rate) * f.interval
+    return f.baseline + amplitude * mu
 
 
 def build_result(obs, params, space, problem, nodes, final, summary, used, *, db_source,
@@ -46,11 +54,19 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     photons = f.photons(space.surface(problem.point(summary["best_u"])))
     mu, _ = f.waveform(photons, best.v)
     fit = best.fit          # the nuisances of the evaluation that ranked the best point
-    expected = f.baseline + fit.amplitude[:, None] * problem.shots._interp(mu, fit.arrival)
-    expected = np.minimum(expected, f.ceiling)
     low, high = _band(problem, final)
     n_shots = int(used.sum())
-    dof = fit.samples - 2 * n_shots - 2 - len(space.free_axes)
+    if f.counting:          # Pearson groups less A, δ, v and the free axes
+        dof = fit.samples - 3 - len(space.free_axes)
+        unit = "counts"
+        expected = np.broadcast_to(problem.shots.expected(mu, fit.overall, fit.arrival[0]),
+                                   (n_shots, obs.time_ns.size))
+    else:
+        dof = fit.samples - 2 * n_shots - 2 - len(space.free_axes)
+        unit = "mV"
+        expected = f.baseline + fit.amplitude[:, None] * problem.shots._interp(mu, fit.arrival)
+        expected = np.minimum(expected, f.ceiling)
+    suffix = "counts" if f.counting else "mv"
     rows = [r for r in summary["rows"] if r["reported"]]
     names = [r["key"] for r in rows]
     data = {}
@@ -60,7 +76,10 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     data["constrained"] = ("parameter", np.array([r["interval_fraction"] < UNCONSTRAINED
                                                   for r in rows]))
     data["units"] = ("parameter", np.array([r["units"] for r in rows]))
-    data["log_scale"] = ("parameter", np.array([r["log"] for r in rows]))
+    data["log_scale"] = ("parameter", np.array([r["scale"] == "log" for r in rows]))
+    data["scale"] = ("parameter", np.array([r["scale"] for r in rows]), {
+        "long_name": "interpolation coordinate, in which the prior is uniform: linear (the "
+                     "value), log (ln value) or log1m (-ln(1 - value))"})
     coords = {"parameter": ("parameter", np.array(names), {
         "long_name": "swept dotted key of the database, in its unit (m, 1, ...)"})}
     for j, (axis, row) in enumerate(zip(space.free_axes, summary["rows"])):
@@ -98,13 +117,15 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
             "units": "ns", "long_name": "pulse FWHM equivalent to v at the nominal footprint"}),
         "footprint_sigma": ((), f.footprint_of(best.v), {
             "units": "ns", "long_name": "footprint sigma_g equivalent to v at the nominal pulse"}),
-        "observed_mv": (("shot", "sample_time"), obs.shots[used], {"units": "mV"}),
-        "expected_mv": (("shot", "sample_time"), expected, {
-            "units": "mV", "long_name": "best-fit expected samples of each shot"}),
-        "fit_mv": ("fit_time", f.baseline + fit.overall * mu, {
-            "units": "mV", "long_name": "best-fit expected waveform, amplitude A"}),
-        "fit_low68_mv": ("fit_time", low, {"units": "mV"}),
-        "fit_high68_mv": ("fit_time", high, {"units": "mV"}),
+        f"observed_{suffix}": (("shot", "sample_time"), obs.shots[used], {"units": unit}),
+        f"expected_{suffix}": (("shot", "sample_time"), np.array(expected), {
+            "units": unit, "long_name": "best-fit expected samples of each shot"
+                                        + (" (per histogram bin)" if f.counting else "")}),
+        f"fit_{suffix}": ("fit_time", _curve(f, mu, fit.overall), {
+            "units": unit, "long_name": "best-fit expected waveform, amplitude A"
+                                        + (", per bin width and shot" if f.counting else "")}),
+        f"fit_low68_{suffix}": ("fit_time", low, {"units": unit}),
+        f"fit_high68_{suffix}": ("fit_time", high, {"units": unit}),
         "chi2": ((), fit.chi2),
         "dof": ((), dof),
         "chi2_per_dof": ((), fit.chi2 / dof if dof > 0 else np.nan),
@@ -126,7 +147,11 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         "evaluations": summary["evaluations"],
         "elapsed_s": round(summary["elapsed_s"], 3),
         "method": "grid posterior (docs/inversion.md): uniform prior in each axis' "
-                  "interpolation coordinate; per-shot amplitude and arrival by Laplace; "
-                  "pulse/footprint broadening profiled",
+                  "interpolation coordinate; "
+                  + ("aggregated photon-count histogram, Poisson; common arrival integrated, "
+                     "amplitude profiled; " if f.counting else
+                     "per-shot amplitude and arrival by Laplace (arrival integrated for "
+                     "clipped shots); ")
+                  + "pulse/footprint broadening profiled",
     })
     return xr.Dataset(data, coords=coords, attrs=attrs)
