@@ -168,6 +168,8 @@ def test_a_csv_of_another_draw_is_refused(tmp_path):
     study.check_previous(path, rows, columns)                     # the same draw: fine
     _, _, longer = study.plan_injections(raw, 5, 7, 1000, ["bela"])
     study.check_previous(path, longer, columns)                   # a longer one: a prefix
+    _, _, more = study.plan_injections(raw, 3, 7, 1000, ["bela", "gala"])
+    study.check_previous(path, more, study.csv_columns(axes, ["bela", "gala"]))  # + an instrument
     for other in (study.plan_injections(raw, 3, 8, 1000, ["bela"])[2],
                   study.plan_injections(raw, 3, 7, 2000, ["bela"])[2]):
         with pytest.raises(study.StudyError):

@@ -385,11 +385,14 @@ def injection_preset(raw: dict, point: dict, name: str) -> dict:
 
 def check_previous(csv_path: Path, rows: list, columns: list) -> None:
     """Refuse to resume into an ``injections.csv`` written for another draw: every row it
-    shares with ``rows`` must agree on every column but ``status``."""
+    shares with ``rows`` must agree on every column of both but ``status`` (columns it lacks,
+    an instrument added to the study, are new)."""
     if not csv_path.is_file():
         return
     with open(csv_path, newline="") as fh:
-        old = {r["index"]: r for r in csv.DictReader(fh)}
+        reader = csv.DictReader(fh)
+        old = {r["index"]: r for r in reader}
+        columns = [c for c in columns if c in (reader.fieldnames or [])]
     for row in rows:
         prev = old.get(str(row["index"]))
         if prev is None:

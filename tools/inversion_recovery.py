@@ -1,0 +1,394 @@
+#!/usr/bin/env python3
+"""The injection-recovery study of issue 14, recovery side: invert every injection of
+``tools/inversion_study.py`` and report bias, coverage, identifiability and time.
+
+    python tools/inversion_recovery.py invert FAMILY --work DIR [--instruments bela,gala]
+                                      [--jobs 1] [--budget 600]
+    python tools/inversion_recovery.py report FAMILY [FAMILY ...] --work DIR [--out FILE.md]
+
+``invert`` reads ``DIR/FAMILY/injections.csv`` and the database ``DIR/FAMILY/db`` (both written
+by ``tools/inversion_study.py``). For every finished injection and instrument it writes
+
+- ``inj/iNNN/fit_LABEL.nc``: ``warpe_cl.invert`` of the injection's ``LABEL.nc`` against the
+  database, every swept key free (skipped when it exists: the verb resumes);
+- ``recovery_LABEL.csv``: one row per injection (:func:`recovery_row`): the truth, the best
+  point, the posterior median and the 68 % and 95 % intervals of every key, the optical depth
+  of the injected layer, the fit's χ²/dof and p-value, the inversion's time, and the
+  interpolation error (:func:`interpolation_error`).
+
+``report`` prints Markdown tables (docs/inversion.md §7) from the ``recovery_*.csv`` files:
+
+- bias: the median error of the posterior median, in decades (dex) for log-spaced keys and in
+  the value otherwise, with the half-width of the 16-84 % range of the errors as their spread;
+- coverage: the fraction of injections whose 68 % (95 %) interval holds the truth, with its
+  binomial standard error sqrt(p (1 - p) / n);
+- identifiability: the median width of the 68 % interval as a fraction of the prior range,
+  and the share of injections whose 95 % interval covers more than 90 % of the prior range
+  (the data do not constrain the key), overall and by the optical depth of the injected layer
+  (thirds of the injections);
+- the 68 % widths of every other instrument relative to the first one's (BELA's), injection
+  by injection;
+- the inversion time (median and range) and the interpolation error.
+
+Exit codes: 0 done, 1 an inversion failed (named on stderr, the others go on), 2 bad input.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import time
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from inversion_study import StudyError, write_csv  # noqa: E402
+
+#: A 95 % interval wider than this fraction of the prior range: the key is not constrained.
+UNCONSTRAINED = 0.9
+#: Shots of the interpolation-error figure Δχ² (those of a BELA observation of the study).
+SHOTS = 100
+
+
+def read_injections(family_dir: Path) -> tuple:
+    """(rows, swept keys, instrument labels) of ``family_dir/injections.csv``."""
+    path = family_dir / "injections.csv"
+    if not path.is_file():
+        raise StudyError(f"{path}: no injections; run tools/inversion_study.py inject first")
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        rows, cols = list(reader), reader.fieldnames
+    keys = [c[:-5] for c in cols if c.endswith("_text")]
+    labels = [c[:-5] for c in cols if c.endswith("_seed") and c != "surface_seed"]
+    return rows, keys, labels
+
+
+# --------------------------------------------------------------------------- invert
+
+
+def interpolation_error(space, forward, truth: dict, direct) -> dict:
+    """How far the database's interpolated response at ``truth`` is from the directly
+    simulated one, as the instrument sees them.
+
+    Both go through the noiseless forward model (nominal pulse). The mismatch is the
+    Δχ² that ``SHOTS`` shots would see between the two expected waveforms,
+
+        Δχ² = SHOTS · Σ_t (μ_interp - μ_direct)² / (σ_n² + ν_direct) · δt / Δt
+
+    (fine bins δt weighted to samples Δt), next to the same figure for the nearest grid node
+    (what interpolation improves on), and the relative L2 error of the interpolated waveform.
+    It includes the Monte Carlo noise of the database and of the injection.
+    """
+    mu_d, nu_d = forward.waveform(forward.photons(direct))
+    mu_i, _ = forward.waveform(forward.photons(space.surface(truth)))
+    coords = space.coords_of(truth)
+    nearest = tuple(int(np.argmin(np.abs(a.nodes - c))) for a, c in zip(space.axes, coords))
+    mu_n, _ = forward.waveform(forward.photons(space.nodes[nearest].surface))
+    var = forward.sigma_n ** 2 + nu_d
+    per_sample = forward.step / forward.interval
+    chi = {name: SHOTS * per_sample * float(np.sum((mu - mu_d) ** 2 / var))
+           for name, mu in (("interp", mu_i), ("nearest", mu_n))}
+    return {"dchi2_interp": chi["interp"], "dchi2_nearest": chi["nearest"],
+            "l2_interp": float(np.linalg.norm(mu_i - mu_d) / np.linalg.norm(mu_d)),
+            "l2_nearest": float(np.linalg.norm(mu_n - mu_d) / np.linalg.norm(mu_d))}
+
+
+def recovery_row(row: dict, keys: list, fit, surface_ds, interp: dict) -> dict:
+    """One row of ``recovery_LABEL.csv``."""
+    out = {"index": row["index"], "tau0": float(surface_ds["tau0"].values)}
+    names = [str(p) for p in fit["parameter"].values]
+    for key in keys:
+        j = names.index(key)
+        out[f"{key}.truth"] = float(row[key])
+        for stat in ("best", "median", "low68", "high68", "low95", "high95",
+                     "prior_low", "prior_high"):
+            out[f"{key}.{stat}"] = float(fit[stat].values[j])
+        out[f"{key}.scale"] = (str(fit["scale"].values[j]) if "scale" in fit else
+                               "log" if bool(fit["log_scale"].values[j]) else "linear")
+    for name in ("chi2_per_dof", "p_value", "censored_samples", "amplitude", "pulse_fwhm"):
+        out[name] = float(fit[name].values)
+    out["shots_used"] = int(fit.attrs["shots_used"])
+    out["evaluations"] = int(fit.attrs["evaluations"])
+    out["elapsed_s"] = float(fit.attrs["elapsed_s"])
+    out.update(interp)
+    return out
+
+
+def recovery_columns(keys: list) -> list:
+    """The columns of ``recovery_LABEL.csv``."""
+    cols = ["index", "tau0"]
+    for key in keys:
+        cols += [f"{key}.{s}" for s in ("truth", "best", "median", "low68", "high68", "low95",
+                                        "high95", "prior_low", "prior_high", "scale")]
+    return cols + ["chi2_per_dof", "p_value", "censored_samples", "amplitude", "pulse_fwhm",
+                   "shots_used", "evaluations", "elapsed_s", "dchi2_interp", "dchi2_nearest",
+                   "l2_interp", "l2_nearest"]
+
+
+_STATE = {}
+
+
+def _setup(db_path: str):
+    """Per-process state: the database, its interpolation space, the forward models."""
+    from warpe_cl.io import load_result
+    from warpe_cl.inversion.space import Space
+    db = load_result(db_path)
+    _STATE.update(db=db, space=Space(db, source=db_path), forward={})
+
+
+def _forward(label: str):
+    if label not in _STATE["forward"]:
+        from warpe_cl.instrument import load_instrument
+        from warpe_cl.inversion.forward import Forward
+        _STATE["forward"][label] = Forward(load_instrument(label))
+    return _STATE["forward"][label]
+
+
+def _invert_one(task) -> tuple:
+    """Invert one (injection, instrument); returns (label, index, row or None, message)."""
+    import xarray as xr
+    from warpe_cl import invert
+    from warpe_cl.instrument.surface import response
+    family_dir, row, keys, label, budget = task
+    folder = family_dir / row[label].rsplit("/", 1)[0]
+    fit_path = folder / f"fit_{label}.nc"
+    try:
+        if fit_path.exists():
+            fit = xr.load_dataset(fit_path)
+        else:
+            fit = invert(family_dir / row[label], _STATE["db"], budget=budget,
+                         database_source=str(family_dir / "db"))
+            tmp = fit_path.with_name(f".{fit_path.name}.tmp")
+            fit.to_netcdf(tmp, engine="h5netcdf")
+            tmp.replace(fit_path)
+        surface = xr.load_dataset(family_dir / row["surface"])
+        truth = {k: float(row[k]) for k in keys}
+        interp = interpolation_error(_STATE["space"], _forward(label), truth, response(surface))
+        return label, row["index"], recovery_row(row, keys, fit, surface, interp), ""
+    except Exception as exc:            # one failure must not stop the study
+        return label, row["index"], None, f"{type(exc).__name__}: {exc}"
+
+
+def cmd_invert(args) -> int:
+    """``invert``: fit files and ``recovery_LABEL.csv`` of a family."""
+    family_dir = Path(args.work) / args.family
+    rows, keys, labels = read_injections(family_dir)
+    wanted = [s.strip() for s in args.instruments.split(",") if s.strip()] or labels
+    missing = [w for w in wanted if w not in labels]
+    if missing:
+        raise StudyError(f"{family_dir}/injections.csv has no {missing[0]} files "
+                         f"(instruments: {', '.join(labels)})")
+    db = family_dir / "db"
+    if not db.is_dir():
+        raise StudyError(f"{db}: no database; run tools/inversion_study.py build first")
+    done = [r for r in rows if r["status"] == "done"]
+    tasks = [(family_dir, r, keys, label, args.budget) for label in wanted for r in done]
+    results = {label: {} for label in wanted}
+    failed = 0
+    start = time.perf_counter()
+    with Pool(args.jobs, initializer=_setup, initargs=(str(db),)) as pool:
+        for label, index, out, message in pool.imap(_invert_one, tasks):
+            if out is None:
+                failed += 1
+                print(f"i{int(index):03d} {label} failed: {message}", file=sys.stderr)
+                continue
+            results[label][index] = out
+            print(f"i{int(index):03d} {label}: {out['elapsed_s']:.1f} s, chi2/dof "
+                  f"{out['chi2_per_dof']:.3f}", flush=True)
+    for label in wanted:
+        path = family_dir / f"recovery_{label}.csv"
+        write_csv(path, [results[label][k] for k in sorted(results[label], key=int)],
+                  recovery_columns(keys))
+        print(f"wrote {path} ({len(results[label])} injections)")
+    print(f"invert {args.family}: {len(tasks) - failed} done, {failed} failed, "
+          f"{time.perf_counter() - start:.0f} s", flush=True)
+    return 1 if failed else 0
+
+
+# --------------------------------------------------------------------------- report
+
+
+def read_recovery(path: Path) -> tuple:
+    """(keys, rows with floats) of a ``recovery_LABEL.csv``."""
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        rows = [{k: (v if k.endswith(".scale") else float(v)) for k, v in r.items()}
+                for r in reader]
+        cols = reader.fieldnames
+    return [c[:-6] for c in cols if c.endswith(".truth")], rows
+
+
+#: Units of the errors in each interpolation coordinate (warpe_cl.inversion.space.SCALES),
+#: and the coordinate they are taken in: decades of x, of 1 - x, or x itself.
+ERROR_UNITS = {"log": " dex", "log1m": " dex(1-x)", "linear": ""}
+
+
+def _coord(x, scale: str):
+    x = np.asarray(x, float)
+    return {"log": np.log10, "log1m": lambda v: -np.log10(1.0 - v)}.get(scale, lambda v: v)(x)
+
+
+def key_stats(rows: list, key: str) -> dict:
+    """Bias, spread, coverage and widths of one key over the injections ``rows``."""
+    scale = rows[0][f"{key}.scale"]
+    get = lambda s: np.array([r[f"{key}.{s}"] for r in rows])  # noqa: E731
+    truth = get("truth")
+    err = _coord(get("median"), scale) - _coord(truth, scale)
+    span = _coord(get("prior_high"), scale) - _coord(get("prior_low"), scale)
+    n = len(rows)
+    out = {"n": n, "scale": scale, "bias": float(np.median(err)),
+           "spread": float(np.subtract(*np.percentile(err, [84, 16])) / 2)}
+    for level in ("68", "95"):
+        hold = (get(f"low{level}") <= truth) & (truth <= get(f"high{level}"))
+        p = hold.mean()
+        out[f"cover{level}"] = (float(p), math.sqrt(p * (1 - p) / n))
+        width = (_coord(get(f"high{level}"), scale) - _coord(get(f"low{level}"), scale)) / span
+        out[f"width{level}"] = width
+    out["unconstrained"] = out["width95"] > UNCONSTRAINED
+    return out
+
+
+def tau_classes(tau: np.ndarray) -> list:
+    """Three optical-depth classes holding a third of the injections each: (label, low,
+    high)."""
+    a, b = (float(f"{q:.2g}") for q in np.percentile(tau, [100 / 3, 200 / 3]))
+    return [(f"τ0 < {a:g}", 0.0, a), (f"{a:g} ≤ τ0 < {b:g}", a, b), (f"τ0 ≥ {b:g}", b, math.inf)]
+
+
+def _short(key: str) -> str:
+    return key.rsplit(".", 1)[-1]
+
+
+def report_tables(family: str, recoveries: dict) -> list:
+    """Markdown lines for one family: ``recoveries`` maps instrument label -> (keys, rows)."""
+    lines = [f"### {family}", ""]
+    labels = list(recoveries)
+    lines += ["| instrument | key | n | bias of the median | spread (±1σ) | 68 % coverage | "
+              "95 % coverage | 68 % width / prior | unconstrained (95 % > 90 % of prior) |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for label in labels:
+        keys, rows = recoveries[label]
+        for key in keys:
+            s = key_stats(rows, key)
+            unit = ERROR_UNITS[s["scale"]]
+            c68, c95 = s["cover68"], s["cover95"]
+            lines.append(
+                f"| {label.upper()} | {_short(key)} | {s['n']} | {s['bias']:+.3f}{unit} | "
+                f"{s['spread']:.3f}{unit} | {c68[0]:.2f} ± {c68[1]:.2f} | "
+                f"{c95[0]:.2f} ± {c95[1]:.2f} | {np.median(s['width68']):.2f} | "
+                f"{s['unconstrained'].sum()}/{s['n']} |")
+    classes = tau_classes(np.array([r["tau0"] for r in recoveries[labels[0]][1]]))
+    lines += ["", "Identifiability by optical depth τ0 of the injected layer (thirds of the "
+              "injections): median 68 % width / prior range, and how many injections leave the "
+              "key unconstrained.", "",
+              "| instrument | key | " + " | ".join(c[0] for c in classes) + " |",
+              "|---|---|" + "---|" * len(classes)]
+    for label in labels:
+        keys, rows = recoveries[label]
+        tau = np.array([r["tau0"] for r in rows])
+        for key in keys:
+            s = key_stats(rows, key)
+            cells = []
+            for _, lo, hi in classes:
+                m = (tau >= lo) & (tau < hi)
+                cells.append("–" if not m.any() else
+                             f"{np.median(s['width68'][m]):.2f} ({s['unconstrained'][m].sum()}"
+                             f"/{m.sum()})")
+            lines.append(f"| {label.upper()} | {_short(key)} | " + " | ".join(cells) + " |")
+    if len(labels) > 1:
+        base, others = labels[0], labels[1:]
+        lines += ["", f"68 % width relative to {base.upper()}, injection by injection (median "
+                  "and 16-84 % range of the ratio; < 1: narrower).", "",
+                  "| key | " + " | ".join(o.upper() for o in others) + " |",
+                  "|---|" + "---|" * len(others)]
+        keys, rows0 = recoveries[base]
+        by0 = {r["index"]: r for r in rows0}
+        for key in keys:
+            w0 = dict(zip([r["index"] for r in rows0], key_stats(rows0, key)["width68"]))
+            cells = []
+            for o in others:
+                _, rows1 = recoveries[o]
+                w1 = dict(zip([r["index"] for r in rows1], key_stats(rows1, key)["width68"]))
+                common = [i for i in w1 if i in by0 and w0[i] > 0]
+                ratio = np.array([w1[i] / w0[i] for i in common])
+                cells.append("–" if ratio.size == 0 else
+                             f"{np.median(ratio):.2f} [{np.percentile(ratio, 16):.2f}, "
+                             f"{np.percentile(ratio, 84):.2f}] (n = {ratio.size})")
+            lines.append(f"| {_short(key)} | " + " | ".join(cells) + " |")
+    lines += ["", "| instrument | time per inversion, s: median [range] | evaluations (median) | "
+              "χ²/dof (median) | p < 0.01 | interpolation Δχ² (100 shots): median [90 %] | "
+              "nearest node Δχ²: median [90 %] |",
+              "|---|---|---|---|---|---|---|"]
+    for label in labels:
+        _, rows = recoveries[label]
+        col = lambda k: np.array([r[k] for r in rows])  # noqa: E731
+        t, di, dn = col("elapsed_s"), col("dchi2_interp"), col("dchi2_nearest")
+        lines.append(
+            f"| {label.upper()} | {np.median(t):.1f} [{t.min():.1f}, {t.max():.1f}] | "
+            f"{np.median(col('evaluations')):.0f} | {np.median(col('chi2_per_dof')):.3f} | "
+            f"{int((col('p_value') < 0.01).sum())}/{len(rows)} | "
+            f"{np.median(di):.3g} [{np.percentile(di, 90):.3g}] | "
+            f"{np.median(dn):.3g} [{np.percentile(dn, 90):.3g}] |")
+    return lines + [""]
+
+
+def cmd_report(args) -> int:
+    """``report``: Markdown tables of one or more families."""
+    lines = []
+    for family in args.family:
+        family_dir = Path(args.work) / family
+        found = {p.stem[len("recovery_"):]: read_recovery(p)
+                 for p in sorted(family_dir.glob("recovery_*.csv"), key=_bela_first)}
+        found = {k: v for k, v in found.items() if v[1]}
+        if not found:
+            raise StudyError(f"{family_dir}: no recovery_*.csv; run the invert verb first")
+        lines += report_tables(family, found)
+    text = "\n".join(lines)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+        print(f"wrote {args.out}")
+    else:
+        print(text)
+    return 0
+
+
+def _bela_first(path: Path):
+    return (0 if path.stem.endswith("bela") else 1, path.stem)
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line: ``invert`` and ``report``."""
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="verb", required=True)
+    i = sub.add_parser("invert", help="invert every injection of WORK/FAMILY")
+    i.add_argument("family")
+    i.add_argument("--work", required=True)
+    i.add_argument("--instruments", default="",
+                   help="comma-separated labels (default: every instrument of the injections)")
+    i.add_argument("--jobs", type=int, default=1, help="inversions at once (1)")
+    i.add_argument("--budget", type=int, default=600, help="refined grid points (600)")
+    i.set_defaults(func=cmd_invert)
+    r = sub.add_parser("report", help="Markdown tables of WORK/FAMILY/recovery_*.csv")
+    r.add_argument("family", nargs="+")
+    r.add_argument("--work", required=True)
+    r.add_argument("--out", help="write the tables to this file instead of stdout")
+    r.set_defaults(func=cmd_report)
+    return p
+
+
+def main(argv=None) -> int:
+    """Run the tool; returns the exit code."""
+    args = parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except StudyError as exc:
+        print(f"inversion_recovery: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
