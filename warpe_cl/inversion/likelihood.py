@@ -247,15 +247,29 @@ class Shots:
         n_rows, n_d = deltas.shape
         m, _, n = self._gather(table, deltas.ravel())
         y = np.repeat(self.y[rows], n_d, axis=0)
-        cens = np.repeat(self.censored[rows], n_d, axis=0)
+        # the clipped samples (a few per shot) as flat indices: the Tobit terms only there
+        at = np.flatnonzero(np.repeat(self.censored[rows], n_d, axis=0))
+        row_of = at // m.shape[1]
+        m_c, n_c = m.ravel()[at], n.ravel()[at]
         a = np.repeat(a0, n_d)
         for step in range(ARRIVAL_NEWTON + 1):
-            grad_m, weight, ell_k, _ = _terms(y, cens, a, m, n, sig2, c)
+            var = sig2 + a[:, None] * n
+            r = y - a[:, None] * m
+            grad_m, weight = r / var, 1.0 / var
+            var_c = var.ravel()[at]
+            sd_c = np.sqrt(var_c)
+            z = (a[row_of] * m_c - c) / sd_c
+            log_phi_z = log_ndtr(z)
+            mills = np.exp(-0.5 * z * z - 0.5 * LOG_2PI - log_phi_z)
+            grad_m.ravel()[at] = mills / sd_c                           # ∂ℓ/∂m (Tobit)
+            weight.ravel()[at] = mills * (z + mills) / var_c
             h = (weight * m * m).sum(1) + prec
             if step == ARRIVAL_NEWTON:
                 break
             g = (grad_m * m).sum(1) - prec * (a - big_a)
             a = np.maximum(a + g / h, 1e-9)
+        ell_k = -0.5 * (r * r / var + np.log(var) + LOG_2PI)
+        ell_k.ravel()[at] = log_phi_z
         obj = ell_k.sum(1) - 0.5 * (LOG_2PI - math.log(prec) + prec * (a - big_a) ** 2)
         logv = obj + 0.5 * (LOG_2PI - np.log(h))
         return logv.reshape(n_rows, n_d), a.reshape(n_rows, n_d)
