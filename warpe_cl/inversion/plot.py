@@ -48,6 +48,7 @@ def plot_fit(ds, path) -> None:
                 m = (post.sum(axis=other) if other else post) / _cells(ds[dims[i]].values,
                                                                       _scale_of(ds, dims[i]))
                 axc.plot(x, m / m.max(), "-o", ms=2, color="C0")
+                axc.set_ylim(0.0, 1.08)          # densities from zero: a flat one looks flat
                 name = str(ds[dims[i]].attrs.get("sweep_key", dims[i]))
                 if name in ds["parameter"].values:
                     r = ds.sel(parameter=name)
@@ -123,12 +124,18 @@ def _scale_of(ds, dim: str) -> str:
 
 
 def _set_scale(setter, ds, dim: str) -> None:
-    """A log axis for ln-interpolated values, a logit axis for -ln(1 - x) ones."""
+    """A log axis for ln-interpolated values, a logit axis for -ln(1 - x) ones; labels on the
+    major ticks only (a decade and a half of grain sizes would label every minor tick)."""
+    from matplotlib.ticker import NullFormatter
     scale, values = _scale_of(ds, dim), ds[dim].values
     if scale == "log" and values.min() > 0:
         setter("log")
     elif scale == "log1m" and values.min() > 0 and values.max() < 1:
         setter("logit")
+    else:
+        return
+    axis = setter.__self__.xaxis if setter.__name__ == "set_xscale" else setter.__self__.yaxis
+    axis.set_minor_formatter(NullFormatter())
 
 
 def _cells(values: np.ndarray, scale: str) -> np.ndarray:
