@@ -4,7 +4,7 @@
 
     python tools/inversion_recovery.py invert FAMILY --work DIR [--instruments bela,gala]
                                       [--jobs 1] [--budget 600]
-    python tools/inversion_recovery.py report FAMILY [FAMILY ...] --work DIR [--out FILE.md]
+    python tools/inversion_recovery.py report FAMILY [FAMILY ...] --work DIR [--out TABLES]
 
 ``invert`` reads ``DIR/FAMILY/injections.csv`` and the database ``DIR/FAMILY/db`` (both written
 by ``tools/inversion_study.py``). For every finished injection and instrument it writes
@@ -129,6 +129,21 @@ def recovery_columns(keys: list) -> list:
 
 
 _STATE = {}
+#: Instrument files of the study, for labels that are not bundled instruments.
+STUDY_INSTRUMENTS = Path(__file__).resolve().parent.parent / "presets" / "study" / "instruments"
+
+
+def instrument_source(label: str) -> str:
+    """What ``load_instrument`` takes for an instrument label of ``injections.csv``: a bundled
+    name, or ``presets/study/instruments/LABEL.yaml``."""
+    from warpe_cl.instrument.params import BUILTIN
+    if label in BUILTIN:
+        return label
+    path = STUDY_INSTRUMENTS / f"{label}.yaml"
+    if not path.is_file():
+        raise StudyError(f"instrument {label!r} is neither bundled ({', '.join(BUILTIN)}) nor "
+                         f"in {STUDY_INSTRUMENTS}")
+    return str(path)
 
 
 def _setup(db_path: str):
@@ -143,7 +158,7 @@ def _forward(label: str):
     if label not in _STATE["forward"]:
         from warpe_cl.instrument import load_instrument
         from warpe_cl.inversion.forward import Forward
-        _STATE["forward"][label] = Forward(load_instrument(label))
+        _STATE["forward"][label] = Forward(load_instrument(instrument_source(label)))
     return _STATE["forward"][label]
 
 
@@ -159,8 +174,8 @@ def _invert_one(task) -> tuple:
         if fit_path.exists():
             fit = xr.load_dataset(fit_path)
         else:
-            fit = invert(family_dir / row[label], _STATE["db"], budget=budget,
-                         database_source=str(family_dir / "db"))
+            fit = invert(family_dir / row[label], _STATE["db"], instrument_source(label),
+                         budget=budget, database_source=str(family_dir / "db"))
             tmp = fit_path.with_name(f".{fit_path.name}.tmp")
             fit.to_netcdf(tmp, engine="h5netcdf")
             tmp.replace(fit_path)
@@ -181,6 +196,8 @@ def cmd_invert(args) -> int:
     if missing:
         raise StudyError(f"{family_dir}/injections.csv has no {missing[0]} files "
                          f"(instruments: {', '.join(labels)})")
+    for label in wanted:
+        instrument_source(label)
     db = family_dir / "db"
     if not db.is_dir():
         raise StudyError(f"{db}: no database; run tools/inversion_study.py build first")
