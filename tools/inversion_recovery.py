@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from inversion_study import StudyError, write_csv  # noqa: E402
+from inversion_study import StudyError, run_verbs, write_csv  # noqa: E402
 
 #: A 95 % interval wider than this fraction of the prior range: the key is not constrained.
 UNCONSTRAINED = 0.9
@@ -399,12 +399,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Run the tool; returns the exit code."""
-    args = parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except StudyError as exc:
-        print(f"inversion_recovery: error: {exc}", file=sys.stderr)
-        return 2
+    return run_verbs(parser(), argv, "inversion_recovery")
 
 
 if __name__ == "__main__":

@@ -574,14 +574,20 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv=None) -> int:
-    """Run the tool; returns the exit code."""
-    args = parser().parse_args(argv)
+def run_verbs(arg_parser: argparse.ArgumentParser, argv, name: str) -> int:
+    """Parse ``argv`` and run the chosen verb; a StudyError is one line on stderr and exit 2
+    (shared with tools/inversion_recovery.py)."""
+    args = arg_parser.parse_args(argv)
     try:
         return args.func(args)
     except StudyError as exc:
-        print(f"inversion_study: error: {exc}", file=sys.stderr)
+        print(f"{name}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def main(argv=None) -> int:
+    """Run the tool; returns the exit code."""
+    return run_verbs(parser(), argv, "inversion_study")
 
 
 if __name__ == "__main__":

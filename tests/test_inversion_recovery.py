@@ -1,0 +1,75 @@
+"""tools/inversion_recovery.py's arithmetic: coverage with its binomial error, bias in the
+axis' coordinate, optical-depth classes, the Markdown report, the instrument lookup."""
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import TOOLS
+
+sys.path.insert(0, str(TOOLS))
+
+import inversion_recovery as recovery  # noqa: E402
+from inversion_study import StudyError  # noqa: E402
+
+KEY = "medium.thickness"
+
+
+def rows(truths, lows, highs, medians, scale="log", tau=None):
+    out = []
+    for i, (t, lo, hi, med) in enumerate(zip(truths, lows, highs, medians)):
+        r = {"index": float(i), "tau0": float(tau[i] if tau is not None else 10.0 + i),
+             f"{KEY}.scale": scale, f"{KEY}.truth": t, f"{KEY}.median": med,
+             f"{KEY}.best": med, f"{KEY}.low68": lo, f"{KEY}.high68": hi,
+             f"{KEY}.low95": lo / 2 if scale == "log" else lo - 0.05,
+             f"{KEY}.high95": hi * 2 if scale == "log" else hi + 0.05,
+             f"{KEY}.prior_low": 1e-3 if scale == "log" else 0.1,
+             f"{KEY}.prior_high": 1.0 if scale == "log" else 0.9,
+             "elapsed_s": 1.0 + i, "evaluations": 700.0, "chi2_per_dof": 1.0,
+             "p_value": 0.5, "dchi2_interp": 1.0, "dchi2_nearest": 2.0}
+        out.append(r)
+    return out
+
+
+def test_coverage_bias_and_width_of_a_log_axis():
+    # 4 injections: the 68 % interval holds the truth in 3; medians 10^±0.1 off
+    r = rows([0.01, 0.01, 0.01, 0.01], [0.005, 0.005, 0.005, 0.02], [0.02, 0.02, 0.02, 0.04],
+             [0.01 * 10 ** 0.1, 0.01 * 10 ** 0.1, 0.01 * 10 ** -0.1, 0.03])
+    s = recovery.key_stats(r, KEY)
+    assert s["cover68"] == pytest.approx((0.75, math.sqrt(0.75 * 0.25 / 4)))
+    assert s["cover95"][0] == 1.0            # [lo/2, 2 hi] holds 0.01 in all four
+    errors = np.log10([10 ** 0.1, 10 ** 0.1, 10 ** -0.1, 3.0])
+    assert s["bias"] == pytest.approx(np.median(errors))
+    # widths in decades over the prior's 3 decades
+    assert s["width68"][0] == pytest.approx(np.log10(4.0) / 3.0)
+
+
+def test_log1m_axis_is_measured_in_decades_of_one_minus_x():
+    assert recovery._coord(0.99, "log1m") == pytest.approx(2.0)
+    assert recovery._coord(0.5, "linear") == 0.5 and recovery._coord(100.0, "log") == 2.0
+
+
+def test_optical_depth_classes_split_in_thirds():
+    classes = recovery.tau_classes(np.arange(1.0, 31.0))
+    counts = [np.sum((np.arange(1.0, 31.0) >= lo) & (np.arange(1.0, 31.0) < hi))
+              for _, lo, hi in classes]
+    assert sum(counts) == 30 and max(counts) - min(counts) <= 2
+
+
+def test_report_compares_instruments_injection_by_injection():
+    bela = rows([0.01] * 3, [0.005] * 3, [0.02] * 3, [0.01] * 3)
+    narrow = rows([0.01] * 3, [0.01 / 2 ** 0.5] * 3, [0.01 * 2 ** 0.5] * 3, [0.01] * 3)  # half
+    lines = recovery.report_tables("fam", {"bela": ([KEY], bela), "gala": ([KEY], narrow)})
+    text = "\n".join(lines)
+    assert "| BELA | thickness | 3 |" in text and "| GALA | thickness | 3 |" in text
+    assert "| thickness | 0.50 [0.50, 0.50] (n = 3) |" in text
+
+
+def test_unknown_instrument_label_is_refused():
+    assert recovery.instrument_source("gala") == "gala"
+    assert recovery.instrument_source("bela_5ns").endswith("bela_5ns.yaml")
+    with pytest.raises(StudyError):
+        recovery.instrument_source("mla")
