@@ -78,9 +78,11 @@ def interpolation_error(space, forward, truth: dict, direct) -> dict:
 
         Δχ² = SHOTS · Σ_t (μ_interp - μ_direct)² / (σ_n² + ν_direct) · δt / Δt
 
-    (fine bins δt weighted to samples Δt), next to the same figure for the nearest grid node
-    (what interpolation improves on), and the relative L2 error of the interpolated waveform.
-    It includes the Monte Carlo noise of the database and of the injection.
+    (fine bins δt weighted to samples Δt; only where neither waveform reaches the clipping
+    level, since a clipped sample says only that it is clipped), next to the same figure for
+    the nearest grid node (what interpolation improves on), and the relative L2 error of the
+    interpolated waveform. It includes the Monte Carlo noise of the database and of the
+    injection.
     """
     mu_d, nu_d = forward.waveform(forward.photons(direct))
     mu_i, _ = forward.waveform(forward.photons(space.surface(truth)))
@@ -89,7 +91,9 @@ def interpolation_error(space, forward, truth: dict, direct) -> dict:
     mu_n, _ = forward.waveform(forward.photons(space.nodes[nearest].surface))
     var = forward.sigma_n ** 2 + nu_d
     per_sample = forward.step / forward.interval
-    chi = {name: SHOTS * per_sample * float(np.sum((mu - mu_d) ** 2 / var))
+    top = forward.ceiling - forward.baseline
+    chi = {name: SHOTS * per_sample * float(np.sum(np.where(np.maximum(mu, mu_d) < top,
+                                                            (mu - mu_d) ** 2 / var, 0.0)))
            for name, mu in (("interp", mu_i), ("nearest", mu_n))}
     return {"dchi2_interp": chi["interp"], "dchi2_nearest": chi["nearest"],
             "l2_interp": float(np.linalg.norm(mu_i - mu_d) / np.linalg.norm(mu_d)),

@@ -497,7 +497,7 @@ def make_parser() -> argparse.ArgumentParser:
     inv.add_argument("--out", required=True, help="output NetCDF file (FIT.nc)")
     inv.add_argument("--plot", help="also draw the fit and the pairwise posterior to this PNG")
     inv.add_argument("--instrument",
-                     help="bela, gala, or an instrument YAML file (default: the observed "
+                     help="bela, gala, atlas, or an instrument YAML file (default: the observed "
                           "file's instrument)")
     inv.add_argument("--free", action="append", metavar="KEY[,KEY...]",
                      help="swept keys to report (default: all not fixed; the others are "
