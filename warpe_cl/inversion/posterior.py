@@ -103,8 +103,12 @@ class Problem:
         """log L at free coordinates ``u``, v profiled by bounded Brent minimisation."""
         photons = self.forward.photons(self.space.surface(self.point(u)))
         fits = {}
-        # clipped shots have distant local optima: start each point afresh (else: from the last)
-        fresh = [bool(self.shots.censored.any())]
+        # clipped shots: each point afresh, its arrivals and amplitudes from the scan and its
+        # pulse width from the nominal one, so that its log L does not depend on the points
+        # evaluated before it (their amplitude is nearly free, and a warm start carried
+        # rounding from point to point); unclipped shots: from the last point's fit
+        clipped = bool(self.shots.censored.any())
+        fresh = [clipped]
 
         def neg(v):
             mu, nu = self.forward.waveform(photons, v)
@@ -120,20 +124,20 @@ class Problem:
             v = float(self.v_fixed)
             neg(v)
         else:
-            v = self._profile_v(neg)
+            v = self._profile_v(neg, 0.0 if clipped else self.v_last)
         return Evaluation(fits[v].loglike, v, fits[v])
 
-    def _profile_v(self, neg) -> float:
+    def _profile_v(self, neg, start: float) -> float:
         """The v (ns²) minimising ``neg`` in ``forward.v_bounds``: successive parabolas
-        through the three best points, started at the last point's v (neighbouring points of
-        the grid have nearly the same one), steps capped at 4 h and kept inside the bounds;
+        through the three best points, started at ``start`` (the last point's v: neighbouring
+        points of the grid have nearly the same one), steps capped at 4 h and kept inside the bounds;
         stops when the parabola promises less than ``V_GAIN`` in log L, or a step is below
         1e-3 σ_p² (a 0.05 % change of the pulse width)."""
         lo, hi = self.forward.v_bounds
         scale = self.forward.sigma_p ** 2
         h = 0.1 * scale
         tol = 1e-3 * scale
-        v0 = min(max(self.v_last, lo + h), hi - h)
+        v0 = min(max(start, lo + h), hi - h)
         seen = {v: neg(v) for v in (v0 - h, v0, v0 + h)}
         for _ in range(12):
             (x0, f0), (x1, f1), (x2, f2) = sorted(sorted(seen.items(), key=lambda p: p[1])[:3])
