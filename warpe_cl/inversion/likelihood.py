@@ -11,17 +11,20 @@ background noise and quantisation make up the variance (Gaussian: tens to thousa
 photoelectrons per sample). A clipped sample (at the saturation level or the top ADC code) is
 censored: it says only x ≥ c and counts log P(x ≥ c) = log ½ erfc((c − m)/√(2 Var)).
 
-Per-shot nuisances, marginalised by Laplace's method around their best fit (Gauss–Newton):
+Per-shot nuisances, integrated out:
 
 - δ_s with a flat prior (the same for every model, so it drops out);
 - a_s = A S_s with the speckle factor S_s ~ Gamma(M, 1/M) of docs/instrument.md §3.3, taken as
-  N(A, A²/M); integrating a_s against the data's Gaussian approximation N(â_s, 1/P_s) gives the
-  factor N(â_s; A, 1/P_s + A²/M), and the overall amplitude A is profiled (its weighted mean)
-  unless it is fixed.
+  N(A, A²/M); the overall amplitude A is profiled (:func:`overall_amplitude`) unless fixed.
 
-So log L = Σ_s [ℓ_s(â_s, δ̂_s) + log 2π − ½ log det H_s + log N(â_s; A, 1/P_s + A²/M)], with
-H_s the Gauss–Newton Hessian of −ℓ_s in (a, δ) and P_s = det H_s / H_s[δδ] the precision of
-a_s once δ_s is integrated out.
+A shot without clipped samples is integrated by Laplace's method around the mode of
+ℓ_s(a, δ) + log N(a; A, A²/M) (Gauss–Newton):
+
+    log L_s = ℓ_s(â_s, δ̂_s) + log N(â_s; A, A²/M) + log 2π − ½ log det H_s,
+
+H_s the Gauss–Newton Hessian of the negative objective in (a, δ). A shot with clipped samples
+is integrated numerically in δ, by Laplace in a at each δ (:meth:`Shots._arrival_integral`).
+log L = Σ_s log L_s.
 """
 from __future__ import annotations
 
@@ -77,7 +80,8 @@ class Shots:
         self.x = np.asarray(samples, float)
         self.f = forward
         self.censored = self.x >= forward.ceiling - 1e-9
-        self.uncensored = int(np.count_nonzero(~self.censored))
+        self.censored_at = np.flatnonzero(self.censored)          # as flat indices
+        self.uncensored = self.x.size - self.censored_at.size
         self.y = self.x - forward.baseline           # baseline-subtracted
         self.arrival = None
         self.amplitude = None
@@ -247,29 +251,15 @@ class Shots:
         n_rows, n_d = deltas.shape
         m, _, n = self._gather(table, deltas.ravel())
         y = np.repeat(self.y[rows], n_d, axis=0)
-        # the clipped samples (a few per shot) as flat indices: the Tobit terms only there
         at = np.flatnonzero(np.repeat(self.censored[rows], n_d, axis=0))
-        row_of = at // m.shape[1]
-        m_c, n_c = m.ravel()[at], n.ravel()[at]
         a = np.repeat(a0, n_d)
         for step in range(ARRIVAL_NEWTON + 1):
-            var = sig2 + a[:, None] * n
-            r = y - a[:, None] * m
-            grad_m, weight = r / var, 1.0 / var
-            var_c = var.ravel()[at]
-            sd_c = np.sqrt(var_c)
-            z = (a[row_of] * m_c - c) / sd_c
-            log_phi_z = log_ndtr(z)
-            mills = np.exp(-0.5 * z * z - 0.5 * LOG_2PI - log_phi_z)
-            grad_m.ravel()[at] = mills / sd_c                           # ∂ℓ/∂m (Tobit)
-            weight.ravel()[at] = mills * (z + mills) / var_c
+            grad_m, weight, ell_k, _ = _terms(y, at, a, m, n, sig2, c)
             h = (weight * m * m).sum(1) + prec
             if step == ARRIVAL_NEWTON:
                 break
             g = (grad_m * m).sum(1) - prec * (a - big_a)
             a = np.maximum(a + g / h, 1e-9)
-        ell_k = -0.5 * (r * r / var + np.log(var) + LOG_2PI)
-        ell_k.ravel()[at] = log_phi_z
         obj = ell_k.sum(1) - 0.5 * (LOG_2PI - math.log(prec) + prec * (a - big_a) ** 2)
         logv = obj + 0.5 * (LOG_2PI - np.log(h))
         return logv.reshape(n_rows, n_d), a.reshape(n_rows, n_d)
@@ -281,8 +271,7 @@ class Shots:
         m is λ(z)/√Var and whose curvature is λ(z)(z + λ(z))/Var, λ = φ/Φ (the Tobit terms),
         so that the steps follow the same ℓ_s that is reported."""
         m, dm, n = self._gather(table, d)
-        grad_m, weight, ell_k, chi2 = _terms(self.y, self.censored if self.uncensored <
-                                             self.x.size else None, a, m, n, sig2, c)
+        grad_m, weight, ell_k, chi2 = _terms(self.y, self.censored_at, a, m, n, sig2, c)
         j_d = -a[:, None] * dm
         wm = weight * m
         wj = weight * j_d
@@ -307,20 +296,25 @@ def padded(arrays: list) -> np.ndarray:
     return table
 
 
-def _terms(y, cens, a, m, n, sig2, c):
+def _terms(y, at, a, m, n, sig2, c):
     """Per sample, for amplitudes ``a`` (per row) and model ``m``, ``n`` (rows × K): ∂ℓ/∂m,
-    the Gauss–Newton weight, ℓ and r²/Var (0 where censored). ``cens`` None: nothing is
-    censored (the Tobit terms are skipped)."""
+    the Gauss–Newton weight, ℓ and r²/Var. ``at``: flat indices of the censored samples,
+    where the Tobit terms replace the Gaussian ones (r²/Var is then 0); they are a few per
+    clipped shot, so the costly log Φ is taken there only."""
     var = sig2 + a[:, None] * n
     r = y - a[:, None] * m
-    r_var = r / var
-    chi2 = r * r_var
-    gauss = -0.5 * (chi2 + np.log(var) + LOG_2PI)
-    if cens is None:
-        return r_var, 1.0 / var, gauss, chi2
-    sd = np.sqrt(var)
-    z = (a[:, None] * m - c) / sd
-    log_phi_z = log_ndtr(z)
-    mills = np.exp(-0.5 * z * z - 0.5 * LOG_2PI - log_phi_z)
-    return (np.where(cens, mills / sd, r_var), np.where(cens, mills * (z + mills) / var, 1.0 / var),
-            np.where(cens, log_phi_z, gauss), np.where(cens, 0.0, chi2))
+    grad_m = r / var
+    weight = 1.0 / var
+    chi2 = r * grad_m
+    ell = -0.5 * (chi2 + np.log(var) + LOG_2PI)
+    if at.size:
+        var_c = var.ravel()[at]
+        sd_c = np.sqrt(var_c)
+        z = (a[at // m.shape[1]] * m.ravel()[at] - c) / sd_c
+        log_phi_z = log_ndtr(z)
+        mills = np.exp(-0.5 * z * z - 0.5 * LOG_2PI - log_phi_z)
+        grad_m.ravel()[at] = mills / sd_c
+        weight.ravel()[at] = mills * (z + mills) / var_c
+        ell.ravel()[at] = log_phi_z
+        chi2.ravel()[at] = 0.0
+    return grad_m, weight, ell, chi2
