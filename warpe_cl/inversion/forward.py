@@ -59,7 +59,12 @@ class Forward:
     v_bounds : (float, float)
         Range of the nuisance v, ns².
     sigma_n, baseline, ceiling : float
-        Per-sample noise, baseline and clipped level (saturation or the top ADC code), mV.
+        Per-sample noise, baseline and clipped level (saturation or the top ADC code), mV
+        (NaN for a photon-counting receiver).
+    counting : bool
+        A photon-counting receiver (time tags): :meth:`waveform` gives photoelectrons per ns.
+    dc_rate : float
+        Background and dark photoelectrons per ns.
     modes : float
         Speckle modes M (per-shot amplitude variance 1/M); inf without speckle.
     """

@@ -69,8 +69,8 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
         load_instrument(instrument or obs.instrument or _no_instrument(obs))
     counting = params["detector.type"] == "photon_counting"
     if counting != (obs.kind == "counts"):
-        raise ConfigError(f"{params['name']} is a {'photon-counting' if counting else 'linear-mode'}"
-                          f" receiver but the observed shots are "
+        kind = "photon-counting" if counting else "linear-mode"
+        raise ConfigError(f"{params['name']} is a {kind} receiver but the observed shots are "
                           f"{'photon counts' if obs.kind == 'counts' else 'samples in mV'}: give "
                           "the instrument that recorded them (--instrument)",
                           key=observed_source or obs.source)

@@ -100,7 +100,7 @@ class Problem:
         return {a.key: float(a.value(x)) for a, x in zip(self.space.free_axes, u)}
 
     def evaluate(self, u: np.ndarray) -> Evaluation:
-        """log L at free coordinates ``u``, v profiled by bounded Brent minimisation."""
+        """log L at free coordinates ``u``, v profiled (:meth:`_profile_v`)."""
         photons = self.forward.photons(self.space.surface(self.point(u)))
         fits = {}
         # clipped shots: each point afresh, its arrivals and amplitudes from the scan and its
@@ -130,8 +130,8 @@ class Problem:
     def _profile_v(self, neg, start: float) -> float:
         """The v (ns²) minimising ``neg`` in ``forward.v_bounds``: successive parabolas
         through the three best points, started at ``start`` (the last point's v: neighbouring
-        points of the grid have nearly the same one), steps capped at 4 h and kept inside the bounds;
-        stops when the parabola promises less than ``V_GAIN`` in log L, or a step is below
+        points of the grid have nearly the same one), steps capped at 4 h and kept inside the
+        bounds; stops when the parabola promises less than ``V_GAIN`` in log L, or a step is below
         1e-3 σ_p² (a 0.05 % change of the pulse width)."""
         lo, hi = self.forward.v_bounds
         scale = self.forward.sigma_p ** 2

@@ -1,10 +1,11 @@
 """The parameter space of a sweep database and the surface response anywhere inside it
 (docs/inversion.md §2).
 
-Each swept numeric key of the database is an axis. Its interpolation coordinate is ln(value)
-for an axis whose values are positive and more evenly spaced in logarithm than linearly (grain
-sizes, thicknesses), the value itself otherwise (compacity). A point inside the grid is a
-multilinear combination of the 2^d corners of its cell in those coordinates.
+Each swept numeric key of the database is an axis. Its interpolation coordinate is the one its
+values are most evenly spaced in (:func:`axis_scale`): ln(value) for grain sizes and
+thicknesses spaced by factors, -ln(1 - value) for compacities crowding towards 1, the value
+itself otherwise. A point inside the grid is a multilinear combination of the 2^d corners of
+its cell in those coordinates.
 
 What is combined is not the waveform but the surface response, in the form in which it moves
 smoothly with the parameters:
