@@ -32,7 +32,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammaln
 
-from .likelihood import ShotFit
+from ..instrument.pulse import sigma_from_fwhm
+from .likelihood import ShotFit, kept_span, log_trapezoid
 
 #: Arrival grid: coarse step (fraction of the pulse's σ at the nominal width), half-width
 #: of the coarse scan (ns, around the histogram's peak), points of the fine grid, and the part
@@ -105,22 +106,17 @@ class CountShots:
     def fit(self, mu: np.ndarray, nu=None, overall: float | None = None) -> ShotFit:
         """The log-likelihood of the module docstring at model rate ``mu`` (pe per ns on the
         fine grid), with the best arrival and amplitude."""
-        sigma = np.hypot(self.f.fwhm / 2.3548, self.f.geo.sigma_g)      # nominal pulse σ, ns
+        sigma = np.hypot(sigma_from_fwhm(self.f.fwhm), self.f.geo.sigma_g)  # nominal σ, ns
         step = COARSE_FRACTION * max(sigma, self.width)
         centre = (self.t[np.argmax(self.c)] + 0.5 * self.width) - self.f.t[np.argmax(mu)]
         coarse = centre + np.arange(-SCAN_NS, SCAN_NS + 1e-9, step)
         ll, _ = self._profile(self._lambda(mu, coarse), overall)
-        keep = np.nonzero(ll > ll.max() - KEEP)[0]
-        lo = coarse[max(keep[0] - 1, 0)]
-        hi = coarse[min(keep[-1] + 1, coarse.size - 1)]
+        (lo,), (hi,) = kept_span(coarse, ll[None, :], KEEP)
         fine = np.linspace(lo, hi, FINE_POINTS)
         ll, a = self._profile(self._lambda(mu, fine), overall)
         top = int(np.argmax(ll))
-        w = np.full(fine.size, 1.0)
-        w[[0, -1]] = 0.5
-        loglike = float(ll[top] + np.log(np.sum(w * np.exp(ll - ll[top])) * (fine[1] - fine[0])))
-        lam = self._lambda(mu, fine[top:top + 1])[0]
-        chi2, groups = pearson(self.c, self.n * (a[top] * lam + self.b))
+        loglike = float(log_trapezoid(ll, fine[1] - fine[0]))
+        chi2, groups = pearson(self.c, self.n * self.expected(mu, a[top], fine[top]))
         self.arrival, self.amplitude = float(fine[top]), float(a[top])
         return ShotFit(np.full(self.n, a[top]), np.full(self.n, fine[top]), loglike,
                        float(a[top]), chi2, groups, 0)

@@ -229,20 +229,13 @@ class Shots:
         coarse = np.arange(-half, half + 1e-9, ARRIVAL_COARSE)
         logv, _ = self._on_arrivals(table, a[rows], d[rows][:, None] + coarse[None, :], rows,
                                     big_a, prec, sig2, c)
-        keep = logv > logv.max(axis=1, keepdims=True) - ARRIVAL_RANGE
-        first = np.argmax(keep, axis=1)
-        last = keep.shape[1] - 1 - np.argmax(keep[:, ::-1], axis=1)
-        lo = d[rows] + coarse[np.maximum(first - 1, 0)]
-        hi = d[rows] + coarse[np.minimum(last + 1, coarse.size - 1)]
+        lo, hi = kept_span(coarse, logv, ARRIVAL_RANGE)
+        lo, hi = d[rows] + lo, d[rows] + hi
         count = int(np.ceil(np.max(hi - lo) / ARRIVAL_FINE)) + 1
         frac = np.linspace(0.0, 1.0, count)
         grid = lo[:, None] + (hi - lo)[:, None] * frac[None, :]
         logv, _ = self._on_arrivals(table, a[rows], grid, rows, big_a, prec, sig2, c)
-        step = (hi - lo) / (count - 1)
-        w = np.full(count, 1.0)
-        w[[0, -1]] = 0.5                                    # trapezoid weights
-        top = logv.max(axis=1)
-        return top + np.log(np.sum(w * np.exp(logv - top[:, None]), axis=1) * step)
+        return log_trapezoid(logv, (hi - lo) / (count - 1))
 
     def _on_arrivals(self, table, a0, deltas, rows, big_a, prec, sig2, c):
         """For shots ``rows`` at arrivals ``deltas`` (rows × D, ns): the log of the Laplace
@@ -285,6 +278,25 @@ def overall_amplitude(a: np.ndarray, modes: float) -> float:
     for M → inf."""
     s1, s2 = float(np.sum(a)), float(np.sum(a * a))
     return 2.0 * s2 / (s1 + math.sqrt(s1 * s1 + 4.0 * a.size * s2 / modes))
+
+
+def kept_span(points: np.ndarray, logv: np.ndarray, below: float) -> tuple:
+    """Per row of ``logv`` (rows × D, on the grid ``points`` (D,)), the span of the points
+    whose value is within ``below`` of the row's maximum, widened by one point each side:
+    (low, high) arrays of the rows. Where a coarse scan tells a fine grid where the mass is."""
+    keep = logv > logv.max(axis=1, keepdims=True) - below
+    first = np.argmax(keep, axis=1)
+    last = keep.shape[1] - 1 - np.argmax(keep[:, ::-1], axis=1)
+    return points[np.maximum(first - 1, 0)], points[np.minimum(last + 1, points.size - 1)]
+
+
+def log_trapezoid(logv: np.ndarray, step) -> np.ndarray:
+    """log ∫ exp(logv) by the trapezoid rule along the last axis, points ``step`` apart (a
+    number, or one per row), without overflow."""
+    w = np.full(logv.shape[-1], 1.0)
+    w[[0, -1]] = 0.5
+    top = logv.max(axis=-1)
+    return top + np.log(np.sum(w * np.exp(logv - top[..., None]), axis=-1) * step)
 
 
 def padded(arrays: list) -> np.ndarray:
