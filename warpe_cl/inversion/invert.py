@@ -198,5 +198,4 @@ def _summarise(problem, final, report) -> dict:
             "node_mass": nearest_node_mass(u, mass, axis.nodes),
             "reported": axis.key in report,
         })
-    return {"rows": rows, "best_u": best_u, "best": final.evaluations[best_index],
-            "best_index": best_index}
+    return {"rows": rows, "best_u": best_u, "best": final.evaluations[best_index]}

@@ -58,15 +58,14 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     n_shots = int(used.sum())
     if f.counting:          # Pearson groups less A, δ, v and the free axes
         dof = fit.samples - 3 - len(space.free_axes)
-        unit = "counts"
+        unit, suffix = "counts", "counts"
         expected = np.broadcast_to(problem.shots.expected(mu, fit.overall, fit.arrival[0]),
                                    (n_shots, obs.time_ns.size))
     else:
         dof = fit.samples - 2 * n_shots - 2 - len(space.free_axes)
-        unit = "mV"
+        unit, suffix = "mV", "mv"
         expected = f.baseline + fit.amplitude[:, None] * problem.shots._interp(mu, fit.arrival)
         expected = np.minimum(expected, f.ceiling)
-    suffix = "counts" if f.counting else "mv"
     rows = [r for r in summary["rows"] if r["reported"]]
     names = [r["key"] for r in rows]
     data = {}
