@@ -100,6 +100,14 @@ def interpolation_error(space, forward, truth: dict, direct) -> dict:
             "l2_nearest": float(np.linalg.norm(mu_n - mu_d) / np.linalg.norm(mu_d))}
 
 
+#: Per swept key, the FIT.nc variables on ``parameter`` copied to ``recovery_LABEL.csv``.
+FIT_STATS = ("best", "median", "low68", "high68", "low95", "high95", "prior_low", "prior_high")
+#: Scalars of FIT.nc copied, its attributes copied, and the interpolation error's columns.
+FIT_SCALARS = ("chi2_per_dof", "p_value", "censored_samples", "amplitude", "pulse_fwhm")
+FIT_ATTRS = {"shots_used": int, "evaluations": int, "elapsed_s": float}
+INTERP_COLUMNS = ("dchi2_interp", "dchi2_nearest", "l2_interp", "l2_nearest")
+
+
 def recovery_row(row: dict, keys: list, fit, surface_ds, interp: dict) -> dict:
     """One row of ``recovery_LABEL.csv``."""
     out = {"index": row["index"], "tau0": float(surface_ds["tau0"].values)}
@@ -107,16 +115,14 @@ def recovery_row(row: dict, keys: list, fit, surface_ds, interp: dict) -> dict:
     for key in keys:
         j = names.index(key)
         out[f"{key}.truth"] = float(row[key])
-        for stat in ("best", "median", "low68", "high68", "low95", "high95",
-                     "prior_low", "prior_high"):
+        for stat in FIT_STATS:
             out[f"{key}.{stat}"] = float(fit[stat].values[j])
         out[f"{key}.scale"] = (str(fit["scale"].values[j]) if "scale" in fit else
                                "log" if bool(fit["log_scale"].values[j]) else "linear")
-    for name in ("chi2_per_dof", "p_value", "censored_samples", "amplitude", "pulse_fwhm"):
+    for name in FIT_SCALARS:
         out[name] = float(fit[name].values)
-    out["shots_used"] = int(fit.attrs["shots_used"])
-    out["evaluations"] = int(fit.attrs["evaluations"])
-    out["elapsed_s"] = float(fit.attrs["elapsed_s"])
+    for name, kind in FIT_ATTRS.items():
+        out[name] = kind(fit.attrs[name])
     out.update(interp)
     return out
 
@@ -125,11 +131,8 @@ def recovery_columns(keys: list) -> list:
     """The columns of ``recovery_LABEL.csv``."""
     cols = ["index", "tau0"]
     for key in keys:
-        cols += [f"{key}.{s}" for s in ("truth", "best", "median", "low68", "high68", "low95",
-                                        "high95", "prior_low", "prior_high", "scale")]
-    return cols + ["chi2_per_dof", "p_value", "censored_samples", "amplitude", "pulse_fwhm",
-                   "shots_used", "evaluations", "elapsed_s", "dchi2_interp", "dchi2_nearest",
-                   "l2_interp", "l2_nearest"]
+        cols += [f"{key}.{s}" for s in ("truth", *FIT_STATS, "scale")]
+    return cols + [*FIT_SCALARS, *FIT_ATTRS, *INTERP_COLUMNS]
 
 
 _STATE = {}
