@@ -74,14 +74,16 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
         seed = params["seed"] if params["seed"] is not None else int(ds.attrs.get("seed", 1))
     sweep = "scenario" in ds.dims
     indices = list(range(ds.sizes["scenario"])) if sweep else [None]
+    # the arrays are read once for all scenarios (surface.response would read them per call)
+    responses = surface.responses(ds) if sweep else [surface.response(ds)]
     results = []
-    for i in indices:
+    for i, response in zip(indices, responses):
         if sweep:
             key = parse_key(ds["scenario_key"].values[i]) if "scenario_key" in ds.variables \
                 else i
         else:
             key = parse_key(ds.attrs.get("scenario_key", 0))
-        results.append(chain.run_scenario(surface.response(ds, i), params, shots, int(seed), key))
+        results.append(chain.run_scenario(response, params, shots, int(seed), key))
     prov = {f"instrument_{k}": v for k, v in io.provenance().items()
             if k in ("warpe_cl_version", "created_utc", "command", "numpy_version", "host")}
     prov.update({"instrument_seed": int(seed), "instrument_shots": shots})
