@@ -1,5 +1,6 @@
-/* fresnel.h: Fresnel reflectances of the slab's interfaces (docs/walk.md §3.3), lane by lane
- * (lanes.h): the incidence cosine varies per lane, the indices are the scenario's. */
+/* fresnel.h: Fresnel reflectances of the slab's interfaces (docs/walk.md §3.3, §7.1), lane by
+ * lane (lanes.h): the incidence cosine varies per lane; the indices are the scenario's (a
+ * scalar broadcast to the lanes) or, in a stack, each lane's interface's. */
 #ifndef WARPE_FRESNEL_H
 #define WARPE_FRESNEL_H
 
@@ -10,10 +11,10 @@
  *   R_perp = [(mu - G1)^2 + G2^2] / [(mu + G1)^2 + G2^2],
  *   R_par  = [((n^2-k^2) mu - G1)^2 + (2nk mu - G2)^2] / [((n^2-k^2) mu + G1)^2 + (2nk mu + G2)^2],
  *   R = (R_perp + R_par)/2. */
-inline VREAL fresnel_external(VREAL mu, REAL n, REAL k)
+inline VREAL fresnel_external(VREAL mu, VREAL n, VREAL k)
 {
     /* a = n^2 - k^2 - sin^2 = (n^2 - k^2 - 1) + mu^2: no cancellation at grazing incidence */
-    REAL nk2 = n * n - k * k;
+    VREAL nk2 = n * n - k * k;
     VREAL a = (nk2 - (REAL)1) + mu * mu;
     VREAL b = sqrt(a * a + (REAL)4 * n * n * k * k);
     VREAL G1 = sqrt((REAL)0.5 * (a + b));
@@ -29,7 +30,7 @@ inline VREAL fresnel_external(VREAL mu, REAL n, REAL k)
  * critical angle (the caller handles total internal reflection). Real n inside (docs/physics.md
  * §3.5, A12): cos(theta_t) = sqrt(1 - n^2 (1 - mu^2)),
  *   r_s = (n mu - cos_t)/(n mu + cos_t), r_p = (mu - n cos_t)/(mu + n cos_t), R = (r_s^2 + r_p^2)/2. */
-inline VREAL fresnel_internal(VREAL mu, REAL n)
+inline VREAL fresnel_internal(VREAL mu, VREAL n)
 {
     /* 1 - n^2 (1 - mu^2) written as (1 - n^2) + n^2 mu^2: well conditioned near grazing */
     VREAL cos_t = sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0));

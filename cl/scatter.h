@@ -9,7 +9,7 @@
  * an exact rewrite of [1 + g^2 - ((1 - g^2)/(1 - g + 2gU))^2] / (2g) that gives s at g = 0 and
  * +-1 at U = 1, 0. In float its error is ~1 ulp of 1 for every g (the classic form loses
  * 6e-8/g: <cos> = -0.34 at g = 1e-7), and no larger than the classic form's at g = 0.8-0.999. */
-inline VREAL hg_cos_theta(REAL g, VREAL U)
+inline VREAL hg_cos_theta(VREAL g, VREAL U)
 {
     VREAL s = (REAL)2 * U - (REAL)1;
     VREAL q = (REAL)4 * U * ((REAL)1 - U);

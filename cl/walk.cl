@@ -3,7 +3,8 @@
  *
  * The rules, event by event, are docs/walk.md (cited "walk.md §N" below); the physics behind
  * them is docs/physics.md §5-§6, which walk.md cites rule by rule ("docs/physics.md §N" below).
- * Structure switches (-D): WARPE_TEXTURE_SLAB or WARPE_TEXTURE_GRANULAR (exactly one),
+ * Structure switches (-D): WARPE_TEXTURE_SLAB, WARPE_TEXTURE_GRANULAR or WARPE_TEXTURE_LAYERS
+ * (a stack, walk.md §7: exactly one),
  * WARPE_DOUBLE (precision), WARPE_LANES (photons per work-item), WARPE_POOL (photons a
  * work-item takes ahead, pool_t), WARPE_WEIGHTED (survival weighting, walk.md §6),
  * WARPE_RECORD (one record per photon, for the parity tests); the
@@ -20,8 +21,13 @@
  *           u3 Fresnel of the slab's lower face                                (walk.md §3.1)
  * All lanes do their event at once; a lane whose ray ends is tallied and takes a new photon.
  */
-#if defined(WARPE_TEXTURE_SLAB) == defined(WARPE_TEXTURE_GRANULAR)
-#error "define exactly one of WARPE_TEXTURE_SLAB and WARPE_TEXTURE_GRANULAR"
+#if defined(WARPE_TEXTURE_SLAB) + defined(WARPE_TEXTURE_GRANULAR) + defined(WARPE_TEXTURE_LAYERS) != 1
+#error "define exactly one of WARPE_TEXTURE_SLAB, WARPE_TEXTURE_GRANULAR and WARPE_TEXTURE_LAYERS"
+#endif
+/* The builds with an entry event and a gap: a slab, and a stack (whose top and bottom are
+ * per-scenario values, walk.md §7) */
+#if defined(WARPE_TEXTURE_SLAB) || defined(WARPE_TEXTURE_LAYERS)
+#define WARPE_INTERFACES
 #endif
 
 #define PHASE_ENTRY 0
@@ -45,6 +51,14 @@ typedef struct {
     REAL A;                      /* the floor's albedo (weighted: a factor of the weight) */
     REAL mu_a;                   /* weighted: absorption along the path, 1/m (walk.md §6) */
     REAL roulette_weight, roulette_survival;   /* weighted: the roulette (walk.md §6) */
+#ifdef WARPE_TEXTURE_LAYERS
+    int n_layers;                /* N (walk.md §7.1) */
+    __global const REAL *layer_real;   /* [N][N_LAYER_REAL]: LAYER_* columns (walk.md §7.3) */
+    __global const ulong *layer_words; /* [N]: the word threshold T_omega of each layer */
+    __global const REAL *iface_real;   /* [N + 1][N_IFACE_REAL]: IFACE_* columns */
+    __global const int *iface_kind;    /* [N + 1]: 0 transparent, 1 Fresnel */
+    REAL gap_near, gap_far_n, gap_far_k;   /* from the gap up into the last layer */
+#endif
 } scene_t;
 
 /* The rays of a work-item's lanes (walk.md §3), one per lane. */
@@ -58,6 +72,13 @@ typedef struct {
     VUINT p_lo, p_hi;            /* the photon's 64-bit index (first_photon + photon) */
 #ifdef WARPE_WEIGHTED
     VREAL w;                     /* the weight (walk.md §6) */
+#endif
+#ifdef WARPE_TEXTURE_LAYERS
+    VMASK layer;                 /* the layer l the ray is in (N: the gap; walk.md §7.2) */
+    /* layer l's values, loaded when the ray enters it (load_layer) */
+    VREAL z_top, z_bottom, E, g, time_scale;
+    VUINT omega_lo;              /* absorbed iff x1 >= omega_lo, unless scatter_all */
+    VMASK scatter_all;           /* T_omega = 2^32: no word absorbs */
 #endif
 } rays_t;
 
@@ -84,8 +105,40 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
 #ifdef WARPE_WEIGHTED
     r.w = (VREAL)1;
 #endif
+#ifdef WARPE_TEXTURE_LAYERS
+    r.layer = (VMASK)0;
+    r.z_top = (VREAL)0;
+    r.z_bottom = (VREAL)0;
+    r.E = (VREAL)0;
+    r.g = (VREAL)0;
+    r.time_scale = (VREAL)1;
+    r.omega_lo = (VUINT)0;
+    r.scatter_all = (VMASK)0;
+#endif
     return r;
 }
+
+#ifdef WARPE_TEXTURE_LAYERS
+/* The lanes in m take the values of the layer they are in (walk.md §7.3): a select per layer,
+ * done only when a ray changes layer or a lane takes a ray. */
+WALK_STEP void load_layer(rays_t *r, VMASK m, const scene_t *sc)
+{
+    for (int i = 0; i < sc->n_layers; ++i) {
+        const VMASK hit = m & (r->layer == (VMASK)i);
+        if (!ANY(hit))
+            continue;
+        __global const REAL *row = sc->layer_real + N_LAYER_REAL * i;
+        const ulong T = sc->layer_words[i];
+        r->z_top = SEL(r->z_top, (VREAL)row[LAYER_Z_TOP], hit);
+        r->z_bottom = SEL(r->z_bottom, (VREAL)row[LAYER_Z_BOTTOM], hit);
+        r->E = SEL(r->E, (VREAL)row[LAYER_EXTINCTION], hit);
+        r->g = SEL(r->g, (VREAL)row[LAYER_G], hit);
+        r->time_scale = SEL(r->time_scale, (VREAL)row[LAYER_TIME_SCALE], hit);
+        r->omega_lo = SEL(r->omega_lo, (VUINT)(uint)min(T, (ulong)0xFFFFFFFFu), MASK32(hit));
+        r->scatter_all = SEL(r->scatter_all, (VMASK)(T > 0xFFFFFFFFul ? -1 : 0), hit);
+    }
+}
+#endif
 
 /* The lanes whose ray ends in this event, their fate (FATE_*, tally.h) and, for an exit,
  * cos theta_e. */
@@ -121,7 +174,26 @@ typedef struct {
     ulong scattering_events;     /* volume scatterings of every ray */
     ulong mixed;                 /* exits with both a scattering and a floor reflection */
     ulong lost;                  /* weighted exits the exact sums cannot hold (walk.md §6) */
+#ifdef WARPE_TEXTURE_LAYERS
+    ulong layer[N_LAYER_STATS];  /* per layer and interface (LSTAT_*, walk.md §7.4) */
+#endif
 } stats_t;
+
+#ifdef WARPE_TEXTURE_LAYERS
+#ifdef WARPE_WEIGHTED
+#error "the layered walk is analog only (walk.md §7)"
+#endif
+/* st->layer[base + idx] += 1 for every lane in m (walk.md §7.4) */
+WALK_STEP void count_lanes(stats_t *st, int base, VMASK m, VMASK idx)
+{
+    IREAL a[WARPE_LANES], b[WARPE_LANES];
+    VSTORE(m, a);
+    VSTORE(idx, b);
+    for (int j = 0; j < WARPE_LANES; ++j)
+        if (a[j])
+            st->layer[base + (int)b[j]] += 1;
+}
+#endif
 
 /* The work-item's statistics into its row of item_stats (slots STAT_*, tally.h). */
 WALK_STEP void write_stats(__global ulong *item, const stats_t *st)
@@ -135,6 +207,15 @@ WALK_STEP void write_stats(__global ulong *item, const stats_t *st)
     item[STAT_MIXED_HISTORY] = st->mixed;
     item[STAT_LOST_WEIGHTS] = st->lost;
 }
+
+#ifdef WARPE_TEXTURE_LAYERS
+/* The work-item's per-layer statistics into its row of layer_stats (walk.md §7.4). */
+WALK_STEP void write_layer_stats(__global ulong *row, const stats_t *st)
+{
+    for (int i = 0; i < N_LAYER_STATS; ++i)
+        row[i] = st->layer[i];
+}
+#endif
 
 /* The lanes in m end with fate f: they are tallied after this event. */
 WALK_STEP void finish(ends_t *e, VMASK m, int f)
@@ -163,7 +244,11 @@ WALK_STEP VMASK roulette(VMASK m, VREAL u, int f, const scene_t *sc, rays_t *r, 
  * lanes that scatter. */
 WALK_STEP VMASK medium_toll(VMASK m, VREAL u1, VUINT x1, const scene_t *sc, rays_t *r, ends_t *e)
 {
-#ifndef WARPE_WEIGHTED
+#if defined(WARPE_TEXTURE_LAYERS)
+    /* the lane's layer's threshold (walk.md §7.2) */
+    finish(e, m & !r->scatter_all & CONVERT_VMASK(x1 >= r->omega_lo), FATE_ABSORBED_MEDIUM);
+    return m & !e->done;
+#elif !defined(WARPE_WEIGHTED)
     finish(e, m & word_at_least(x1, sc->omega_words), FATE_ABSORBED_MEDIUM);
     return m & !e->done;
 #else
@@ -254,6 +339,9 @@ WALK_STEP void refill_lanes(rays_t *r, pool_t *pool, int *exhausted, __global ui
 #ifdef WARPE_WEIGHTED
     r->w = SEL(r->w, (VREAL)1, fresh);
 #endif
+#ifdef WARPE_TEXTURE_LAYERS
+    r->layer = SEL(r->layer, (VMASK)0, fresh);
+#endif
 }
 
 /* The rays carried from one launch to the next (walk.md §5): a launch stops each work-item
@@ -277,7 +365,7 @@ typedef struct {
     REAL Ls[WARPE_LANES], Lc[WARPE_LANES], w[WARPE_LANES];
     IREAL flights[WARPE_LANES], n_scat[WARPE_LANES], n_lamb[WARPE_LANES];
     IREAL n_bspec[WARPE_LANES], n_top[WARPE_LANES], phase[WARPE_LANES], event[WARPE_LANES];
-    IREAL alive[WARPE_LANES];
+    IREAL alive[WARPE_LANES], layer[WARPE_LANES];
     uint p_lo[WARPE_LANES], p_hi[WARPE_LANES];
 } lane_rows_t;
 
@@ -302,6 +390,12 @@ WALK_STEP void rays_to_rows(const rays_t *r, lane_rows_t *l)
     VSTORE(r->alive, l->alive);
     VSTORE(r->p_lo, l->p_lo);
     VSTORE(r->p_hi, l->p_hi);
+#ifdef WARPE_TEXTURE_LAYERS
+    VSTORE(r->layer, l->layer);
+#else
+    for (int j = 0; j < WARPE_LANES; ++j)
+        l->layer[j] = 0;
+#endif
 }
 
 WALK_STEP void rows_to_rays(const lane_rows_t *l, rays_t *r)
@@ -325,6 +419,9 @@ WALK_STEP void rows_to_rays(const lane_rows_t *l, rays_t *r)
     r->alive = VLOAD(l->alive);
     r->p_lo = VLOAD(l->p_lo);
     r->p_hi = VLOAD(l->p_hi);
+#ifdef WARPE_TEXTURE_LAYERS
+    r->layer = VLOAD(l->layer);
+#endif
 }
 
 /* Lanes without a ray take the parked rays of the last launch first (walk.md §5); clears
@@ -364,6 +461,7 @@ WALK_STEP void resume_lanes(rays_t *r, const carry_t *cy, int *resuming)
         l.event[j] = (IREAL)ri[STATE_EVENT];
         l.p_lo[j] = ri[STATE_P_LO];
         l.p_hi[j] = ri[STATE_P_HI];
+        l.layer[j] = (IREAL)ri[STATE_LAYER];
         l.alive[j] = (IREAL)-1;     /* "true" in both mask conventions (lanes.h) */
         row += 1;
     }
@@ -408,6 +506,7 @@ WALK_STEP void park_lanes(const rays_t *r, const pool_t *pool, const carry_t *cy
         ri[STATE_EVENT] = (uint)l.event[j];
         ri[STATE_P_LO] = l.p_lo[j];
         ri[STATE_P_HI] = l.p_hi[j];
+        ri[STATE_LAYER] = (uint)l.layer[j];
         row += 1;
     }
     for (uint q = pool->next; q < pool->end; ++q, ++row) {
@@ -429,6 +528,7 @@ WALK_STEP void park_lanes(const rays_t *r, const pool_t *pool, const carry_t *cy
         ri[STATE_EVENT] = 0;
         ri[STATE_P_LO] = base_lo + q;          /* as refill_lanes numbers a photon */
         ri[STATE_P_HI] = base_lo + q < base_lo ? base_hi + 1u : base_hi;
+        ri[STATE_LAYER] = 0;
     }
 }
 
@@ -436,6 +536,7 @@ WALK_STEP void park_lanes(const rays_t *r, const pool_t *pool, const carry_t *cy
  * §5.7-§5.8): the flight cap; the optical step -ln u0 and the physical step s = l/E (paper
  * eq. 3); a collision if s is shorter than the way to the boundary, else the boundary; the path
  * L += s and its cap L_max; weighted, exp(-mu_a s) on the weight of every flight (walk.md §6).
+ * In a stack, the lane's layer's E and faces, and L += s n_l / n_0 (walk.md §7.2).
  * Sets *coll and *bnd to the lanes that collide and that reach a boundary. */
 WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, ends_t *e,
                         VMASK *coll, VMASK *bnd)
@@ -443,6 +544,18 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
     finish(e, fl & (r->flights == (VMASK)sc->max_flights), FATE_TERMINATED);
     fl &= !e->done;
     r->flights += ONE(fl);
+#ifdef WARPE_TEXTURE_LAYERS
+    const VREAL s = SEL((VREAL)INFINITY, -LOG(u0) / r->E, r->E > (REAL)0);
+    /* the way to the layer's face ahead (walk.md §7.2) */
+    const VREAL s_b = SEL((VREAL)INFINITY,
+                          SEL(r->z_top - r->z, r->z_bottom - r->z, r->uz > (REAL)0) / r->uz,
+                          (r->uz < (REAL)0) | (r->uz > (REAL)0));
+    VMASK c = fl & (s < s_b);
+    VMASK b = fl & !(s < s_b);
+    /* the path at layer 0's speed: n_l / n_0 = 1 exactly in layer 0 */
+    const VREAL len = SEL(s_b, s, c) * r->time_scale;
+    r->z = SEL(r->z, SEL(SEL(r->z_top, r->z_bottom, r->uz > (REAL)0), r->z + s * r->uz, c), fl);
+#else
     const VREAL s = SEL((VREAL)INFINITY, -LOG(u0) / sc->E, (VMASK)(sc->E > (REAL)0 ? -1 : 0));
     /* the way to the boundary ahead: (h - z)/uz down, -z/uz up, none level (one division) */
     const VREAL s_b = SEL((VREAL)INFINITY, SEL(-r->z, sc->h - r->z, r->uz > (REAL)0) / r->uz,
@@ -451,6 +564,7 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
     VMASK b = fl & !(s < s_b);
     const VREAL len = SEL(s_b, s, c);
     r->z = SEL(r->z, SEL(SEL((VREAL)0, (VREAL)sc->h, r->uz > (REAL)0), r->z + s * r->uz, c), fl);
+#endif
 #ifdef WARPE_DOUBLE
     r->Ls = SEL(r->Ls, r->Ls + len, fl);
 #else
@@ -471,6 +585,21 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
     *bnd = b;
 }
 
+/* A floor in optical contact (walk.md §3.1, second rule) under the lanes in m: the floor's
+ * toll on u1 (x1), then a Lambertian direction, mu = sqrt(u2), azimuth (cos psi, sin psi). */
+WALK_STEP void contact_floor(VMASK m, VREAL u1, VUINT x1, VREAL u2, VREAL cos_psi,
+                             VREAL sin_psi, const scene_t *sc, rays_t *r, ends_t *e)
+{
+    m = floor_toll(m, u1, x1, sc, r, e);
+    r->n_lamb += ONE(m);
+    VREAL vx, vy, vz;
+    lambert_direction(sqrt(u2), cos_psi, sin_psi, &vx, &vy, &vz);
+    r->ux = SEL(r->ux, vx, m);
+    r->uy = SEL(r->uy, vy, m);
+    r->uz = SEL(r->uz, vz, m);
+}
+
+#ifndef WARPE_TEXTURE_LAYERS
 /* The lanes in bnd at a boundary, with the words u1 (x1), u2 and the azimuth (cos psi,
  * sin psi) = u3 of their block (walk.md §3.1-§3.2, docs/physics.md §5.5-§5.6). Slab: at the top
  * and, over a vacuum gap, at the bottom, total internal reflection or reflect iff
@@ -488,7 +617,7 @@ WALK_STEP void reach_boundary(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos
     const REAL n = sc->n;
     const VREAL mu = fabs(r->uz);
     const VMASK reflect = (n * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= (REAL)1)
-                        | (u1 <= fresnel_internal(mu, n));
+                        | (u1 <= fresnel_internal(mu, (VREAL)n));
     if (sc->bottom_fresnel) {
         const VMASK back = bottom & reflect;
         r->uz = SEL(r->uz, -r->uz, back);
@@ -508,25 +637,97 @@ WALK_STEP void reach_boundary(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos
     e->cos_exit = SEL(e->cos_exit, -r->uz, top);
     finish(e, top, FATE_ESCAPED);
 #endif
-    if (ANY(bottom)) {
-        bottom = floor_toll(bottom, u1, x1, sc, r, e);
-        r->n_lamb += ONE(bottom);
-        VREAL vx, vy, vz;
-        lambert_direction(sqrt(u2), cos_psi, sin_psi, &vx, &vy, &vz);
-        r->ux = SEL(r->ux, vx, bottom);
-        r->uy = SEL(r->uy, vy, bottom);
-        r->uz = SEL(r->uz, vz, bottom);
-    }
+    if (ANY(bottom))
+        contact_floor(bottom, u1, x1, u2, cos_psi, sin_psi, sc, r, e);
 }
+#else
+/* The lanes in bnd at interface j of the stack, j = l + 1 going down and l going up, with the
+ * words u1 (x1), u2 and the azimuth (cos psi, sin psi) = u3 of their block (walk.md §7.1-§7.2,
+ * docs/physics-layers.md). A Fresnel interface: total internal reflection, or reflect iff
+ * u1 <= R(mu) (R_int towards vacuum, else R_ext with the relative index); a transmitted ray
+ * refracts. A transparent one lets it through unchanged. At j = 0 the ray exits; at j = N it
+ * enters the gap (Fresnel) or meets a floor in contact (transparent). Counts the
+ * transmissions (walk.md §7.4). */
+WALK_STEP void cross_interface(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos_psi,
+                               VREAL sin_psi, const scene_t *sc, rays_t *r, ends_t *e,
+                               stats_t *st)
+{
+    const int N = sc->n_layers;
+    const VMASK down = r->uz > (REAL)0;
+    const VMASK j = SEL(r->layer, r->layer + (VMASK)1, down);
+    /* the faces of each lane's interface, seen from its side (walk.md §7.1) */
+    VREAL near = (VREAL)1, far_n = (VREAL)1, far_k = (VREAL)0;
+    VMASK fres = (VMASK)0;
+    for (int i = 0; i <= N; ++i) {
+        const VMASK at = bnd & (j == (VMASK)i);
+        if (!ANY(at))
+            continue;
+        __global const REAL *row = sc->iface_real + N_IFACE_REAL * i;
+        const VMASK d = at & down, u = at & !down;
+        near = SEL(SEL(near, (VREAL)row[IFACE_DOWN_NEAR], d), (VREAL)row[IFACE_UP_NEAR], u);
+        far_n = SEL(SEL(far_n, (VREAL)row[IFACE_DOWN_FAR_N], d), (VREAL)row[IFACE_UP_FAR_N], u);
+        far_k = SEL(SEL(far_k, (VREAL)row[IFACE_DOWN_FAR_K], d), (VREAL)row[IFACE_UP_FAR_K], u);
+        fres = SEL(fres, (VMASK)(sc->iface_kind[i] ? -1 : 0), at);
+    }
+    const VMASK top = bnd & (j == (VMASK)0);
+    const VMASK bottom = bnd & (j == (VMASK)N);
+    const VMASK inner = bnd & !top & !bottom;
+    const VREAL mu = fabs(r->uz);
+    VMASK reflect = (VMASK)0;
+    VREAL cos_t = mu;
+    if (ANY(fres)) {
+        /* R_int(mu; near) towards vacuum, else R_ext(mu; far/near) (walk.md §7.1) */
+        const VMASK to_vacuum = (far_n == (REAL)1) & (far_k == (REAL)0);
+        VREAL R = fresnel_internal(mu, near);
+        if (!ALL(to_vacuum | !fres))
+            R = SEL(fresnel_external(mu, far_n / near, far_k / near), R, to_vacuum);
+        reflect = fres & ((near * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= far_n)
+                          | (u1 <= R));
+        /* the refracted |uz| = sqrt((1 - r^2) + r^2 mu^2), r = near/far: Snell */
+        const VREAL ratio = near / far_n;
+        cos_t = SEL(mu, sqrt(fmax(((REAL)1 - ratio * ratio) + ratio * ratio * mu * mu,
+                                  (REAL)0)), fres);
+        const VMASK bend = inner & fres & !reflect;
+        r->ux = SEL(r->ux, r->ux * ratio, bend);
+        r->uy = SEL(r->uy, r->uy * ratio, bend);
+        r->uz = SEL(r->uz, SEL(-cos_t, cos_t, down), bend);
+    }
+    r->uz = SEL(r->uz, -r->uz, reflect);
+    r->n_top += ONE(reflect & top);
+    r->n_bspec += ONE(reflect & !top);
+    const VMASK through = bnd & !reflect;
+    const VMASK floor = bottom & through & !fres;           /* a floor in contact */
+    const VMASK moved = through & !floor;
+    count_lanes(st, LSTAT_DOWN, moved & down, j);
+    count_lanes(st, LSTAT_UP, moved & !down, j);
+    /* out at the top: cos theta_e = -uz through a transparent top, Snell through a slab's */
+    const VMASK out = top & through;
+    e->cos_exit = SEL(e->cos_exit, cos_t, out);
+    finish(e, out, FATE_ESCAPED);
+    /* into the next layer */
+    const VMASK step = inner & through;
+    r->layer = SEL(r->layer, SEL(r->layer - (VMASK)1, r->layer + (VMASK)1, down), step);
+    load_layer(r, step, sc);
+    /* into the gap, whose events follow (walk.md §7.2) */
+    const VMASK gap = bottom & through & fres;
+    r->phase = SEL(r->phase, (VMASK)PHASE_GAP, gap);
+    r->layer = SEL(r->layer, (VMASK)N, gap);
+    if (ANY(floor))
+        contact_floor(floor, u1, x1, u2, cos_psi, sin_psi, sc, r, e);
+}
+#endif
 
-#ifdef WARPE_TEXTURE_SLAB
+#ifdef WARPE_INTERFACES
 /* GAP, one reflection of the lanes in gap by the floor below the slab's lower face (walk.md
  * §3.1, docs/physics.md §5.5): the floor's toll on u0 (x0); a Lambertian direction in vacuum,
  * mu_v = sqrt(u1), azimuth 2 pi u2; back to the floor iff u3 <= R_ext(mu_v; n, k), else
  * refracted into the slab (Snell, real part: sin theta_s = sin theta_v / n) and flights
- * resume. The gap adds no path length. */
+ * resume. The gap adds no path length. In a stack (walk.md §7.2) the gap medium has the real
+ * index n_g (a substrate's; 1 for vacuum) and the last layer's face (n2, k2) is above it:
+ * total internal reflection if n_g sin theta_g >= n2, R_int(mu_g; n_g) towards a granular
+ * layer's pores, R_ext(mu_g; n2/n_g, k2/n_g) otherwise, and sin theta = sin theta_g n_g / n2. */
 WALK_STEP void gap_event(VMASK gap, VREAL u0, VUINT x0, VREAL u1, VREAL u2, VREAL u3,
-                      const scene_t *sc, rays_t *r, ends_t *e)
+                      const scene_t *sc, rays_t *r, ends_t *e, stats_t *st)
 {
     const REAL two_pi = (REAL)(2.0 * WARPE_PI);
     gap = floor_toll(gap, u0, x0, sc, r, e);
@@ -534,8 +735,21 @@ WALK_STEP void gap_event(VMASK gap, VREAL u0, VUINT x0, VREAL u1, VREAL u2, VREA
     const VREAL mu_v = sqrt(u1);
     VREAL c2, s2;
     SINCOS(two_pi * u2, s2, c2);
-    const VMASK enter = gap & (u3 > fresnel_external(mu_v, sc->n, sc->k));
+#ifdef WARPE_TEXTURE_LAYERS
+    const REAL n_g = sc->gap_near, n2 = sc->gap_far_n, k2 = sc->gap_far_k;
+    const VREAL sin_g = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0));
+    const VREAL R = (n2 == (REAL)1 && k2 == (REAL)0)
+                  ? fresnel_internal(mu_v, (VREAL)n_g)
+                  : fresnel_external(mu_v, (VREAL)(n2 / n_g), (VREAL)(k2 / n_g));
+    const VMASK enter = gap & !(n_g * sin_g >= n2) & (u3 > R);
+    const VREAL sin_s = (sin_g * n_g) / n2;
+    r->layer = SEL(r->layer, (VMASK)(sc->n_layers - 1), enter);
+    load_layer(r, enter, sc);
+    count_lanes(st, LSTAT_UP, enter, (VMASK)sc->n_layers);
+#else
+    const VMASK enter = gap & (u3 > fresnel_external(mu_v, (VREAL)sc->n, (VREAL)sc->k));
     const VREAL sin_s = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0)) / sc->n;
+#endif
     r->ux = SEL(r->ux, sin_s * c2, enter);
     r->uy = SEL(r->uy, sin_s * s2, enter);
     r->uz = SEL(r->uz, -sqrt((REAL)1 - sin_s * sin_s), enter);
@@ -585,7 +799,7 @@ WALK_STEP void add_weight(const tallies_t *tally, int component, int tb, int eb,
  * (ns) and cosine, and the weight at its end. */
 WALK_STEP void write_record(const tallies_t *tally, size_t i, int fate, int component, uint n_s,
                          uint n_l, int n_bspec, int n_top, int tb, int eb, REAL t,
-                         REAL cos_exit, REAL w)
+                         REAL cos_exit, REAL w, int layer)
 {
     __global int *ri = tally->rec_int + N_RECORD_INT * i;
     __global REAL *rr = tally->rec_real + N_RECORD_REAL * i;
@@ -597,6 +811,7 @@ WALK_STEP void write_record(const tallies_t *tally, size_t i, int fate, int comp
     ri[RECORD_N_TOP] = n_top;
     ri[RECORD_TIME_BIN] = tb;
     ri[RECORD_EMERGENCE_BIN] = eb;
+    ri[RECORD_LAYER] = layer;
     rr[RECORD_TIME_NS] = t;
     rr[RECORD_COS_EXIT] = cos_exit;
     rr[RECORD_WEIGHT] = w;
@@ -610,6 +825,10 @@ WALK_STEP void write_record(const tallies_t *tally, size_t i, int fate, int comp
  * WARPE_RECORD: every ended ray's record. */
 WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *tally, stats_t *st)
 {
+#ifdef WARPE_TEXTURE_LAYERS
+    IREAL ly[WARPE_LANES];       /* the layer each ray ends in (walk.md §7.2, §7.4) */
+    VSTORE(r->layer, ly);
+#endif
     const int n_time = tally->n_edges - 1;
     IREAL d[WARPE_LANES], f[WARPE_LANES], ns[WARPE_LANES], nl[WARPE_LANES];
     REAL t[WARPE_LANES], ce[WARPE_LANES];
@@ -638,6 +857,15 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
         REAL tj = t[j];
         st->fates[fj] += 1;
         st->scattering_events += n_s;
+#ifdef WARPE_TEXTURE_LAYERS
+        const int layer = (int)ly[j];
+        if (fj == FATE_ABSORBED_MEDIUM)
+            st->layer[LSTAT_ABSORBED + layer] += 1;
+        else if (fj == FATE_TERMINATED)
+            st->layer[LSTAT_TERMINATED + layer] += 1;
+#else
+        const int layer = 0;
+#endif
         int component = -1, tb = -1, eb = -1;
         if (fj == FATE_SPECULAR || fj == FATE_ESCAPED) {
             if (fj == FATE_SPECULAR) {   /* at t = 0, theta_e = 0 (walk.md §3 step 2) */
@@ -674,7 +902,7 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
         const REAL w_end = (REAL)1;
 #endif
         write_record(tally, (size_t)(p[j] - tally->record_base), fj, component, n_s, n_l, (int)nb[j], (int)nt[j], tb,
-                     eb, tj, ce[j], w_end);
+                     eb, tj, ce[j], w_end, layer);
 #endif
     }
 }
@@ -704,6 +932,14 @@ __kernel void walk(const uint seed, const ulong scenario,
                    __global uint *total,         /* [N_COMPONENTS] */
                    __global uint *early,         /* [N_COMPONENTS] exits before time_edges[0] */
                    __global ulong *item_stats    /* [global size][N_ITEM_STATS] */
+#ifdef WARPE_TEXTURE_LAYERS     /* the stack (walk.md §7.3) */
+                   , const int n_layers
+                   , __global const REAL *layer_real  /* [n_layers][N_LAYER_REAL] */
+                   , __global const ulong *layer_words /* [n_layers] */
+                   , __global const REAL *iface_real  /* [n_layers + 1][N_IFACE_REAL] */
+                   , __global const int *iface_kind   /* [n_layers + 1] */
+                   , __global ulong *layer_stats      /* [global size][N_LAYER_STATS] */
+#endif
 #ifdef WARPE_WEIGHTED   /* sums of weights (w_) and of their squares (w2_), FIXED_WORDS each */
                    , __global ulong *w_time_in_fov  /* [N_COMPONENTS][n_edges - 1][FIXED_WORDS] */
                    , __global ulong *w_time_any     /* [N_COMPONENTS][n_edges - 1][FIXED_WORDS] */
@@ -724,7 +960,17 @@ __kernel void walk(const uint seed, const ulong scenario,
                         .max_flights = max_flights, .bottom_fresnel = bottom_fresnel,
                         .omega_words = omega_words, .albedo_words = albedo_words, .A = A,
                         .mu_a = mu_a, .roulette_weight = roulette_weight,
-                        .roulette_survival = roulette_survival};
+                        .roulette_survival = roulette_survival,
+#ifdef WARPE_TEXTURE_LAYERS
+                        .n_layers = n_layers, .layer_real = layer_real,
+                        .layer_words = layer_words, .iface_real = iface_real,
+                        .iface_kind = iface_kind,
+                        /* from the gap up into the last layer (walk.md §7.2 gap events) */
+                        .gap_near = iface_real[N_IFACE_REAL * n_layers + IFACE_UP_NEAR],
+                        .gap_far_n = iface_real[N_IFACE_REAL * n_layers + IFACE_UP_FAR_N],
+                        .gap_far_k = iface_real[N_IFACE_REAL * n_layers + IFACE_UP_FAR_K],
+#endif
+                        };
     const tallies_t tally = {
         .time_in_fov = time_in_fov, .time_any = time_any, .angular = angular, .total = total,
         .early = early,
@@ -744,17 +990,21 @@ __kernel void walk(const uint seed, const ulong scenario,
     /* the 64-bit scenario key: its low word keys Philox, its high word is counter word 3 */
     const uint key_lo = (uint)scenario, key_hi = (uint)(scenario >> 32);
     const REAL two_pi = (REAL)(2.0 * WARPE_PI);
-#ifdef WARPE_TEXTURE_SLAB
+#if defined(WARPE_TEXTURE_SLAB)
     /* the specular reflectance at normal incidence (docs/physics.md §5.2) */
-    const VREAL R0 = fresnel_external((VREAL)1, n, k);
+    const VREAL R0 = fresnel_external((VREAL)1, (VREAL)n, (VREAL)k);
     const IREAL phase_start = PHASE_ENTRY;
+#elif defined(WARPE_TEXTURE_LAYERS)
+    /* an entry event iff the top of the stack is a Fresnel interface (walk.md §7.2) */
+    const VREAL R0 = fresnel_external((VREAL)1, (VREAL)n, (VREAL)k);
+    const IREAL phase_start = iface_kind[0] ? PHASE_ENTRY : PHASE_FLIGHT;
 #else
     const IREAL phase_start = PHASE_FLIGHT;           /* granular: no entry event */
 #endif
     const carry_t carry = {.resume_count = resume_count, .next_resume = next_resume,
                            .resume_real = resume_real, .resume_int = resume_int,
                            .parked = parked, .park_real = park_real, .park_int = park_int};
-    stats_t st = {{0}, 0, 0, 0};
+    stats_t st = {{0}};
     rays_t r = no_rays(phase_start);
     int exhausted = 0, resuming = resume_count > 0;
     int all_alive = 0;           /* every lane has a ray (known without testing the mask) */
@@ -768,6 +1018,9 @@ __kernel void walk(const uint seed, const ulong scenario,
             break;
         }
         if (!all_alive) {
+#ifdef WARPE_TEXTURE_LAYERS
+            const VMASK had = r.alive;
+#endif
             if (!exhausted) {
                 if (resuming)
                     resume_lanes(&r, &carry, &resuming);
@@ -775,6 +1028,9 @@ __kernel void walk(const uint seed, const ulong scenario,
                     refill_lanes(&r, &pool, &exhausted, next_photon, n_photons, base_lo, base_hi,
                                  phase_start);
             }
+#ifdef WARPE_TEXTURE_LAYERS
+            load_layer(&r, r.alive & !had, &sc);    /* new and resumed rays (walk.md §7.3) */
+#endif
             all_alive = ALL(r.alive);
             if (!all_alive && !ANY(r.alive))
                 break;
@@ -787,6 +1043,9 @@ __kernel void walk(const uint seed, const ulong scenario,
                      &x0, &x1, &x2, &x3);
         const VREAL u0 = uniform_lanes(x0), u1 = uniform_lanes(x1);
         const VREAL u2 = uniform_lanes(x2), u3 = uniform_lanes(x3);
+#ifdef WARPE_TEXTURE_LAYERS
+        const VMASK first = r.alive & (r.event == (VMASK)0);   /* entering the stack */
+#endif
         r.event += (VMASK)1;
         ends_t e;
         e.done = (VMASK)0;
@@ -794,7 +1053,7 @@ __kernel void walk(const uint seed, const ulong scenario,
         e.cos_exit = (VREAL)1;
         const VMASK in_flight = r.alive & (r.phase == (VMASK)PHASE_FLIGHT);
 
-#ifdef WARPE_TEXTURE_SLAB
+#ifdef WARPE_INTERFACES
         /* ENTRY (walk.md §3 step 2, docs/physics.md §5.2): specular iff u0 <= R0, recorded at
          * t = 0, theta_e = 0; else the ray enters, and flies from its next event */
         {
@@ -803,6 +1062,13 @@ __kernel void walk(const uint seed, const ulong scenario,
             r.phase = SEL(r.phase, (VMASK)PHASE_FLIGHT, entry);
         }
         const VMASK in_gap = r.alive & (r.phase == (VMASK)PHASE_GAP);
+#endif
+#ifdef WARPE_TEXTURE_LAYERS
+        if (ANY(first))     /* down[0]: the rays that enter the stack (walk.md §7.4) */
+            count_lanes(&st, LSTAT_DOWN, first & !e.done, (VMASK)0);
+        const VREAL g_lanes = r.g;
+#else
+        const VREAL g_lanes = (VREAL)sc.g;
 #endif
 
         VMASK coll, bnd;
@@ -817,17 +1083,22 @@ __kernel void walk(const uint seed, const ulong scenario,
         r.n_scat += ONE(coll);
         {   /* some lane collides in almost every event: no test */
             VREAL vx = r.ux, vy = r.uy, vz = r.uz;
-            rotate_direction(&vx, &vy, &vz, hg_cos_theta(sc.g, u2), cos_psi, sin_psi);
+            rotate_direction(&vx, &vy, &vz, hg_cos_theta(g_lanes, u2), cos_psi, sin_psi);
             r.ux = SEL(r.ux, vx, coll);
             r.uy = SEL(r.uy, vy, coll);
             r.uz = SEL(r.uz, vz, coll);
         }
 
+#ifdef WARPE_TEXTURE_LAYERS
+        if (ANY(bnd))
+            cross_interface(bnd, u1, x1, u2, cos_psi, sin_psi, &sc, &r, &e, &st);
+#else
         if (ANY(bnd))
             reach_boundary(bnd, u1, x1, u2, cos_psi, sin_psi, &sc, &r, &e);
-#ifdef WARPE_TEXTURE_SLAB
+#endif
+#ifdef WARPE_INTERFACES
         if (ANY(in_gap))
-            gap_event(in_gap, u0, x0, u1, u2, u3, &sc, &r, &e);
+            gap_event(in_gap, u0, x0, u1, u2, u3, &sc, &r, &e, &st);
 #endif
 
         if (ANY(e.done)) {
@@ -838,4 +1109,7 @@ __kernel void walk(const uint seed, const ulong scenario,
     }
 
     write_stats(item_stats + N_ITEM_STATS * get_global_id(0), &st);
+#ifdef WARPE_TEXTURE_LAYERS
+    write_layer_stats(layer_stats + N_LAYER_STATS * get_global_id(0), &st);
+#endif
 }

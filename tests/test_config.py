@@ -763,18 +763,19 @@ def test_a_bundled_preset_loads_by_name_as_on_the_command_line():
 
 
 def test_a_builtin_material_at_another_wavelength_names_1064_nm_and_materials(capsys):
-    """H2O at 532 nm: the one line says the built-ins exist at 1064 nm and how to give n, k."""
+    """H2O at 800 nm: the one line says the built-ins exist at 532 and 1064 nm and how to give
+    n, k."""
     from warpe_cl.cli import main
     assert main(["show-config", "paper/slab_h2o_thickness", "--set",
-                 'wavelength="532 nm"']) == 2
+                 'wavelength="800 nm"']) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
-    assert "medium.matrix: material 'H2O' has built-in optical constants only at 1064 nm, " \
-           "not at 532 nm" in err, err
+    assert "medium.matrix: material 'H2O': built-in optical constants exist at 532 nm and " \
+           "1064 nm only, not at 800 nm" in err, err
     assert "materials: H2O: {n: N, k: K}" in err and "{table: FILE}" in err, err
-    # given under materials:, the same preset resolves at 532 nm
+    # given under materials:, the same preset resolves at 800 nm
     from warpe_cl.radiative import radiative_parameters
     cfg = load_preset("paper/slab_h2o_thickness", overrides=[
-        'wavelength="532 nm"', "materials.H2O.n=1.31", "materials.H2O.k=1e-9"])
+        'wavelength="800 nm"', "materials.H2O.n=1.3049", "materials.H2O.k=1.34e-7"])
     for _, pcfg in cfg.sweep_points():
         radiative_parameters(pcfg)

@@ -172,7 +172,7 @@ BAD_PHYSICAL = {
     "negative_k": _phys(material="X", extra="materials:\n  X: {n: 1.5, k: -1e-3}\n"),
     "grain_without_unit": _phys(grain="100"),
     "matrix_on_granular": _phys(texture="granular"),
-    "no_builtin_at_other_wavelength": _phys(extra='wavelength: "532 nm"\n'),
+    "no_builtin_at_other_wavelength": _phys(extra='wavelength: "800 nm"\n'),
 }
 
 

@@ -19,7 +19,7 @@ import time
 
 from . import io, tally
 from .config import Config, load_preset, time_edges
-from .params import WalkParams
+from .params import Layer, WalkParams, stack_params
 from .progress import Progress
 from .radiative import radiative_parameters
 
@@ -29,20 +29,18 @@ _engines: dict = {}
 def walk_params(cfg: Config, scenario: int = 0) -> tuple:
     """The :class:`WalkParams` of a (single-point) configuration and its derived parameters.
 
+    A single layer gives the ``slab`` or ``granular`` walk's parameters; a stack
+    (``medium.layers``) or a layer over a substrate gives those of the layered walk
+    (:func:`~warpe_cl.params.stack_params`, docs/walk.md §7), its layers of thickness 0 left
+    out.
+
     Returns
     -------
     (WalkParams, dict)
     """
     derived = radiative_parameters(cfg)
-    params = WalkParams(
-        texture=cfg.get("medium.texture"),
+    common = dict(
         bottom_interface=cfg.get("medium.bottom_interface"),
-        thickness=derived["thickness_m"],
-        extinction=derived["extinction_per_m"],
-        omega=derived["omega"],
-        g=cfg.get("medium.phase_g"),
-        n=derived["n_eff"],
-        k=derived["k_eff"],
         albedo=cfg.get("medium.bottom_albedo"),
         time_edges=time_edges(cfg),
         max_time=cfg.get("simulation.max_time"),
@@ -54,6 +52,23 @@ def walk_params(cfg: Config, scenario: int = 0) -> tuple:
         mode=cfg.get("simulation.mode"),
         roulette_weight=float(cfg.get("simulation.roulette_weight")),
         roulette_survival=float(cfg.get("simulation.roulette_survival")),
+    )
+    if "layers" in derived:
+        layers = tuple(Layer(d["texture"], d["thickness_m"], d["extinction_per_m"], d["omega"],
+                             d["phase_g"], d["n_eff"], d["k_eff"])
+                       for d in derived["layers"] if d["thickness_m"] > 0)
+        substrate = ((derived["substrate_n"], derived["substrate_k"])
+                     if "substrate_n" in derived else None)
+        return stack_params(layers, substrate=substrate, **common), derived
+    params = WalkParams(
+        texture=cfg.get("medium.texture"),
+        thickness=derived["thickness_m"],
+        extinction=derived["extinction_per_m"],
+        omega=derived["omega"],
+        g=cfg.get("medium.phase_g"),
+        n=derived["n_eff"],
+        k=derived["k_eff"],
+        **common,
     )
     return params, derived
 

@@ -22,7 +22,8 @@ import numpy as np
 
 from . import device as devmod
 from .errors import WeightError
-from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, ITEM_STATS, RECORD_FIELDS,
+from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, IFACE_REAL_COLUMNS,
+                     ITEM_STATS, LAYER_REAL_COLUMNS, LAYER_STATS, RECORD_FIELDS,
                      RECORD_INT_COLUMNS, RECORD_REAL_COLUMNS, STATE_INT_COLUMNS,
                      STATE_REAL_COLUMNS, Counts, WalkParams, kernel_layout, tally_shapes)
 
@@ -58,7 +59,7 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
     No physical value is compiled in."""
     if lanes not in LANE_WIDTHS:
         raise ValueError(f"lanes must be one of {LANE_WIDTHS}, got {lanes}")
-    opts = ["-DWARPE_TEXTURE_SLAB" if texture == "slab" else "-DWARPE_TEXTURE_GRANULAR",
+    opts = [f"-DWARPE_TEXTURE_{texture.upper()}",
             f"-DWARPE_LANES={lanes}", f"-DWARPE_POOL={photon_pool(lanes)}"]
     if precision == "double":
         opts.append("-DWARPE_DOUBLE")
@@ -93,8 +94,9 @@ class KernelArg:
     value : callable or None
         Scalars fixed by the scenario: ``value(params)`` of a :class:`WalkParams`. ``None``:
         the launch provides it, by name (photon range, buffers).
-    only : {None, "weighted", "records"}
-        Present only in the builds with ``WARPE_WEIGHTED`` or ``WARPE_RECORD``.
+    only : {None, "weighted", "records", "layers"}
+        Present only in the builds with ``WARPE_WEIGHTED``, ``WARPE_RECORD`` or
+        ``WARPE_TEXTURE_LAYERS``.
     """
 
     name: str
@@ -148,6 +150,12 @@ WALK_ARGS = (
     KernelArg("park_int", "__global uint *"),
     *(KernelArg(name, "__global uint *") for name in HISTOGRAMS),
     KernelArg("item_stats", "__global ulong *"),
+    KernelArg("n_layers", "int", lambda p: len(p.stack), only="layers"),
+    KernelArg("layer_real", "__global const REAL *", only="layers"),
+    KernelArg("layer_words", "__global const ulong *", only="layers"),
+    KernelArg("iface_real", "__global const REAL *", only="layers"),
+    KernelArg("iface_kind", "__global const int *", only="layers"),
+    KernelArg("layer_stats", "__global ulong *", only="layers"),
     *(KernelArg(name, "__global ulong *", only="weighted")
       for name in ("w_time_in_fov", "w_time_any", "w_angular", "w_total", "w_early",
                    "w2_time_in_fov", "w2_total")),
@@ -159,9 +167,9 @@ WALK_ARGS = (
 _SCALAR_TYPES = {"uint": np.uint32, "ulong": np.uint64, "int": np.int32}
 
 
-def walk_args(weighted: bool, records: bool) -> tuple:
+def walk_args(weighted: bool, records: bool, layered: bool = False) -> tuple:
     """The :data:`WALK_ARGS` of one build of the walk kernel, in order."""
-    present = {None: True, "weighted": weighted, "records": records}
+    present = {None: True, "weighted": weighted, "records": records, "layers": layered}
     return tuple(a for a in WALK_ARGS if present[a.only])
 
 
@@ -174,6 +182,51 @@ def argument_values(args, params: WalkParams, launch: dict, real) -> list:
         value = a.value(params) if a.value is not None else launch[a.name]
         out.append(value if a.is_buffer else _SCALAR_TYPES.get(a.ctype, real)(value))
     return out
+
+
+def gap_face(params: WalkParams) -> tuple:
+    """The index (n, k) of the gap medium under a stack's last layer (docs/walk.md §7.1): the
+    substrate's; vacuum under a slab over a vacuum gap; the last layer's own face (a floor in
+    contact, no interface) under a slab with ``bottom_interface: none`` or a granular layer."""
+    last = params.stack[-1]
+    if params.substrate is not None:
+        return (float(params.substrate[0]), float(params.substrate[1]))
+    if last.texture == "slab" and params.bottom_interface == "fresnel":
+        return (1.0, 0.0)
+    return last.face
+
+
+def layer_tables(params: WalkParams, real) -> dict:
+    """The tables the layered kernel reads (docs/walk.md §7.3), as NumPy arrays.
+
+    Returns
+    -------
+    dict
+        ``layer_real`` (N, len(LAYER_REAL_COLUMNS)) of dtype ``real``: z_top, z_bottom (m),
+        E (1/m), g, n_i / n_0; ``layer_words`` (N,) uint64: T_omega; ``iface_real``
+        (N + 1, len(IFACE_REAL_COLUMNS)) of dtype ``real``: for a ray going down, then up,
+        the real index on its side and the complex index of the far side; ``iface_kind``
+        (N + 1,) int32: 0 transparent (equal faces), 1 Fresnel.
+    """
+    layers = params.stack
+    depth = np.concatenate([[0.0], np.cumsum([x.thickness for x in layers])]).astype(real)
+    n0 = float(layers[0].n)
+    rows = {"z_top": depth[:-1], "z_bottom": depth[1:],
+            "extinction": [x.extinction for x in layers], "g": [x.g for x in layers],
+            "time_scale": [float(x.n) / n0 for x in layers]}
+    layer_real = np.stack([np.asarray(rows[c], dtype=real) for c in LAYER_REAL_COLUMNS], axis=1)
+    faces = [(1.0, 0.0)] + [x.face for x in layers] + [gap_face(params)]
+    iface, kind = [], []
+    for j in range(len(layers) + 1):
+        above, below = faces[j], faces[j + 1]
+        cols = {"down_near": above[0], "down_far_n": below[0], "down_far_k": below[1],
+                "up_near": below[0], "up_far_n": above[0], "up_far_k": above[1]}
+        iface.append([cols[c] for c in IFACE_REAL_COLUMNS])
+        kind.append(0 if above == below else 1)
+    return {"layer_real": np.ascontiguousarray(layer_real),
+            "layer_words": np.array([x.omega_words for x in layers], dtype=np.uint64),
+            "iface_real": np.asarray(iface, dtype=real),
+            "iface_kind": np.asarray(kind, dtype=np.int32)}
 
 
 def requested_lanes() -> int | None:
@@ -379,7 +432,10 @@ class Engine:
 
         mf = cl.mem_flags
         ctx, queue = self.context, self.queue
-        args = walk_args(weighted, records)
+        layered = params.layered
+        if layered and weighted:
+            raise ValueError("the layered walk is analog only (docs/walk.md §7)")
+        args = walk_args(weighted, records, layered)
         shapes = tally_shapes(n_time)
         hist = [a.name for a in args if a.name in HISTOGRAMS]
         weights = [a.name for a in args if a.only == "weighted"]
@@ -398,6 +454,11 @@ class Engine:
                    **{k: cl.Buffer(ctx, mf.READ_WRITE,
                                    size=8 * FIXED_WORDS * int(np.prod(shapes[k])))
                       for k in weights}}
+        if layered:
+            for name, table in layer_tables(params, real).items():
+                buffers[name] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=table)
+            buffers["layer_stats"] = cl.Buffer(ctx, mf.READ_WRITE,
+                                               size=8 * len(LAYER_STATS) * gsize)
         zeroed = [buffers[k] for k in (*hist, *weights, *counters)]
         # parked rays, in two buffers that swap roles each launch (written, then resumed)
         carry = [(cl.Buffer(ctx, mf.READ_WRITE, size=itemsize * len(STATE_REAL_COLUMNS) * capacity),
@@ -470,7 +531,12 @@ class Engine:
                 setattr(part, name, _exact_sums(words))
             stats = np.empty((gsize, len(ITEM_STATS)), dtype=np.uint64)
             cl.enqueue_copy(queue, stats, buffers["item_stats"])
+            if layered:
+                per_layer = np.empty((gsize, len(LAYER_STATS)), dtype=np.uint64)
+                cl.enqueue_copy(queue, per_layer, buffers["layer_stats"])
             queue.finish()
+            if layered:
+                part.layer_stats[...] = per_layer[:launch_items].astype(np.int64).sum(axis=0)
             elapsed = time.perf_counter() - t0
             stats = dict(zip(ITEM_STATS, stats[:launch_items].astype(np.int64).sum(axis=0)))
             part.fates[...] = [stats[f"fate_{f}"] for f in FATES]

@@ -160,6 +160,9 @@ def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
                 "units": "deg", "long_name": "emergence angle in vacuum, bin centre"}),
         },
     )
+    from .stack import layer_variables
+    layer_vars, layer_coords = layer_variables(counts, params, derived)
+    ds = ds.assign_coords(layer_coords).assign(layer_vars)
     ds = ds.assign(derived_variables(derived))
     ds.attrs.update({k: derived[k] for k in DERIVED if k in derived})
     for key in ("material", "w", "number_density_per_m3", "n_rel"):

@@ -1,8 +1,11 @@
-"""Optical constants of the end-members: built-ins at 1064 nm, and user materials.
+"""Optical constants of the end-members: built-ins at 532 nm and 1064 nm, and user materials.
 
-A preset may add or override materials under ``materials:``, either as constants at the run's
-wavelength (``{n, k}``) or as a CSV table over wavelength (``{table: FILE}``, columns
-``wavelength_nm, n, k``), interpolated linearly. Names are case-insensitive.
+The built-ins (``BUILTIN``) exist at two laser wavelengths only: 1064 nm (BELA, GALA, the
+paper's Table 2) and 532 nm (ATLAS on ICESat-2); docs/materials.md gives every value with its
+published source. A preset may add or override materials under ``materials:``, either as
+constants at the run's wavelength (``{n, k}``) or as a CSV table over wavelength
+(``{table: FILE}``, columns ``wavelength_nm, n, k``), interpolated linearly; such materials work
+at any wavelength. Names are case-insensitive.
 """
 from __future__ import annotations
 
@@ -20,8 +23,53 @@ BUILTIN_1064NM = {
     "CO2": (1.4026, 8.47e-10),      # CO2 ice, Schmitt et al. 1998
     "S": (1.92, 9.5e-6),            # sulfur, Sasson et al. 1985
 }
-BUILTIN_WAVELENGTH = 1064e-9       # m
+BUILTIN_WAVELENGTH = 1064e-9       # m: the wavelength of BUILTIN_1064NM (the paper's)
 _WAVELENGTH_TOLERANCE = 1e-3       # relative: "1064 nm" and "1.064 um" are the same
+
+#: The lag materials at 1064 nm, next to the paper's end-members (docs/materials.md): the two
+#: bracketing rows of each source, n interpolated linearly and k linearly in log k.
+LAGS_1064NM = {
+    "tholin": (1.65, 8.3e-4),       # Titan tholin, Khare et al. 1984 (1016 and 1148 nm rows)
+    "regolith": (1.5856, 1.52e-3),  # Mg0.8Fe0.2SiO3 glass, Dorschner et al. 1995 (1.0, 1.1 um)
+}
+
+#: Built-in end-members at 532 nm (docs/materials.md), interpolated as LAGS_1064NM.
+BUILTIN_532NM = {
+    "void": (1.0, 0.0),
+    "H2O": (1.31164, 1.48e-9),      # water ice, Warren & Brandt 2008 (530 and 540 nm rows)
+    "CO2": (1.4141, 4.23e-10),      # CO2 ice: n Warren 1986 Table I, k from Hansen 2005
+    "S": (2.010, 8.25e-7),          # alpha-sulfur, Fuller, Downing & Querry 1998 (530, 540 nm)
+    "tholin": (1.705, 2.95e-2),     # Titan tholin, Khare et al. 1984 (442.8 and 563.5 nm rows)
+    "regolith": (1.6114, 1.70e-3),  # Mg0.8Fe0.2SiO3 glass, Dorschner et al. 1995 (0.50, 0.55 um)
+}
+
+#: Every built-in, by wavelength (m): wavelength -> {name: (n, k)}.
+BUILTIN = {
+    532e-9: BUILTIN_532NM,
+    BUILTIN_WAVELENGTH: {**BUILTIN_1064NM, **LAGS_1064NM},
+}
+
+
+def builtin_wavelengths(name: str | None = None) -> tuple:
+    """The wavelengths (m, ascending) that have built-in optical constants; with ``name``
+    (case-insensitive), only those where that material is built in."""
+    return tuple(sorted(lam for lam, table in BUILTIN.items()
+                        if name is None or name.upper() in {b.upper() for b in table}))
+
+
+def builtin_constants(wavelength: float):
+    """The built-in ``{name: (n, k)}`` at ``wavelength`` (m, within 0.1 %), or None where no
+    built-in exists there."""
+    for lam, table in BUILTIN.items():
+        if abs(wavelength / lam - 1) < _WAVELENGTH_TOLERANCE:
+            return table
+    return None
+
+
+def _nm_list(wavelengths) -> str:
+    """The wavelengths (m) in words: ``532 nm and 1064 nm``."""
+    names = [f"{lam * 1e9:g} nm" for lam in wavelengths]
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
 def _read_table(path: Path, name: str, source):
@@ -51,13 +99,15 @@ def optical_constants(cfg) -> dict:
     """Every material the configuration can name, at its wavelength: ``{NAME: (n, k)}`` with
     upper-case keys.
 
-    Built-ins apply at 1064 nm only; at another wavelength a material must come from the
-    preset's ``materials:`` block (a constant or a table covering the wavelength).
+    Built-ins apply at the wavelengths of ``BUILTIN`` only (532 nm and 1064 nm); at another
+    wavelength a material other than ``void`` must come from the preset's ``materials:`` block
+    (a constant or a table covering the wavelength).
     """
     wavelength = cfg.get("wavelength")
     table = {}
-    if abs(wavelength / BUILTIN_WAVELENGTH - 1) < _WAVELENGTH_TOLERANCE:
-        table.update({k.upper(): v for k, v in BUILTIN_1064NM.items()})
+    builtins = builtin_constants(wavelength)
+    if builtins is not None:
+        table.update({k.upper(): v for k, v in builtins.items()})
     else:
         table["VOID"] = (1.0, 0.0)
     for name, spec in (cfg.get("materials") or {}).items():
@@ -82,14 +132,15 @@ def lookup(constants: dict, name: str, key: str, source, wavelength=None) -> tup
     try:
         return constants[name.upper()]
     except KeyError:
-        if name.upper() in {b.upper() for b in BUILTIN_1064NM}:   # a built-in, wrong wavelength
+        where = builtin_wavelengths(name)
+        if where:                                           # a built-in, wrong wavelength
             raise ConfigError(
-                f"material {name!r} has built-in optical constants only at "
-                f"{BUILTIN_WAVELENGTH * 1e9:g} nm, not at "
+                f"material {name!r}: built-in optical constants exist at {_nm_list(where)} "
+                "only, not at "
                 + ("this wavelength" if wavelength is None else f"{wavelength * 1e9:g} nm")
                 + f"; give its constants at that wavelength under materials: "
                 f"{name}: {{n: N, k: K}} (or "
-                + "{table: FILE}, columns wavelength_nm, n, k; docs/config.md)",
+                + "{table: FILE}, columns wavelength_nm, n, k; docs/materials.md)",
                 key=key, source=source) from None
         import difflib
         known = sorted(constants)

@@ -19,6 +19,11 @@ FATES = ("specular", "escaped", "absorbed_medium", "absorbed_floor", "terminated
 N_FATES = len(FATES)
 N_EMERGENCE = 90  # 1-degree emergence bins, 0..90 deg
 TEXTURES = ("slab", "granular")
+#: The kernel builds: one per texture of a single layer, and one for a stack of layers (or a
+#: layer over a substrate), whose textures are per-layer values (docs/walk.md §7).
+KERNEL_TEXTURES = TEXTURES + ("layers",)
+#: Most layers a stack may hold (the per-layer statistics of the kernel, ``LAYER_STATS``).
+MAX_LAYERS = 8
 BOTTOM_INTERFACES = ("fresnel", "none")
 RULES = ("history", "time_window")
 #: time_bin of an exit at or after the last edge (or of a ray that did not exit), and of an
@@ -51,14 +56,31 @@ ITEM_STATS = tuple(f"fate_{f}" for f in FATES) + ("scattering_events", "mixed_hi
 #: writes ``rec_int[photon][RECORD_INT_COLUMNS]`` (int32) and
 #: ``rec_real[photon][RECORD_REAL_COLUMNS]`` (REAL).
 RECORD_INT_COLUMNS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
-                      "emergence_bin")
+                      "emergence_bin", "layer")
 RECORD_REAL_COLUMNS = ("time_ns", "cos_exit", "weight")
 #: The columns of a parked ray (cl/walk.cl ``carry_t``): a launch that spends its event budget
 #: writes each unfinished ray as a row of ``STATE_REAL_COLUMNS`` (REAL) and ``STATE_INT_COLUMNS``
 #: (uint32), and the next launch resumes it from there (docs/walk.md §5).
 STATE_REAL_COLUMNS = ("z", "ux", "uy", "uz", "ls", "lc", "w")
 STATE_INT_COLUMNS = ("flights", "n_scat", "n_lamb", "n_bspec", "n_top", "phase", "event",
-                     "p_lo", "p_hi")
+                     "p_lo", "p_hi", "layer")
+#: The per-layer statistics of the layered walk (docs/walk.md §7.4), per work-item
+#: (``layer_stats[work-item][slot]``, uint64): rays absorbed in the medium of layer i, rays
+#: terminated in layer i, and transmissions down and up through interface j (j = 0: the top of
+#: the stack, j = N: the contact with the gap or substrate below the last layer).
+LAYER_STATS = (tuple(f"absorbed_{i}" for i in range(MAX_LAYERS))
+               + tuple(f"terminated_{i}" for i in range(MAX_LAYERS))
+               + tuple(f"down_{j}" for j in range(MAX_LAYERS + 1))
+               + tuple(f"up_{j}" for j in range(MAX_LAYERS + 1)))
+#: The columns of the layer table the layered kernel reads (``layer_real[i][...]``, REAL):
+#: the top and bottom depths (m), the flight extinction (1/m), HG g, and n_i / n_0, the factor
+#: that turns a path in layer i into path of layer 0's speed (docs/walk.md §7.2).
+LAYER_REAL_COLUMNS = ("z_top", "z_bottom", "extinction", "g", "time_scale")
+#: The columns of the interface table (``iface_real[j][...]``, REAL; docs/walk.md §7.1): for a
+#: ray going down through interface j and for one going up, the real index on its side
+#: (near), and the complex index of the far side.
+IFACE_REAL_COLUMNS = ("down_near", "down_far_n", "down_far_k", "up_near", "up_far_n",
+                      "up_far_k")
 #: Per-photon record fields and their dtypes (``Counts.records`` when asked for).
 RECORD_FIELDS = {
     "fate": np.int8,            # index into FATES
@@ -68,11 +90,14 @@ RECORD_FIELDS = {
     "weight": np.float64,       # the ray's weight at its end (1 in the analog walk)
     "n_scat": np.int64,         # volume scatterings
     "n_lamb": np.int64,         # floor (Lambertian) reflections
-    "n_bspec": np.int64,        # specular reflections at the bottom interface
+    "n_bspec": np.int64,        # specular reflections at the bottom interface (a stack: at
+                                # any interface but the top, from either side)
     "n_top": np.int64,          # internal reflections at the top
     "time_bin": np.int64,       # TIME_BIN_LATE if t >= edges[-1] or not exited, TIME_BIN_EARLY
                                 # if t < edges[0]
     "emergence_bin": np.int64,  # 1-degree bin, -1 if not exited
+    "layer": np.int64,          # layered walk: the layer the ray ended in (N: the gap below the
+                                # stack); 0 in a single layer's walk
 }
 
 
@@ -124,6 +149,13 @@ def kernel_layout() -> dict:
     out.update({f"STATE_{c.upper()}": i for i, c in enumerate(STATE_REAL_COLUMNS)})
     out["N_STATE_INT"] = len(STATE_INT_COLUMNS)
     out.update({f"STATE_{c.upper()}": i for i, c in enumerate(STATE_INT_COLUMNS)})
+    out["N_LAYER_STATS"] = len(LAYER_STATS)
+    out.update(LSTAT_ABSORBED=0, LSTAT_TERMINATED=MAX_LAYERS, LSTAT_DOWN=2 * MAX_LAYERS,
+               LSTAT_UP=3 * MAX_LAYERS + 1)
+    out["N_LAYER_REAL"] = len(LAYER_REAL_COLUMNS)
+    out.update({f"LAYER_{c.upper()}": i for i, c in enumerate(LAYER_REAL_COLUMNS)})
+    out["N_IFACE_REAL"] = len(IFACE_REAL_COLUMNS)
+    out.update({f"IFACE_{c.upper()}": i for i, c in enumerate(IFACE_REAL_COLUMNS)})
     out.update(FIXED_SHIFT=FIXED_SHIFT, FIXED_WORDS=FIXED_WORDS)
     text = {k: (f"({v})" if v < 0 else str(v)) for k, v in out.items()}
     text["MAX_WEIGHT"] = float.hex(MAX_WEIGHT)     # exact: a C99 hexadecimal literal
@@ -162,6 +194,48 @@ def word_threshold(probability: float) -> int:
     if p >= 1.0:
         return 2 ** 32
     return math.floor(Fraction(p) * 2 ** 32 + Fraction(1, 2))
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One layer of a stack (docs/walk.md §7), top first in :attr:`WalkParams.layers`.
+
+    Parameters
+    ----------
+    texture : {"slab", "granular"}
+        A slab has flat faces: Fresnel contacts with its neighbours of another index. A
+        granular layer shows its pores (index 1) to its neighbours (docs/physics-layers.md).
+    thickness : float
+        Physical thickness h_i, m (> 0).
+    extinction : float
+        Volume extinction coefficient E_i, 1/m (0: no extinction).
+    omega : float
+        Single-scattering albedo.
+    g : float
+        Henyey-Greenstein asymmetry parameter.
+    n, k : float
+        Effective index of the layer: n sets the speed of light in it (both textures) and,
+        for a slab, with k its Fresnel contacts.
+    """
+
+    texture: str
+    thickness: float
+    extinction: float
+    omega: float
+    g: float
+    n: float
+    k: float = 0.0
+
+    @property
+    def omega_words(self) -> int:
+        """Word threshold of the analog absorption in this layer (:func:`word_threshold`)."""
+        return word_threshold(self.omega)
+
+    @property
+    def face(self) -> tuple:
+        """The index (n, k) a neighbour sees at this layer's faces: its own for a slab, the
+        pores' (1, 0) for a granular layer (docs/physics-layers.md §2)."""
+        return (float(self.n), float(self.k)) if self.texture == "slab" else (1.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -206,6 +280,12 @@ class WalkParams:
     roulette_weight, roulette_survival : float
         Weighted mode: below ``roulette_weight`` a ray survives a scattering or a floor
         reflection with probability ``roulette_survival`` (its weight divided by it).
+    layers : tuple of Layer
+        A stack, top first (``texture="layers"``; docs/walk.md §7); empty for one layer,
+        which the other fields describe. :func:`stack_params` builds layered parameters.
+    substrate : tuple of 2 floats or None
+        (n, k) of a substrate below the stack, whose Fresnel contact replaces the vacuum gap
+        above the floor (``texture="layers"`` only); None: the floor as for one layer.
     """
 
     texture: str
@@ -227,6 +307,29 @@ class WalkParams:
     mode: str = "analog"
     roulette_weight: float = 1e-4
     roulette_survival: float = 0.1
+    layers: tuple = ()
+    substrate: tuple | None = None
+
+    @property
+    def layered(self) -> bool:
+        """The walk of a stack (the ``layers`` kernel build, docs/walk.md §7)."""
+        return self.texture == "layers"
+
+    @property
+    def stack(self) -> tuple:
+        """The layers, top first: :attr:`layers`, or the one layer the fields describe."""
+        if self.layers:
+            return tuple(self.layers)
+        return (Layer(self.texture, self.thickness, self.extinction, self.omega, self.g,
+                      self.n, self.k),)
+
+    @property
+    def echo_times(self) -> np.ndarray:
+        """Direct-echo delays 2 sum_{i<=j} h_i n_i / c of the bottom of each layer j, ns
+        (docs/physics-layers.md §4): where the back-and-forth echoes of the interfaces and
+        of the floor arrive at nadir."""
+        legs = [2.0 * layer.thickness * layer.n / C_M_PER_NS for layer in self.stack]
+        return np.cumsum(legs)
 
     @property
     def weighted(self) -> bool:
@@ -263,7 +366,10 @@ class WalkParams:
 
     @property
     def first_bf_time(self) -> float:
-        """First back-and-forth time t1 = 2 h n / c, ns (docs/physics.md §5.7)."""
+        """First back-and-forth time t1 = 2 h n / c, ns (docs/physics.md §5.7); for a stack,
+        the floor's echo 2 sum h_i n_i / c (docs/walk.md §7)."""
+        if self.layered:
+            return float(self.echo_times[-1])
         return 2.0 * self.thickness * self.n / C_M_PER_NS
 
     @property
@@ -271,6 +377,33 @@ class WalkParams:
         """cos of each component's field of view; -1 for 'any angle' (fov >= 90 deg)."""
         f = np.asarray(self.fov, dtype=float)
         return np.where(f >= 90.0, -1.0, np.cos(np.radians(f)))
+
+
+def stack_params(layers, substrate=None, **common) -> WalkParams:
+    """The :class:`WalkParams` of a stack of :class:`Layer` (top first) over the floor, or
+    over a substrate (n, k) above it (docs/walk.md §7).
+
+    The single-layer fields take layer 0's values: ``n`` is the index whose speed the path L
+    counts in (L_max = max_time c / n_0), and ``thickness`` the stack's total.
+
+    Parameters
+    ----------
+    layers : sequence of Layer
+        One to :data:`MAX_LAYERS` layers of thickness > 0 (a zero-thickness layer is no
+        layer: leave it out, as the configuration does).
+    substrate : tuple of 2 floats or None
+        (n, k) of the substrate, or None.
+    **common
+        The other fields of :class:`WalkParams` (albedo, time_edges, seed, ...).
+    """
+    layers = tuple(layers)
+    if not 1 <= len(layers) <= MAX_LAYERS:
+        raise ValueError(f"a stack holds 1 to {MAX_LAYERS} layers, got {len(layers)}")
+    top = layers[0]
+    return WalkParams(texture="layers", thickness=float(sum(x.thickness for x in layers)),
+                      extinction=top.extinction, omega=top.omega, g=top.g, n=top.n, k=top.k,
+                      layers=layers, substrate=None if substrate is None else
+                      (float(substrate[0]), float(substrate[1])), **common)
 
 
 def _zeros(*shape):
@@ -321,6 +454,10 @@ class Counts:
         Volume scatterings over all rays.
     mixed_history : int
         Exits with both a volume scattering and a floor reflection in their history.
+    layer_stats : numpy.ndarray, shape (len(LAYER_STATS),)
+        The layered walk's per-layer statistics (:data:`LAYER_STATS`, docs/walk.md §7.4):
+        rays absorbed and terminated per layer, transmissions down and up per interface;
+        zeros for one layer. :meth:`layer_view` names them.
     records : dict of numpy.ndarray or None
         Per-photon records (fate, component, time_ns, cos_exit, weight, n_scat, n_lamb,
         n_bspec, n_top, time_bin, emergence_bin) when asked for; component is -1 for rays that
@@ -342,6 +479,7 @@ class Counts:
     fates: np.ndarray = None
     scattering_events: int = 0
     mixed_history: int = 0
+    layer_stats: np.ndarray = field(default=None, repr=False)
     records: dict | None = field(default=None, repr=False)
     weighted: bool = False
     w_time_in_fov: np.ndarray = field(default=None, repr=False)
@@ -353,6 +491,8 @@ class Counts:
     w_early: np.ndarray = field(default=None, repr=False)
 
     def __post_init__(self):
+        if self.layer_stats is None:
+            self.layer_stats = _zeros(len(LAYER_STATS))
         for name, shape in tally_shapes(self.n_time).items():
             if name in WEIGHT_TALLIES:
                 if self.weighted and getattr(self, name) is None:
@@ -367,6 +507,7 @@ class Counts:
             getattr(self, name)[...] += getattr(other, name)
         self.scattering_events += other.scattering_events
         self.mixed_history += other.mixed_history
+        self.layer_stats += other.layer_stats
         if self.weighted != other.weighted:
             raise ValueError("cannot add weighted and analog counts")
         if self.weighted:
@@ -380,6 +521,16 @@ class Counts:
                                 for k in self.records}
         return self
 
+    def layer_view(self, n_layers: int) -> dict:
+        """The per-layer statistics of a stack of ``n_layers``: ``absorbed`` and
+        ``terminated`` (n_layers,), ``down`` and ``up`` (n_layers + 1,) transmissions per
+        interface (0: the top of the stack, n_layers: the contact with the gap below)."""
+        st = np.asarray(self.layer_stats, dtype=np.int64)
+        m = MAX_LAYERS
+        return {"absorbed": st[:n_layers], "terminated": st[m:m + n_layers],
+                "down": st[2 * m:2 * m + n_layers + 1],
+                "up": st[3 * m + 1:3 * m + 2 + n_layers]}
+
     def same_as(self, other: "Counts") -> bool:
         """True when every tally (not the records) is identical."""
         return (self.photons == other.photons
@@ -387,6 +538,7 @@ class Counts:
                         for n in COUNT_TALLIES)
                 and self.scattering_events == other.scattering_events
                 and self.mixed_history == other.mixed_history
+                and np.array_equal(self.layer_stats, other.layer_stats)
                 and self.weighted == other.weighted
                 and (not self.weighted
                      or all(np.array_equal(getattr(self, n), getattr(other, n))

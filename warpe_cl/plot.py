@@ -332,6 +332,15 @@ def _colours(plt, ds, n):
     return [cmap(norm(v)) for v in values], (mappable, f"{key} ({unit})" if unit else key)
 
 
+def buried_echoes(sc) -> list:
+    """The direct-echo delays (ns) of a stack's buried interfaces: ``echo_time`` of every
+    layer but the last (whose echo is the floor's, ``first_bf_time_ns``), once each, > 0."""
+    if "echo_time" not in sc:
+        return []
+    echoes = np.asarray(sc["echo_time"].values, dtype=float)
+    return sorted({float(t) for t in echoes[:-1] if np.isfinite(t) and 0 < t < echoes[-1]})
+
+
 def waveform_figure(ds, title: str | None = None):
     """The waveform figure of ``ds`` as a matplotlib Figure (``plot_waveform`` saves it).
 
@@ -391,6 +400,9 @@ def waveform_figure(ds, title: str | None = None):
         if np.isfinite(t1):
             ax.axvline(t1, color=colour, ls=":", lw=1.0)
             drawn.add("first_bf")
+        for te in buried_echoes(sc):     # a stack: the echoes of its buried interfaces
+            ax.axvline(te, color=colour, ls="-.", lw=0.9)
+            drawn.add("echo")
         if bar is None:
             ax.plot([], [], color=colour, lw=6, alpha=0.6, label=label)
     keys = {"scattering": dict(color="k", ls="-", label="scattering (12°)"),
@@ -399,7 +411,9 @@ def waveform_figure(ds, title: str | None = None):
                              label="specular, t = 0 (right axis: fraction)"),
             "bf_direct": dict(color="k", marker="^", mfc="none", ls="none",
                               label="BF direct (right axis: fraction)"),
-            "first_bf": dict(color="k", ls=":", label="first BF time 2hn/c")}
+            "first_bf": dict(color="k", ls=":", label="first BF time 2hn/c"
+                             + (" of the floor" if "echo" in drawn else "")),
+            "echo": dict(color="k", ls="-.", label="echo of a buried interface 2Σhn/c")}
     for comp, kw in keys.items():
         if comp in drawn:
             ax.plot([], [], **kw)

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .params import RECORD_INT_COLUMNS, TEXTURES
+from .params import KERNEL_TEXTURES, RECORD_INT_COLUMNS
 
 #: bump when the check itself changes meaning (the hash of this file is in the key as well)
 QUALIFY_VERSION = 1
@@ -61,7 +61,8 @@ MARK = "WARPE-QUALIFY "
 
 @dataclass(frozen=True)
 class Combo:
-    """One kernel build: texture (slab/granular), precision (single/double), weighted mode."""
+    """One kernel build: texture (slab, granular or layers: a stack, docs/walk.md §7),
+    precision (single/double), weighted mode (never with layers)."""
 
     texture: str
     precision: str
@@ -75,7 +76,7 @@ class Combo:
     def parse(cls, text: str) -> "Combo":
         from .config.schema import FIELDS
         texture, precision, mode = text.split(":")
-        if texture not in TEXTURES or precision not in FIELDS["simulation.precision"].choices \
+        if texture not in KERNEL_TEXTURES or precision not in FIELDS["simulation.precision"].choices \
                 or mode not in FIELDS["simulation.mode"].choices:
             raise ValueError(f"bad combination {text!r}")
         return cls(texture, precision, mode == "weighted")
@@ -88,7 +89,7 @@ RANK_COMBO = Combo("slab", "single", False)
 def all_combos(fp64: bool) -> list:
     """Every combination a device can be asked for."""
     return [Combo(t, p, w) for p in (("single", "double") if fp64 else ("single",))
-            for t in TEXTURES for w in (False, True)]
+            for t in KERNEL_TEXTURES for w in (False, True) if not (w and t == "layers")]
 
 
 # --------------------------------------------------------------------------------------------
@@ -96,9 +97,29 @@ def all_combos(fp64: bool) -> list:
 
 def _scenes(combo: Combo) -> dict:
     """The small media of the check: every path of the kernel that ``combo`` builds."""
-    from .params import WalkParams
+    from .params import Layer, WalkParams, stack_params
     edges = 1e-6 * 10 ** (np.arange(0, 221) / 20)          # 1e-6 .. 1e5 ns
     base = dict(thickness=0.01, time_edges=edges, seed=7, bottom_interface="fresnel")
+    if combo.texture == "layers":
+        # every contact of docs/walk.md §7: slab over slab (Fresnel both ways, TIR), slab
+        # over granular (the pores' face), granular over granular (transparent), a substrate
+        # under a granular layer (gap events with n_g > 1), and a granular top (no entry)
+        common = dict(time_edges=edges, seed=7, albedo=0.6)
+        return {
+            "slab_slab_granular": stack_params(
+                [Layer("slab", 0.004, 150.0, 0.97, 0.7, 1.31, 1e-5),
+                 Layer("slab", 0.003, 120.0, 0.9, 0.3, 1.6, 1e-3),
+                 Layer("granular", 0.005, 300.0, 0.99, 0.5, 1.36)],
+                bottom_interface="fresnel", **common),
+            "granular_granular_substrate": stack_params(
+                [Layer("granular", 0.003, 400.0, 0.98, 0.6, 1.2),
+                 Layer("granular", 0.004, 250.0, 0.95, 0.2, 1.4)],
+                substrate=(1.7, 1e-3), **common),
+            "granular_slab_contact": stack_params(
+                [Layer("granular", 0.004, 300.0, 0.99, 0.5, 1.3),
+                 Layer("slab", 0.006, 80.0, 0.96, 0.8, 1.92, 9.5e-6)],
+                bottom_interface="none", rule="time_window", **common),
+        }
     if combo.texture == "slab":
         media = {
             # Fresnel top and bottom, a vacuum gap over the floor, HG scattering, absorption

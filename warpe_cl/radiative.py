@@ -187,7 +187,13 @@ def _warn(message: str):
     warnings.warn(message, WarpeWarning, stacklevel=3)
 
 
-def physical_parameters(cfg) -> dict:
+def _spec(cfg) -> dict:
+    """The single medium of ``cfg`` as a layer: texture, thickness and composition."""
+    return {name: cfg.get(f"medium.{name}") for name in
+            ("texture", "thickness", "radiative", "compacity", "matrix", "inclusions")}
+
+
+def physical_parameters(cfg, layer: dict | None = None, where: str = "medium") -> dict:
     """Radiative parameters of a medium given physically (docs/physics.md §3–§4).
 
     Slab: a matrix (volume fraction γ_c) holding inclusions; granular: grains (volume fraction
@@ -195,6 +201,18 @@ def physical_parameters(cfg) -> dict:
     N_i = φ ρ_i/(π d_i³/6) with φ the particle fraction, σ_i = Q_e π d_i²/4, w_i by Hapke's
     equivalent slab; E = C_γ Σ N_i σ_i + a_m, S = C_γ Σ N_i σ_i w_i, ω = S/E, τ0 = E h;
     n_eff, k_eff by volume mixing (paper eqs. 5–6).
+
+    Parameters
+    ----------
+    cfg : warpe_cl.config.Config
+        The configuration: materials, wavelength and the medium-level options
+        (``extinction_efficiency``, ``matrix_absorption``, ``inclusion_absorption``,
+        ``fresnel_integrals``).
+    layer : dict, optional
+        The medium or layer to compute (``texture``, ``thickness``, ``compacity``,
+        ``matrix``, ``inclusions``, as in ``Config.data``); default: the single medium.
+    where : str
+        Its key in messages (``"medium"``, ``"medium.layers[1]"``).
 
     Returns
     -------
@@ -205,23 +223,25 @@ def physical_parameters(cfg) -> dict:
     """
     from .materials import lookup, optical_constants
 
+    layer = _spec(cfg) if layer is None else layer
     source = cfg.source
-    texture = cfg.get("medium.texture")
-    h = cfg.get("medium.thickness")
-    gamma = cfg.get("medium.compacity")
+    texture = layer["texture"]
+    h = layer["thickness"]
+    gamma = layer["compacity"]
     lam = cfg.get("wavelength")
     q_e = cfg.get("medium.extinction_efficiency")
     integrals = cfg.get("medium.fresnel_integrals")
     constants = optical_constants(cfg)
-    inclusions = cfg.get("medium.inclusions")
+    inclusions = layer["inclusions"]
     total_rho = sum(inc["proportion"] for inc in inclusions)
+    what = "medium" if where == "medium" else "layer"
 
     if texture == "granular" and gamma >= 1.0:
-        raise ConfigError(f"{gamma:g} is not allowed for a granular medium; give a compacity in "
+        raise ConfigError(f"{gamma:g} is not allowed for a granular {what}; give a compacity in "
                           "(0, 1) (at 1 the pores vanish: describe a compact layer as a slab)",
-                          key="medium.compacity", source=source)
+                          key=f"{where}.compacity", source=source)
     if texture == "slab":
-        n_m, k_m = lookup(constants, cfg.get("medium.matrix"), "medium.matrix", source,
+        n_m, k_m = lookup(constants, layer["matrix"], f"{where}.matrix", source,
                           cfg.get("wavelength"))
         phi = 1.0 - gamma
         a_m = 4.0 * np.pi * k_m / lam
@@ -235,7 +255,7 @@ def physical_parameters(cfg) -> dict:
     species, n_mix, k_mix = [], 0.0, 0.0
     extinction_particles = scattering = 0.0
     for i, inc in enumerate(inclusions):
-        key = f"medium.inclusions[{i}]"
+        key = f"{where}.inclusions[{i}]"
         n_i, k_i = lookup(constants, inc["material"], key + ".material", source,
                           cfg.get("wavelength"))
         rho = inc["proportion"] / total_rho
@@ -245,9 +265,10 @@ def physical_parameters(cfg) -> dict:
         n_rel, k_rel = relative_index(n_i, k_i, n_m, k_m)
         if integrals == "hapke" and n_rel <= 1.0:
             raise ConfigError(f"Hapke's S_e/S_i approximations are invalid for {inc['material']} "
-                              f"in its surroundings (n_rel = {n_rel:.4g} <= 1); use "
-                              "fresnel_integrals: exact", key="medium.fresnel_integrals",
-                              source=source)
+                              f"in its surroundings (n_rel = {n_rel:.4g} <= 1"
+                              + ("" if where == "medium" else f", {key}")
+                              + "); use fresnel_integrals: exact",
+                              key="medium.fresnel_integrals", source=source)
         k_abs = k_i if cfg.get("medium.inclusion_absorption") == "absolute" else max(k_rel, 0.0)
         particle = particle_albedo(n_rel, k_rel, 4.0 * np.pi * k_abs / lam, d, integrals)
         number = phi * rho / (np.pi * d ** 3 / 6.0)
@@ -258,8 +279,8 @@ def physical_parameters(cfg) -> dict:
                         "proportion_given": float(inc["proportion"]), "grain_size_m": d,
                         "n_rel": n_rel, "k_rel": k_rel, "number_density_per_m3": number,
                         "cross_section_m2": sigma, **particle})
-        if phi <= 0.0:
-            continue   # compacity 1: a pure slab, the inclusion is a placeholder
+        if phi <= 0.0 or h <= 0.0:
+            continue   # compacity 1: a pure slab, the inclusion is a placeholder; h = 0: no layer
         if d > 0.1 * h:
             _warn(f"{key}.grain_size: {d * 1e3:g} mm is more than a tenth of the thickness "
                   f"({h * 1e3:g} mm): a continuous medium of grains is doubtful")
@@ -285,6 +306,50 @@ def physical_parameters(cfg) -> dict:
     }
 
 
+def medium_parameters(cfg, layer: dict | None = None, where: str = "medium") -> dict:
+    """Radiative parameters of one medium or layer, from either form: the one computation of
+    a single medium and of each layer of a stack.
+
+    Parameters
+    ----------
+    cfg : warpe_cl.config.Config
+        Materials, wavelength and the medium-level options of the physical form.
+    layer : dict, optional
+        ``texture``, ``thickness``, ``radiative`` or the physical keys (``compacity``,
+        ``matrix``, ``inclusions``), as in ``Config.data``; default: the single medium.
+    where : str
+        Its key in messages (``"medium"``, ``"medium.layers[1]"``).
+
+    Returns
+    -------
+    dict
+        The keys listed by :func:`radiative_parameters` for a single medium. A layer of
+        thickness 0 (no layer) given radiatively has ``extinction_per_m`` 0.
+    """
+    layer = _spec(cfg) if layer is None else layer
+    if layer["radiative"] is None:
+        return physical_parameters(cfg, layer, where)
+    h = layer["thickness"]
+    rad = layer["radiative"]
+    tau0 = rad["tau0"]
+    return _derived(layer["texture"], h, tau0, tau0 / h if h > 0 else 0.0, rad["omega"],
+                    rad["n"], rad["k"])
+
+
+def substrate_index(cfg) -> tuple | None:
+    """``(n, k)`` of ``medium.substrate`` (its material's constants at the wavelength, or the
+    n and k given), or None without a substrate."""
+    spec = cfg.get("medium.substrate")
+    if spec is None:
+        return None
+    if spec.get("material") is None:
+        return float(spec["n"]), float(spec["k"])
+    from .materials import lookup, optical_constants
+    n, k = lookup(optical_constants(cfg), spec["material"], "medium.substrate.material",
+                  cfg.source, cfg.get("wavelength"))
+    return float(n), float(k)
+
+
 def radiative_parameters(cfg) -> dict:
     """Derived radiative parameters of a configuration's medium, from either form.
 
@@ -299,11 +364,36 @@ def radiative_parameters(cfg) -> dict:
         ``first_bf_time_ns`` (ns), ``specular_r0`` (1; the slab's normal-incidence Fresnel
         reflectance, 0 for granular media, which have no interface), ``thickness_m`` (m); the
         physical form adds ``porosity_factor``, ``matrix_absorption_per_m`` and ``species``.
+
+        A stack (``medium.layers``) or a medium over a substrate adds ``layers``: one dict
+        per layer of the preset, top first, with the keys above (of that layer alone) and
+        ``texture`` and ``phase_g`` (a layer of thickness 0 is listed, with
+        ``thickness_m`` 0: the walk leaves it out); ``echo_times_ns``: 2 Σ_{i<=j} h_i n_i / c
+        of the bottom of each layer j, ns; and with a substrate ``substrate_n``,
+        ``substrate_k``. The top-level keys are then those of the top layer of the walk
+        (the first of thickness > 0), but for ``thickness_m``, the stack's, and
+        ``first_bf_time_ns``, the floor's echo (the last of ``echo_times_ns``).
     """
-    if not cfg.is_radiative:
-        return physical_parameters(cfg)
-    h = cfg.get("medium.thickness")
-    tau0 = cfg.get("medium.radiative.tau0")
-    return _derived(cfg.get("medium.texture"), h, tau0, tau0 / h,
-                    cfg.get("medium.radiative.omega"), cfg.get("medium.radiative.n"),
-                    cfg.get("medium.radiative.k"))
+    layers = cfg.get("medium.layers")
+    substrate = substrate_index(cfg)
+    if layers is None and substrate is None:
+        return medium_parameters(cfg)
+    if layers is None:      # one layer over a substrate
+        out = medium_parameters(cfg)
+        per_layer = [{**out, "texture": cfg.get("medium.texture"),
+                      "phase_g": cfg.get("medium.phase_g")}]
+    else:
+        per_layer = [{**medium_parameters(cfg, layer, f"medium.layers[{i}]"),
+                      "texture": layer["texture"], "phase_g": layer["phase_g"]}
+                     for i, layer in enumerate(layers)]
+        top = next(d for d in per_layer if d["thickness_m"] > 0)
+        out = {k: v for k, v in top.items() if k not in ("texture", "phase_g")}
+    legs = [2.0 * d["thickness_m"] * d["n_eff"] / C_M_PER_NS for d in per_layer]
+    out["layers"] = per_layer
+    out["echo_times_ns"] = [float(t) for t in np.cumsum(legs)]
+    # the first back-and-forth time of a stack is its floor's echo (docs/walk.md §7.2)
+    out["first_bf_time_ns"] = out["echo_times_ns"][-1]
+    out["thickness_m"] = float(sum(d["thickness_m"] for d in per_layer))
+    if substrate is not None:
+        out["substrate_n"], out["substrate_k"] = substrate
+    return out

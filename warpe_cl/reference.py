@@ -11,6 +11,9 @@ Reading guide
 -------------
 * :func:`walk_ray` is the whole random walk of one ray (walk.md §3), in the order of the
   contract, and returns what happened to it;
+* :func:`walk_ray_layers` is the walk of one ray through a stack of layers (texture
+  ``layers``, walk.md §7), with the layer it ended in and its transmissions through each
+  interface (the per-layer statistics of walk.md §7.4);
 * :func:`simulate_reference` launches the photons, classifies every exit into a component and
   fills the tallies of walk.md §4;
 * the physics helpers are the Fresnel reflectances (walk.md §3.3; docs/physics.md §3.4, §3.5), the
@@ -44,12 +47,13 @@ from typing import NamedTuple
 import numpy as np
 
 from .errors import WeightError
-from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, N_EMERGENCE,
-                     RECORD_FIELDS, RULES, TEXTURES, TIME_BIN_EARLY, TIME_BIN_LATE, Counts,
-                     WalkParams, fixed_point, lost_weight)
+from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, LAYER_STATS,
+                     MAX_LAYERS, N_EMERGENCE, RECORD_FIELDS, RULES, TEXTURES, TIME_BIN_EARLY,
+                     TIME_BIN_LATE, Counts, WalkParams, fixed_point, lost_weight)
 from .rng import PhotonStream
 
-__all__ = ["simulate_reference", "walk_ray", "RayOutcome", "normal_incidence_reflectance",
+__all__ = ["simulate_reference", "walk_ray", "RayOutcome", "walk_ray_layers",
+           "LayeredRayOutcome", "normal_incidence_reflectance",
            "external_reflectance", "internal_reflectance", "henyey_greenstein_cosine",
            "rotate_direction", "RECORD_FIELDS"]
 
@@ -452,13 +456,321 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
 
 
 # --------------------------------------------------------------------------------------------
+# A stack of layers (walk.md §7)
+# --------------------------------------------------------------------------------------------
+
+_VACUUM = (1.0, 0.0)  # the face (n, k) of vacuum, and of a granular layer's pores (walk.md §7.1)
+
+
+def _face(texture: str, n: float, k: float) -> tuple:
+    """The index (n, k) a neighbour sees at a layer's faces (walk.md §7.1 "Faces"): a slab's
+    own, a granular layer's pores (1, 0)."""
+    return (float(n), float(k)) if texture == "slab" else _VACUUM
+
+
+def _fresnel_reflects(mu: float, near: float, far_n: float, far_k: float, u: float) -> bool:
+    """Reflection at a Fresnel interface (walk.md §7.1), reached at incidence cosine μ from the
+    side of real index ``near`` (n₁), the far face being (n₂, k₂) = (far_n, far_k).
+
+    Total internal reflection if n₁ √(1 − μ²) ≥ n₂ (decided without looking at u); otherwise
+    reflected iff u ≤ R, with R = R_int(μ; n₁) if the far face is vacuum and
+    R_ext(μ; n₂/n₁, k₂/n₁) (the relative complex index) if not.
+    """
+    if near * math.sqrt(max(0.0, 1.0 - mu * mu)) >= far_n:
+        return True
+    if far_n == 1.0 and far_k == 0.0:
+        reflectance = internal_reflectance(mu, near)
+    else:
+        reflectance = external_reflectance(mu, far_n / near, far_k / near)
+    return u <= reflectance
+
+
+@dataclass(frozen=True)
+class _StackConstants:
+    """The numbers a stack's walk needs, as plain Python floats and tuples (walk.md §7.1).
+
+    Per layer i = 0..N−1: ``z_top[i]`` = z_i and ``z_bottom[i]`` = z_{i+1} (m), extinction E_i,
+    word threshold T_ω,i, g_i and ``time_scale[i]`` = n_i / n_0. Per interface j = 0..N:
+    ``fresnel[j]`` (False: transparent), and the (near n, far n, far k) a ray sees there going
+    down (``down_face[j]``) and going up (``up_face[j]``; for j = N, a ray in the gap).
+    """
+
+    n_layers: int
+    z_top: tuple
+    z_bottom: tuple
+    extinction: tuple
+    omega_words: tuple
+    g: tuple
+    time_scale: tuple
+    fresnel: tuple
+    down_face: tuple
+    up_face: tuple
+    gap_n: float               # real index n_g of the gap medium below the stack
+    n0: float                  # layer 0's index: L counts path at its speed
+    entry_reflectance: float   # R0 of layer 0 (walk.md §7.2 step 2)
+    albedo_words: int
+    path_cap: float
+    max_flights: int
+
+    @classmethod
+    def from_params(cls, params: WalkParams) -> "_StackConstants":
+        layers = tuple(params.layers)
+        count = len(layers)
+        faces = [_face(layer.texture, layer.n, layer.k) for layer in layers]
+        # The gap medium (walk.md §7.1 "Faces"): the substrate; else vacuum under a slab with
+        # a Fresnel bottom; else the last layer's own face (a floor in optical contact).
+        last = layers[-1]
+        if params.substrate is not None:
+            gap = (float(params.substrate[0]), float(params.substrate[1]))
+        elif last.texture == "slab" and params.bottom_interface == "fresnel":
+            gap = _VACUUM
+        else:
+            gap = faces[-1]
+        above = [_VACUUM] + faces          # the face above interface j
+        below = faces + [gap]             # the face below interface j
+        fresnel = tuple(above[j] != below[j] for j in range(count + 1))
+        down_face = tuple((above[j][0], below[j][0], below[j][1]) for j in range(count + 1))
+        up_face = tuple((below[j][0], above[j][0], above[j][1]) for j in range(count + 1))
+        z = [0.0]
+        for layer in layers:
+            z.append(z[-1] + float(layer.thickness))
+        n0 = float(layers[0].n)
+        return cls(n_layers=count, z_top=tuple(z[:-1]), z_bottom=tuple(z[1:]),
+                   extinction=tuple(float(layer.extinction) for layer in layers),
+                   omega_words=tuple(layer.omega_words for layer in layers),
+                   g=tuple(float(layer.g) for layer in layers),
+                   time_scale=tuple(float(layer.n) / n0 for layer in layers),
+                   fresnel=fresnel, down_face=down_face, up_face=up_face, gap_n=gap[0],
+                   n0=n0, entry_reflectance=normal_incidence_reflectance(
+                       n0, float(layers[0].k)),
+                   albedo_words=params.albedo_words, path_cap=float(params.path_cap),
+                   max_flights=int(params.max_flights))
+
+
+class LayeredRayOutcome(NamedTuple):
+    """What happened to one ray of a stack (walk.md §7.2): the fields of :class:`RayOutcome`,
+    plus the layer it ended in and its transmissions through each interface.
+
+    Attributes
+    ----------
+    fate, cos_exit, path_length, n_scat, n_lamb, n_bspec, n_top, weight
+        As :class:`RayOutcome`; ``path_length`` is L, path counted at layer 0's speed (m),
+        and ``weight`` is always 1 (the layered walk is analog only).
+    layer : int
+        ℓ at the end (the record's ``layer``): the layer the ray was absorbed or terminated
+        in, N if the floor absorbed it in the gap, N − 1 if a floor in contact did, 0 for an
+        exit and for the specular reflection.
+    down, up : tuple of int, length N + 1
+        Transmissions of this ray down and up through each interface j (walk.md §7.4):
+        j = 0 its entry and its exit, j = N into and out of the gap.
+    """
+
+    fate: int
+    cos_exit: float
+    path_length: float
+    n_scat: int
+    n_lamb: int
+    n_bspec: int
+    n_top: int
+    weight: float
+    layer: int
+    down: tuple
+    up: tuple
+
+
+def walk_ray_layers(stack: _StackConstants, next_block) -> LayeredRayOutcome:
+    """Walk one ray through a stack of layers from launch to its fate (walk.md §7.2).
+
+    Parameters
+    ----------
+    stack : _StackConstants
+        The stack's constants (:meth:`_StackConstants.from_params`).
+    next_block : callable
+        Returns the four uniforms (u0, u1, u2, u3) of the ray's next event (walk.md §2).
+
+    Returns
+    -------
+    LayeredRayOutcome
+    """
+    count = stack.n_layers
+    z_top = stack.z_top
+    z_bottom = stack.z_bottom
+    extinctions = stack.extinction
+    omega_words = stack.omega_words
+    gs = stack.g
+    time_scale = stack.time_scale
+    fresnel = stack.fresnel
+    down_face = stack.down_face
+    up_face = stack.up_face
+    n0 = stack.n0
+    albedo_words = stack.albedo_words
+    path_cap = stack.path_cap
+    max_flights = stack.max_flights
+    nan = math.nan
+
+    # 1. Launch: top of the stack, straight down, no path, layer 0, no events.
+    z = 0.0
+    ux, uy, uz = 0.0, 0.0, 1.0
+    path = 0.0
+    layer = 0
+    n_scat = n_lamb = n_bspec = n_top = 0
+    down = [0] * (count + 1)
+    up = [0] * (count + 1)
+
+    def ended(fate, cos_exit=nan):
+        return LayeredRayOutcome(fate, cos_exit, path, n_scat, n_lamb, n_bspec, n_top, 1.0,
+                                 layer, tuple(down), tuple(up))
+
+    # 2. Entry event (event 0) iff interface 0 is Fresnel: specular iff u0 <= R0.
+    if fresnel[0]:
+        u0, _, _, _ = next_block()
+        if u0 <= stack.entry_reflectance:
+            return ended(FATE_SPECULAR, 1.0)
+    down[0] += 1  # the ray enters the stack (a transparent top: every launched ray)
+
+    # 3. Flight events, and gap events below the stack.
+    flights = 0
+    while True:
+        # 3.1 Safety cap on the number of flights.
+        if flights == max_flights:
+            return ended(FATE_TERMINATED)
+        flights += 1
+        u0, u1, u2, u3 = next_block()
+
+        # 3.2 Free flight with layer ℓ's extinction.
+        extinction = extinctions[layer]
+        optical_step = -math.log(u0)
+        step = optical_step / extinction if extinction > 0.0 else math.inf
+
+        # 3.3 Distance to layer ℓ's boundary the ray is heading for.
+        if uz > 0.0:
+            to_boundary = (z_bottom[layer] - z) / uz
+        elif uz < 0.0:
+            to_boundary = (z_top[layer] - z) / uz
+        else:
+            to_boundary = math.inf
+        scale = time_scale[layer]
+
+        if step < to_boundary:
+            # 3.4 Collision: move (L counts path at layer 0's speed), cap, scatter or absorb.
+            z += step * uz
+            path += step * scale
+            if path > path_cap:
+                return ended(FATE_TERMINATED)
+            if int(u1 * TWO_POW_32) >= omega_words[layer]:
+                return ended(FATE_ABSORBED_MEDIUM)
+            n_scat += 1
+            cos_theta = henyey_greenstein_cosine(gs[layer], u2)
+            psi = TWO_PI * u3
+            ux, uy, uz = rotate_direction(ux, uy, uz, cos_theta, psi)
+            continue
+
+        # 3.5 Boundary: move onto it, cap, then the rule of interface j.
+        going_down = uz > 0.0
+        if going_down:
+            z = z_bottom[layer]
+            j = layer + 1
+        else:
+            z = z_top[layer]
+            j = layer
+        path += to_boundary * scale
+        if path > path_cap:
+            return ended(FATE_TERMINATED)
+
+        if going_down and j == count:
+            # The bottom of the stack.
+            if not fresnel[j]:
+                # The floor in contact (§3.1 second rule): toll on x1, μ = √u2, ψ = 2π u3.
+                if int(u1 * TWO_POW_32) >= albedo_words:
+                    return ended(FATE_ABSORBED_FLOOR)  # ℓ = N − 1
+                n_lamb += 1
+                mu = math.sqrt(u2)
+                psi = TWO_PI * u3
+                sin_floor = math.sqrt(max(0.0, 1.0 - mu * mu))
+                ux = sin_floor * math.cos(psi)
+                uy = sin_floor * math.sin(psi)
+                uz = -mu
+                continue
+            near, far_n, far_k = down_face[j]
+            if _fresnel_reflects(uz, near, far_n, far_k, u1):
+                uz = -uz
+                n_bspec += 1
+                continue
+            # Into the gap: one gap event (one block) per floor reflection, no path length.
+            down[j] += 1
+            layer = count
+            gap_n, last_n, last_k = up_face[count]  # near n_g, far the last layer's face
+            while True:
+                g0, g1, g2, g3 = next_block()
+                # (1) the floor's toll on the word x0
+                if int(g0 * TWO_POW_32) >= albedo_words:
+                    return ended(FATE_ABSORBED_FLOOR)  # ℓ = N
+                # (2) a Lambertian direction in the gap medium: μ_g = √u1, ψ = 2π u2
+                n_lamb += 1
+                mu_gap = math.sqrt(g1)
+                psi = TWO_PI * g2
+                # (3) back to the floor (TIR, or u3 <= R), or refracted into the last layer
+                if _fresnel_reflects(mu_gap, gap_n, last_n, last_k, g3):
+                    continue
+                sin_in = (math.sqrt(max(0.0, 1.0 - mu_gap * mu_gap)) * gap_n) / last_n
+                ux = sin_in * math.cos(psi)
+                uy = sin_in * math.sin(psi)
+                uz = -math.sqrt(max(0.0, 1.0 - sin_in * sin_in))
+                layer = count - 1
+                up[count] += 1
+                break
+            continue
+
+        if not going_down and j == 0:
+            # The top of the stack: a slab's Fresnel face (§3.2 with n_0), or none.
+            if fresnel[0]:
+                mu = -uz
+                near, far_n, far_k = up_face[0]
+                if _fresnel_reflects(mu, near, far_n, far_k, u1):
+                    uz = -uz
+                    n_top += 1
+                    continue
+                cos_exit = math.sqrt(max(0.0, (1.0 - n0 * n0) + n0 * n0 * mu * mu))
+            else:
+                cos_exit = -uz
+            up[0] += 1
+            return ended(FATE_ESCAPED, cos_exit)
+
+        # A buried interface 0 < j < N: transparent, or Fresnel (reflect or refract).
+        if fresnel[j]:
+            near, far_n, far_k = down_face[j] if going_down else up_face[j]
+            if _fresnel_reflects(abs(uz), near, far_n, far_k, u1):
+                uz = -uz
+                n_bspec += 1
+                continue
+            r = near / far_n
+            ux *= r
+            uy *= r
+            root = math.sqrt(max(0.0, (1.0 - r * r) + r * r * uz * uz))
+            uz = root if going_down else -root
+        if going_down:
+            down[j] += 1
+            layer += 1
+        else:
+            up[j] += 1
+            layer -= 1
+
+
+# --------------------------------------------------------------------------------------------
 # Many rays and the tallies (walk.md §4)
 # --------------------------------------------------------------------------------------------
 
 def _check_params(params: WalkParams) -> np.ndarray:
     """Validate what the reference relies on; return the time edges as float64."""
-    if params.texture not in TEXTURES:
-        raise ValueError(f"texture must be one of {TEXTURES}, got {params.texture!r}")
+    if params.layered:
+        _check_stack(params)
+    else:
+        if params.texture not in TEXTURES:
+            raise ValueError(f"texture must be one of {TEXTURES + ('layers',)}, "
+                             f"got {params.texture!r}")
+        if params.layers or params.substrate is not None:
+            raise ValueError("layers and a substrate need texture 'layers' (walk.md §7), "
+                             f"got texture {params.texture!r}")
     if params.bottom_interface not in BOTTOM_INTERFACES:
         raise ValueError(f"bottom_interface must be one of {BOTTOM_INTERFACES}, "
                          f"got {params.bottom_interface!r}")
@@ -472,6 +784,34 @@ def _check_params(params: WalkParams) -> np.ndarray:
     if not params.extinction >= 0:
         raise ValueError(f"extinction must be >= 0 1/m, got {params.extinction}")
     return edges
+
+
+def _check_stack(params: WalkParams) -> None:
+    """Validate a stack (walk.md §7.1): 1..MAX_LAYERS slab or granular layers of thickness
+    > 0 and extinction >= 0, the analog mode, layer 0's index in ``n`` (L_max and t = L n_0/c
+    use it) and a substrate (n > 0, k >= 0) if any."""
+    layers = tuple(params.layers)
+    if not 1 <= len(layers) <= MAX_LAYERS:
+        raise ValueError(f"a stack holds 1 to {MAX_LAYERS} layers, got {len(layers)}")
+    for i, layer in enumerate(layers):
+        if layer.texture not in TEXTURES:
+            raise ValueError(f"layer {i}: texture must be one of {TEXTURES}, "
+                             f"got {layer.texture!r}")
+        if not layer.thickness > 0:
+            raise ValueError(f"layer {i}: thickness must be > 0 m, got {layer.thickness}")
+        if not layer.extinction >= 0:
+            raise ValueError(f"layer {i}: extinction must be >= 0 1/m, "
+                             f"got {layer.extinction}")
+    if params.weighted:
+        raise ValueError("only the analog walk is layered (walk.md §7): mode 'weighted' "
+                         "refuses a stack")
+    if float(params.n) != float(layers[0].n):
+        raise ValueError(f"a stack's n must be layer 0's index ({layers[0].n}): L_max and "
+                         f"t = L n_0 / c use it, got {params.n}")
+    if params.substrate is not None:
+        n_s, k_s = params.substrate
+        if not (n_s > 0 and k_s >= 0):
+            raise ValueError(f"substrate (n, k) needs n > 0 and k >= 0, got {params.substrate}")
 
 
 def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
@@ -505,11 +845,17 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     edges_array = _check_params(params)
     edges = edges_array.tolist()
     n_time = len(edges) - 1
-    walk = _WalkConstants.from_params(params)
+    layered = params.layered
+    if layered:
+        walk = _StackConstants.from_params(params)
+        walk_one = walk_ray_layers
+    else:
+        walk = _WalkConstants.from_params(params)
+        walk_one = walk_ray
     cos_fov = [float(c) for c in params.cos_fov]
     use_history_rule = params.rule == "history"
-    first_bf_time = float(params.first_bf_time)  # t1 = 2 h n / c, ns
-    ns_per_metre = walk.n / C_M_PER_NS           # t = L n / c
+    first_bf_time = float(params.first_bf_time)  # t1 = 2 h n / c (stack: 2 Σ h_i n_i / c), ns
+    ns_per_metre = float(params.n) / C_M_PER_NS  # t = L n / c (stack: n = n_0, walk.md §7.2)
 
     counts = Counts(n_time=n_time, photons=int(photons), weighted=params.weighted)
     weighted = params.weighted
@@ -522,6 +868,12 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     lost = 0  # weighted exits whose weight the exact sums cannot hold
     scattering_events = 0
     mixed_history = 0
+    # walk.md §7.4: the per-layer statistics, in the slots of LAYER_STATS
+    layer_stats = [0] * len(LAYER_STATS)
+    slot_absorbed = LAYER_STATS.index("absorbed_0")
+    slot_terminated = LAYER_STATS.index("terminated_0")
+    slot_down = LAYER_STATS.index("down_0")
+    slot_up = LAYER_STATS.index("up_0")
     rows = {name: [] for name in RECORD_FIELDS} if records else None
 
     batch = 1000
@@ -530,8 +882,16 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
         streams = PhotonStream.many(params.seed, params.scenario, first_photon + done,
                                     min(batch, photons - done), precision="double")
         for stream in streams:
-            ray = walk_ray(walk, stream.block)
+            ray = walk_one(walk, stream.block)
             fates[ray.fate] += 1
+            if layered:
+                if ray.fate == FATE_ABSORBED_MEDIUM:
+                    layer_stats[slot_absorbed + ray.layer] += 1
+                elif ray.fate == FATE_TERMINATED:
+                    layer_stats[slot_terminated + ray.layer] += 1
+                for j, (d, u) in enumerate(zip(ray.down, ray.up)):
+                    layer_stats[slot_down + j] += d
+                    layer_stats[slot_up + j] += u
             scattering_events += ray.n_scat
             component = -1
             time_ns = math.nan
@@ -599,6 +959,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                 rows["n_top"].append(ray.n_top)
                 rows["time_bin"].append(time_bin)
                 rows["emergence_bin"].append(emergence_bin)
+                rows["layer"].append(ray.layer if layered else 0)
         done += len(streams)
         if progress is not None:
             progress(done)
@@ -613,6 +974,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     counts.time_in_fov[:] = time_in_fov
     counts.scattering_events = int(scattering_events)
     counts.mixed_history = int(mixed_history)
+    counts.layer_stats[:] = layer_stats
     if rows is not None:
         counts.records = {name: np.asarray(values, dtype=dtype)
                           for (name, values), dtype in zip(rows.items(),

@@ -7,11 +7,12 @@ import copy
 import os
 
 from ..errors import ConfigError
+from ..params import MAX_LAYERS
 from ..units import format_quantity
 from .bins import bin_count, edges
 from .keys import schema_key, split_key
-from .schema import (DEFAULTS, FIELDS, MAX_TIME_BINS, PHYSICAL_KEYS, SCALAR_KINDS, SCHEMA,
-                     SWEEPABLE, Field, children)
+from .schema import (DEFAULTS, FIELDS, LAYER_KEYS, MAX_TIME_BINS, PHYSICAL_KEYS, SCALAR_KINDS,
+                     SCHEMA, STACK_KEYS, SWEEPABLE, Field, children)
 from .validate import allowed, check_scalar, did_you_mean, show, unknown_key
 
 __all__ = ["PresetValidator", "sweep_field", "NEEDS"]
@@ -93,6 +94,8 @@ class PresetValidator:
         return self.section(given, field.key, where, open_=True)
 
     def kind_list(self, field, given, where):
+        if field.key == "medium.layers":      # swept whole: the medium's phase_g is unknown
+            return self.layers(given, where, None)
         if not isinstance(given, list) or not given:
             raise ConfigError(f"{show(given)} is not allowed; give a non-empty list of "
                               f"mappings, e.g. [{{material: CO2, proportion: 1.0, "
@@ -195,36 +198,143 @@ class PresetValidator:
 
     # the medium -----------------------------------------------------------------------
     def kind_medium(self, given, where="medium"):
+        """``medium``: one layer (texture, thickness, composition), or a stack
+        (``layers``), optionally over a ``substrate``.
+
+        The keys ``layers`` and ``substrate`` appear in the result only when given, so that a
+        single-layer medium resolves to the same data (hence the same scenario key) as
+        before they existed. With ``layers``, the medium-level :data:`LAYER_KEYS` are None.
+        """
         raw = self.mapping(given, "medium", where)
-        out = self.section(raw, "medium", where, skip=("radiative",) + PHYSICAL_KEYS)
+        layered = raw.get("layers") is not None
+        skip = LAYER_KEYS + STACK_KEYS
+        if layered:
+            for name in LAYER_KEYS:
+                if raw.get(name) is not None:
+                    raise ConfigError(
+                        f"given together with medium.layers; with layers, each layer has its "
+                        f"own {name} (medium.layers[i].{name}): remove medium.{name} or "
+                        f"medium.layers", f"medium.{name}")
+            out = {name: None for name in ("texture", "thickness")}
+            out.update(self.section(raw, "medium", where, skip=skip))
+            for name in ("radiative",) + PHYSICAL_KEYS:
+                out[name] = None
+            out["layers"] = self.layers(raw["layers"], "medium.layers", out["phase_g"])
+        else:
+            out = {}
+            for name in ("texture", "thickness"):      # required without layers
+                field = FIELDS[f"medium.{name}"]
+                if raw.get(name) is None:
+                    raise ConfigError(f"missing; give {allowed(field)}", f"{where}.{name}")
+                out[name] = check_scalar(field, raw[name], f"{where}.{name}")
+            out.update(self.section(raw, "medium", where, skip=skip))
+            out.update(self.composition(raw, "medium", out["texture"], "medium"))
+        if raw.get("substrate") is not None:
+            out["substrate"] = self.substrate(raw["substrate"], "medium.substrate",
+                                              out["bottom_interface"])
+        return out
+
+    def composition(self, raw: dict, prefix: str, texture: str, keyp: str) -> dict:
+        """The composition of one medium or layer: ``radiative`` or the physical form
+        (:data:`PHYSICAL_KEYS`), never both.
+
+        Parameters
+        ----------
+        raw : dict
+            The medium or layer as written.
+        prefix : str
+            Its table key (``"medium"``, ``"medium.layers[]"``).
+        texture : str
+            Its (checked) texture.
+        keyp : str
+            Its key in messages (``"medium"``, ``"medium.layers[1]"``).
+        """
+        what = "medium" if prefix == "medium" else "layer"
         physical = [k for k in PHYSICAL_KEYS if raw.get(k) is not None]
         radiative = raw.get("radiative") is not None
         if radiative and physical:
-            raise ConfigError(f"given together with medium.{physical[0]}; describe the medium "
-                              f"either radiatively (medium.radiative) or physically "
-                              f"(medium.compacity, medium.inclusions and, for a slab, "
-                              f"medium.matrix), not both", "medium.radiative")
+            raise ConfigError(f"given together with {keyp}.{physical[0]}; describe the {what} "
+                              f"either radiatively ({keyp}.radiative) or physically "
+                              f"({keyp}.compacity, {keyp}.inclusions and, for a slab, "
+                              f"{keyp}.matrix), not both", f"{keyp}.radiative")
         if not radiative and not physical:
-            raise ConfigError("no composition given; give either medium.radiative: "
-                              "{tau0, omega, n} or the physical form medium.compacity and "
-                              "medium.inclusions (plus medium.matrix for a slab)", where)
-        out["radiative"] = (self.value(FIELDS["medium.radiative"], raw, "radiative",
-                                       "medium.radiative") if radiative else None)
+            raise ConfigError(f"no composition given; give either {keyp}.radiative: "
+                              f"{{tau0, omega, n}} or the physical form {keyp}.compacity and "
+                              f"{keyp}.inclusions (plus {keyp}.matrix for a slab)", keyp)
+        out = {"radiative": (self.value(FIELDS[f"{prefix}.radiative"], raw, "radiative",
+                                        f"{keyp}.radiative") if radiative else None)}
         for name in PHYSICAL_KEYS:
             out[name] = None
         if physical:
-            slab = out["texture"] == "slab"
+            slab = texture == "slab"
             if not slab and raw.get("matrix") is not None:
                 raise ConfigError(f"{show(raw['matrix'])} is not allowed for a granular "
-                                  f"medium, whose grains are the inclusions and whose pores "
-                                  f"are void; remove medium.matrix", "medium.matrix")
+                                  f"{what}, whose grains are the inclusions and whose pores "
+                                  f"are void; remove {keyp}.matrix", f"{keyp}.matrix")
             for name in PHYSICAL_KEYS:
-                field = FIELDS[f"medium.{name}"]
+                field = FIELDS[f"{prefix}.{name}"]
                 if raw.get(name) is None and (name != "matrix" or slab):
                     need = ("give the slab's matrix material, e.g. H2O" if name == "matrix"
                             else f"the physical form needs it: give {allowed(field)}")
-                    raise ConfigError(f"missing; {need}", f"medium.{name}")
-                out[name] = self.value(field, raw, name, f"medium.{name}")
+                    raise ConfigError(f"missing; {need}", f"{keyp}.{name}")
+                out[name] = self.value(field, raw, name, f"{keyp}.{name}")
+        return out
+
+    def layers(self, given, where: str, phase_g) -> list:
+        """``medium.layers``: 1 to :data:`~warpe_cl.params.MAX_LAYERS` layers, top first,
+        at least one of thickness > 0; a layer's ``phase_g`` defaults to ``phase_g`` (the
+        medium's; None where unknown: a swept list of stacks)."""
+        if not isinstance(given, list) or not given:
+            raise ConfigError(f"{show(given)} is not allowed; give a non-empty list of layers, "
+                              f"top first, e.g. [{{texture: granular, thickness: \"10 cm\", "
+                              f"radiative: {{tau0: 1.0, omega: 0.9, n: 1.3}}}}]", where)
+        if len(given) > MAX_LAYERS:
+            raise ConfigError(f"{len(given)} layers are given; a stack holds at most "
+                              f"{MAX_LAYERS} (the walk kernel's limit)", where)
+        out = [self.layer(item, f"{where}[{i}]", phase_g) for i, item in enumerate(given)]
+        if not any(layer["thickness"] > 0 for layer in out):
+            raise ConfigError("every layer has thickness 0; at least one layer needs a "
+                              "thickness > 0 (a layer of thickness 0 is no layer)", where)
+        return out
+
+    def layer(self, given, where: str, phase_g) -> dict:
+        """One entry of ``medium.layers``: texture, thickness, phase_g and composition."""
+        prefix = "medium.layers[]"
+        raw = self.mapping(given, prefix, where)
+        out = {}
+        for name in ("texture", "thickness", "phase_g"):
+            out[name] = self.value(FIELDS[f"{prefix}.{name}"], raw, name, f"{where}.{name}")
+        if out["phase_g"] is None:
+            out["phase_g"] = phase_g
+        out.update(self.composition(raw, prefix, out["texture"], where))
+        return out
+
+    def substrate(self, given, where: str, bottom_interface: str) -> dict:
+        """``medium.substrate``: ``{material}`` or ``{n, k}``; refused with
+        ``bottom_interface: none``."""
+        raw = self.mapping(given, "medium.substrate", where)
+        if bottom_interface == "none":
+            raise ConfigError("given together with medium.bottom_interface: none, which puts "
+                              "the floor in optical contact with the layer above it; a "
+                              "substrate's Fresnel contact replaces the vacuum gap of "
+                              "bottom_interface: fresnel: remove medium.substrate or give "
+                              "medium.bottom_interface: fresnel", where)
+        if raw.get("material") is not None:
+            extra = [k for k in ("n", "k") if raw.get(k) is not None]
+            if extra:
+                raise ConfigError(f"given together with {where}.material; give either "
+                                  f"material or n and k, not both", f"{where}.{extra[0]}")
+            return {"material": self.value(FIELDS["medium.substrate.material"], raw,
+                                           "material", f"{where}.material"),
+                    "n": None, "k": None}
+        if raw.get("n") is None:
+            raise ConfigError("no index given; give {material: NAME} (a built-in or a name "
+                              "defined under materials) or {n: N, k: K}",
+                              f"{where}.n" if raw.get("k") is not None else where)
+        out = {"material": None, **self.section(raw, "medium.substrate", where,
+                                                skip=("material",))}
+        if out["k"] is None:
+            out["k"] = 0.0
         return out
 
     # the whole preset -------------------------------------------------------------------
@@ -251,6 +361,11 @@ class PresetValidator:
             else:
                 out[field.key] = self.value(field, raw, field.key, field.key)
         sim = out["simulation"]
+        stack = [k for k in STACK_KEYS if out["medium"].get(k) is not None]
+        if stack and sim["mode"] == "weighted":
+            raise ConfigError(f"weighted is not allowed with medium.{stack[0]}: only the analog "
+                              f"walk is layered (docs/walk.md §7); give simulation.mode: "
+                              f"analog", "simulation.mode")
         if sim["max_time"] is None:
             sim["max_time"] = float(edges(sim["time_bins"])[-1])
         return out

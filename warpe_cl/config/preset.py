@@ -31,7 +31,9 @@ class Config:
     data : dict
         The same with every default filled in and every quantity converted to the
         canonical unit: lengths in m, times in ns, angles in degrees. Absent optional
-        parts (``medium.radiative`` in the physical form, ``instrument.name``) are None.
+        parts (``medium.radiative`` in the physical form, ``instrument.name``) are None;
+        ``medium.layers`` and ``medium.substrate`` are there only when given (with layers,
+        the medium's own texture, thickness and composition are None).
     """
 
     def __init__(self, raw: dict, source: str = "<dict>", *, name_default: str = "unnamed",
@@ -83,7 +85,9 @@ class Config:
 
     @property
     def is_radiative(self) -> bool:
-        """True when the medium is given in radiative form (``medium.radiative``)."""
+        """True when the (single-layer) medium is given in radiative form
+        (``medium.radiative``); False for a stack (``medium.layers``), whose layers each have
+        their form."""
         return self.data["medium"]["radiative"] is not None
 
     def get(self, key: str):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass
 
+from ..params import MAX_LAYERS
 from ..units import parse_quantity
 
 __all__ = ["Field", "SCHEMA", "FIELDS", "DEFAULTS", "SWEEPABLE", "QUANTITY_KINDS",
@@ -41,6 +42,7 @@ class Field:
         For sections: ``{}`` means filled with defaults when absent, None means absent.
     required : bool
         The key must be given (inside its section, when that section is given).
+        (``medium.texture`` and ``medium.thickness``: unless ``medium.layers`` is given.)
     low, high : float or None
         Limits in the canonical unit; ``low_open`` / ``high_open`` exclude them.
     choices : tuple of str or None
@@ -102,19 +104,23 @@ SCHEMA: list[Field] = [
 
     _F("medium", "section", required=True,
        help="The surface layer: texture, thickness, floor, and its composition given either "
-            "physically (compacity, matrix, inclusions) or radiatively (radiative)."),
+            "physically (compacity, matrix, inclusions) or radiatively (radiative); or a "
+            "stack of such layers (layers), optionally over a substrate."),
     _F("medium.texture", "choice", required=True, choices=("slab", "granular"),
        help="slab: a compact matrix (e.g. ice) holding inclusions, bounded by Fresnel "
-            "interfaces; granular: grains with void pores between them, no interfaces."),
+            "interfaces; granular: grains with void pores between them, no interfaces. Not "
+            "given with medium.layers (each layer has its own)."),
     _F("medium.thickness", "length", required=True, low=0.0, low_open=True,
-       help="Physical thickness h of the layer above the floor."),
+       help="Physical thickness h of the layer above the floor. Not given with "
+            "medium.layers (each layer has its own)."),
     _F("medium.bottom_albedo", "float", 0.15, low=0.0, high=1.0,
        help="Lambertian albedo A of the floor under the layer (0: a black floor; what "
             "reaches it leaves the layer)."),
     _F("medium.bottom_interface", "choice", "fresnel", choices=("fresnel", "none"),
        help="Slab only. fresnel: a slab / vacuum-gap interface above the floor "
             "(docs/physics.md §5.5); none: the floor is in optical contact with the slab. "
-            "Accepted but ignored for a granular medium, which has no interfaces."),
+            "Accepted but ignored for a granular medium, which has no interfaces. With "
+            "medium.layers: the floor under the last layer; none refuses a medium.substrate."),
     _F("medium.phase_g", "float", 0.8, low=-1.0, high=1.0, low_open=True, high_open=True,
        help="Henyey-Greenstein asymmetry parameter g of volume scattering (0: isotropic, "
             "close to 1: forward)."),
@@ -161,11 +167,68 @@ SCHEMA: list[Field] = [
        help="Relative volumetric proportion rho_v of this species among the inclusions."),
     _F("medium.inclusions[].grain_size", "length", required=True, low=0.0, low_open=True,
        help="Diameter d of the inclusions or grains of this species."),
+    _F("medium.layers", "list",
+       help=f"Optional stack of layers, top first (1 to {MAX_LAYERS}; docs/walk.md §7): each "
+            "entry is a medium of the single-layer kind, with its own texture, thickness and "
+            "composition (physical or radiative form) and optionally its own phase_g. With "
+            "layers, medium.texture, medium.thickness and the composition keys are not given "
+            "at the medium level; medium.bottom_albedo, medium.bottom_interface, "
+            "medium.phase_g and the physical-form options (extinction_efficiency, "
+            "matrix_absorption, inclusion_absorption, fresnel_integrals) apply to every "
+            "layer. Only the analog walk is layered (simulation.mode: weighted is refused). "
+            "A layer is addressed as medium.layers[0].thickness in a sweep or --set."),
+    _F("medium.layers[].texture", "choice", required=True, choices=("slab", "granular"),
+       help="Texture of this layer, as medium.texture: a slab shows its own index to its "
+            "neighbours (Fresnel contacts), a granular layer its void pores."),
+    _F("medium.layers[].thickness", "length", required=True, low=0.0,
+       help="Physical thickness h_i of this layer. 0 is allowed: such a layer is no layer "
+            "(it is left out of the walk; handy in a sweep), but at least one layer needs a "
+            "thickness > 0."),
+    _F("medium.layers[].phase_g", "float", low=-1.0, high=1.0, low_open=True,
+       high_open=True, default_doc="medium.phase_g",
+       help="Henyey-Greenstein asymmetry parameter g of volume scattering in this layer."),
+    _F("medium.layers[].radiative", "section",
+       help="This layer in radiative terms, instead of compacity/matrix/inclusions, as "
+            "medium.radiative."),
+    _F("medium.layers[].radiative.tau0", "float", required=True, low=0.0,
+       help="Optical depth tau0 = E_i h_i of this layer."),
+    _F("medium.layers[].radiative.omega", "float", required=True, low=0.0, high=1.0,
+       help="Single-scattering albedo omega of this layer."),
+    _F("medium.layers[].radiative.n", "float", required=True, low=1.0,
+       help="Effective refractive index of this layer."),
+    _F("medium.layers[].radiative.k", "float", 0.0, low=0.0,
+       help="Effective extinction index of this layer (imaginary part)."),
+    _F("medium.layers[].compacity", "float", low=0.0, high=1.0, low_open=True,
+       help="Physical form: compacity gamma_c of this layer, as medium.compacity."),
+    _F("medium.layers[].matrix", "str",
+       help="Slab layer only, physical form: the matrix material of this layer."),
+    _F("medium.layers[].inclusions", "list",
+       help="Physical form: the species of this layer, as medium.inclusions."),
+    _F("medium.layers[].inclusions[].material", "str", required=True,
+       help="Material of the inclusion or grain (built-in or defined under materials)."),
+    _F("medium.layers[].inclusions[].proportion", "float", required=True, low=0.0,
+       low_open=True,
+       help="Relative volumetric proportion rho_v of this species in this layer."),
+    _F("medium.layers[].inclusions[].grain_size", "length", required=True, low=0.0,
+       low_open=True,
+       help="Diameter d of the inclusions or grains of this species."),
+    _F("medium.substrate", "section",
+       help="Optional substrate below the layer (or the last of medium.layers), above the "
+            "Lambertian floor: {material: NAME} or {n: N, k: K}, not both. Its Fresnel "
+            "contact with the layer above replaces the vacuum gap (docs/walk.md §7.1); not "
+            "allowed with medium.bottom_interface: none, nor with simulation.mode: weighted."),
+    _F("medium.substrate.material", "str",
+       help="The substrate's material: a built-in or a name defined under materials."),
+    _F("medium.substrate.n", "float", low=0.0, low_open=True,
+       help="Real refractive index of the substrate (instead of material)."),
+    _F("medium.substrate.k", "float", low=0.0, default_doc="`0` (with n)",
+       help="Imaginary refractive index of the substrate (with n)."),
 
     _F("wavelength", "length", "1064 nm", low=0.0, low_open=True,
        help="Laser wavelength; selects the optical constants of the materials. The "
-            "built-ins (H2O, CO2, S, void) exist at 1064 nm only: at another wavelength give "
-            "each material under materials (n, k or a table)."),
+            "built-ins (void, H2O, CO2, S, tholin, regolith; docs/materials.md) exist at 532 nm "
+            "and 1064 nm only: at another wavelength give each material but void under "
+            "materials (n, k or a table)."),
 
     _F("materials", "names", {},
        help="Optional optical constants at the run's wavelength, added to or overriding "
@@ -264,7 +327,8 @@ SCHEMA: list[Field] = [
     _F("sweep", "sweep", {},
        help="Optional grid: dotted keys mapped to lists of values, e.g. medium.thickness: "
             "[\"1 mm\", \"10 mm\"]. Several keys form the outer product, in the order "
-            "given; a list item is addressed as medium.inclusions[0].grain_size."),
+            "given; a list item is addressed as medium.inclusions[0].grain_size (a layer's "
+            "as medium.layers[0].thickness)."),
 
     _F("instrument", "open_section", {},
        help="Optional instrument applied after the surface simulation of each scenario, "
@@ -299,6 +363,12 @@ FIELDS: dict[str, Field] = {f.key: f for f in SCHEMA}
 
 #: The keys of the physical form of a medium.
 PHYSICAL_KEYS = ("compacity", "matrix", "inclusions")
+#: The keys of one layer's own description: with ``medium.layers`` they are given per layer
+#: and must not be given at the medium level.
+LAYER_KEYS = ("texture", "thickness", "radiative") + PHYSICAL_KEYS
+#: The keys of a medium that exist only when given (a single-layer medium without them
+#: resolves to the same data, hence the same scenario key, as before they existed).
+STACK_KEYS = ("layers", "substrate")
 
 
 def children(prefix: str) -> list[Field]:
