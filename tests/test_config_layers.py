@@ -145,6 +145,8 @@ def _many(n):
 ERRORS = {
     "empty_list": ({"medium.layers": []}, r"medium\.layers: \[\] is not allowed; give a "
                                           r"non-empty list of layers"),
+    "empty_entry": ({"medium.layers": [None] + _many(1)},     # a layer of nothing
+                    r"medium\.layers\[0\]: an empty value is not a mapping"),
     "missing_thickness": ({"medium.layers.1.thickness": None},
                           r"medium\.layers\[1\]\.thickness: missing; give a length >= 0"),
     "negative_thickness": ({"medium.layers.0.thickness": "-1 cm"},

@@ -160,3 +160,50 @@ def test_layered_walk_is_reproducible_across_lanes_and_budgets(engine):
     ref = run(engine, params, 4000, lanes=16)
     for kw in (dict(lanes=1), dict(lanes=4, event_budget=3), dict(lanes=16, event_budget=29)):
         assert run(engine, params, 4000, **kw).same_as(ref), kw
+
+
+@pytest.mark.parametrize("precision", ["double", "single"])
+def test_kernel_follows_the_reference_ray_for_ray(engine, precision):
+    """The qualification stacks (warpe_cl/qualify.py: every contact of docs/walk.md §7) walked
+    by the kernel and by the NumPy reference: in double precision every ray's record is the
+    same (times and cosines to 1e-9), in single at least 99.5 % of the histories
+    (qualify.compare_records)."""
+    from warpe_cl.qualify import Combo, _scenes, compare_records
+    from warpe_cl.reference import simulate_reference
+    for name, params in _scenes(Combo("layers", precision, False)).items():
+        ker = run(engine, params, 2000, precision=precision, records=True)
+        ref = simulate_reference(params, 2000, records=True)
+        assert compare_records(ker, ref, precision, False) is None, name
+        if precision == "double":
+            np.testing.assert_array_equal(ker.layer_stats, ref.layer_stats, err_msg=name)
+
+
+def test_result_has_the_layers_of_its_configuration():
+    """A stack's result (warpe_cl/stack.py): one entry per configured layer, the zero-thickness
+    one included with no absorption and the echo of the layer above; the layers' absorptions
+    sum to the medium's; echo_time is 2 sum h n / c; the walk of the stack without the empty
+    layer is the same walk (the same WalkParams)."""
+    import warpe_cl
+    from warpe_cl.api import walk_params
+    cfg = warpe_cl.load_preset("layers/frost_over_ice", overrides={
+        "simulation.photons": 2000, "sweep": None})
+    empty = warpe_cl.load_preset("layers/frost_over_ice", overrides={
+        "simulation.photons": 2000, "sweep": None, "medium.layers[0].thickness": "0 mm"})
+    ds = warpe_cl.simulate(empty, device="auto", progress=False)
+    assert list(ds["layer_texture"].values) == ["granular", "slab"]
+    assert ds["layer_fate_fraction"].values[0] == 0.0
+    absorbed = ds["fate_fraction"].sel(fate="absorbed_medium").item()
+    assert ds["layer_fate_fraction"].values.sum() == pytest.approx(absorbed, rel=1e-12)
+    n_ice = ds["layer_n_eff"].values[1]
+    assert ds["echo_time"].values == pytest.approx([0.0, 2 * 1.0 * n_ice / C_M_PER_NS])
+    bare = warpe_cl.load_preset({"medium": {
+        "texture": "slab", "thickness": "1000 mm", "compacity": 0.95, "matrix": "H2O",
+        "inclusions": [{"material": "void", "proportion": 1.0, "grain_size": "200 um"}],
+        "bottom_albedo": 0.15, "phase_g": 0.8, "substrate": {"n": 1.0, "k": 0.0}}})
+    assert walk_params(empty)[0].layers == walk_params(bare)[0].layers
+    full = warpe_cl.simulate(cfg, device="auto", progress=False)
+    assert full["layer_fate_fraction"].values.sum() == pytest.approx(
+        full["fate_fraction"].sel(fate="absorbed_medium").item(), rel=1e-12)
+    # the first back-and-forth time of a stack is its floor's echo (docs/walk.md §7.2)
+    assert full.attrs["first_bf_time_ns"] == pytest.approx(full["echo_time"].values[-1],
+                                                            rel=1e-12)
