@@ -151,3 +151,202 @@ def test_scattering_census_per_fate():
     assert out["fates"]["escaped"] == {"fraction": 0.4, "mean_scatterings": 15.0}
     assert out["fates"]["terminated"] == {"fraction": 0.0, "mean_scatterings": None}
     assert "escaped 0.4000 (15)" in mc.format_census("x", out)
+
+
+# ---------------------------------------------------------------------------------------------
+# two layers against MCX-CL (python tools/mcxcl_compare.py layers)
+
+def test_layered_params_are_mcx_media():
+    p = mc.layered_params()
+    assert p.layered and len(p.stack) == 2 and p.albedo == 0.0
+    assert p.bottom_interface == "fresnel" and p.substrate is None
+    assert p.max_time == mc.LAYER_T_MAX_NS == p.time_edges[-1] and p.time_edges[0] == 0.0
+    assert np.allclose(np.diff(p.time_edges), mc.LAYER_DT_NS)
+    assert p.cos_fov.tolist() == [-1.0] * 4                     # any angle
+    for layer, (h, mus, mua, g, n) in zip(p.stack, mc.LAYERS_MM):
+        # analog: E = mus + mua per m, omega = mus / (mus + mua)
+        assert layer.thickness == pytest.approx(h * 1e-3)
+        assert layer.extinction == pytest.approx((mus + mua) * 1e3)
+        assert layer.omega * layer.extinction == pytest.approx(mus * 1e3)
+        assert (layer.g, layer.n, layer.texture) == (g, n, "slab")
+    assert p.stack[0].n != p.stack[1].n                         # a Fresnel contact
+    ctrl = mc.layered_params(mc.control_layers())
+    assert ctrl.stack[1].n == ctrl.stack[0].n == mc.LAYERS_MM[0][4]
+    assert ctrl.stack[1].extinction == p.stack[1].extinction    # only the index changes
+
+
+def test_layers_scene_labels_and_padding():
+    p = mc.layered_params()
+    s = mc.mcx_layers_scene(p, 1000, box_mm=300, gpuid=2)
+    cfg = s["cfg"]
+    # one vacuum voxel (label 3) above and below: 3 mm of label 1 then 5 mm of label 2
+    assert s["labels_z"] == [3] + [1] * 3 + [2] * 5 + [3]
+    assert s["vol_shape"] == [302, 302, 10] and s["frame_label"] == 3
+    assert s["stack_box_mm"] == 300
+    assert cfg["prop"][0] == [0.0, 0.0, 1.0, 1.0] and cfg["prop"][3] == [0.0, 0.0, 1.0, 1.0]
+    for row, (h, mus, mua, g, n) in zip(cfg["prop"][1:3], mc.LAYERS_MM):
+        assert row == pytest.approx([mua, mus, g, n])
+    assert s["mua_per_mm"] == pytest.approx([0.005, 0.02, 0.0])
+    assert s["n"] == pytest.approx([1.31, 1.5, 1.0]) and s["clock"] == [1, 1, 0]
+    # the source at the centre of the stack's top (z = 1: the top of the first slab voxel)
+    assert cfg["srcpos"] == [151.0, 151.0, 1.0] and cfg["srcdir"] == [0.0, 0.0, 1.0]
+    assert cfg["isreflect"] == 1 and cfg["bc"] == "______111111"
+    assert cfg["tend"] == pytest.approx(2e-9 * (1 + mc.GATE_MARGIN)) and cfg["tstep"] == cfg["tend"]
+    assert cfg["savedetflag"] == "dspx" and cfg["gpuid"] == 2
+    assert s["time_edges_ns"][-1] == pytest.approx(2.0)
+    bare = mc.mcx_layers_scene(p, 10, box_mm=60, pad="none")
+    assert bare["labels_z"] == [1] * 3 + [2] * 5 and bare["frame_label"] is None
+    assert bare["vol_shape"] == [60, 60, 8] and bare["cfg"]["srcpos"] == [30.0, 30.0, 0.0]
+    assert len(bare["cfg"]["prop"]) == 3 and bare["clock"] == [1, 1]
+    assert bare["cfg"]["tend"] == pytest.approx(2e-9)
+
+
+def test_layers_scene_refusals():
+    import dataclasses
+    p = mc.layered_params()
+    with pytest.raises(ValueError, match="A = 0"):
+        mc.mcx_layers_scene(dataclasses.replace(p, albedo=0.1), 10)
+    with pytest.raises(ValueError, match="A = 0"):
+        mc.mcx_layers_scene(dataclasses.replace(p, substrate=(1.6, 0.0)), 10)
+    with pytest.raises(ValueError, match="whole number"):
+        mc.mcx_layers_scene(mc.layered_params(((2.5, 1.0, 0.0, 0.8, 1.3),)), 10)
+    with pytest.raises(ValueError, match="granular"):
+        lay = dataclasses.replace(p.stack[1], texture="granular")
+        mc.mcx_layers_scene(dataclasses.replace(p, layers=(p.stack[0], lay)), 10)
+    with pytest.raises(ValueError, match="real refractive index"):
+        lay = dataclasses.replace(p.stack[1], k=1e-5)
+        mc.mcx_layers_scene(dataclasses.replace(p, layers=(p.stack[0], lay)), 10)
+    with pytest.raises(ValueError, match="pad"):
+        mc.mcx_layers_scene(p, 10, pad="mirror")
+
+
+def test_mean_and_se_is_the_sample_standard_error():
+    rng = np.random.default_rng(3)
+    # a weighted case: 1000 photons, 300 of which leave with a weight, the rest 0
+    x = np.zeros(1000)
+    x[:300] = rng.uniform(0.2, 1.0, 300)
+    m, se = mc.mean_and_se(x.sum(), (x ** 2).sum(), len(x))
+    assert m == pytest.approx(x.mean())
+    assert se == pytest.approx(x.std(ddof=1) / np.sqrt(len(x)))
+    # analog counts: the binomial error sqrt(p (1 - p) / (n - 1))
+    m, se = mc.mean_and_se(250, 250, 1000)
+    assert m == 0.25 and se == pytest.approx(np.sqrt(0.25 * 0.75 / 999))
+    assert mc.mean_and_se(0, 0, 10) == (0.0, 0.0)
+    assert mc.z_score(1.0, 0.3, 0.5, 0.4) == pytest.approx(1.0)
+    assert mc.z_score(1.0, 0.0, 1.0, 0.0) is None
+
+
+def test_mean_and_se_covers_the_truth_on_synthetic_weights():
+    """z of a synthetic MCX-like weighted estimate against the exact mean: about unit variance."""
+    rng = np.random.default_rng(7)
+    zs = []
+    for _ in range(400):
+        leave = rng.random(2000) < 0.3
+        w = np.where(leave, rng.exponential(0.5, 2000).clip(max=1.0), 0.0)
+        m, se = mc.mean_and_se(w.sum(), (w ** 2).sum(), len(w))
+        truth = 0.3 * 0.5 * (1 - np.exp(-2.0))                  # E[min(Exp(0.5), 1)] · 0.3
+        zs.append((m - truth) / se)
+    assert abs(np.mean(zs)) < 0.2 and 0.85 < np.std(zs) < 1.15
+
+
+def _fake_layers(p, ours_bins, fates, w, w2, mc_counts, bottom, photons=1000, n_mcx=500):
+    c = Counts(n_time=len(p.time_edges) - 1, photons=photons)
+    c.fates[:] = fates
+    c.time_any[3] = ours_bins
+    res = {"nphoton": n_mcx, "top_tpsf": {"w": list(w), "w2": list(w2), "counts": list(mc_counts)},
+           "faces": {"top": {"photons": int(sum(mc_counts))}, "bottom": {"photons": bottom[2]},
+                     "side": {"photons": 1}},
+           "face_weights": {"bottom": {"w": bottom[0], "w2": bottom[1], "photons": bottom[2]},
+                            "side": {"w": 0.5, "w2": 0.25, "photons": 1}},
+           "inside_at_tend": 0,
+           "top_radial": {"edges_mm": [0.0, 10.0, 1e9], "w": [3.0, 1.0], "counts": [5, 2]}}
+    return c, res
+
+
+def test_compare_layers_windows_totals_and_verdict():
+    p = mc.layered_params()
+    nt = len(p.time_edges) - 1
+    ours = np.zeros(nt, dtype=np.int64)
+    w, w2, cnt = np.zeros(nt), np.zeros(nt), np.zeros(nt, dtype=np.int64)
+    i = int(np.searchsorted(p.time_edges, 0.15)) - 1             # a bin inside 0.1-0.2 ns
+    ours[i], w[i], w2[i], cnt[i] = 90, 45.0, 30.0, 60            # 90/900 against 45/500
+    j = int(np.searchsorted(p.time_edges, 0.6)) - 1              # inside 0.5-0.75 ns: few
+    ours[j], w[j], w2[j], cnt[j] = 10, 2.0, 1.0, 5
+    fates = [100, 100, 500, 300, 0]                              # 900 rays entered
+    c, res = _fake_layers(p, ours, fates, w, w2, cnt, bottom=(150.0, 100.0, 200))
+    cmp = mc.compare_layers(c, p, res)
+    assert [r["t0_ns"] for r in cmp["windows"]] == pytest.approx(list(mc.LAYER_WINDOWS_NS[:-1]))
+    row = [r for r in cmp["windows"] if r["t0_ns"] <= 0.15 < r["t1_ns"]][0]
+    assert row["ours"] == pytest.approx(0.1) and row["mcx"] == pytest.approx(0.09)
+    assert row["ours_err"] == pytest.approx(np.sqrt(90 * (1 - 0.1) / 899) / np.sqrt(900))
+    assert row["mcx_err"] == pytest.approx(np.sqrt((30.0 - 45.0 ** 2 / 500) / 499 / 500))
+    assert row["z"] == pytest.approx((0.1 - 0.09) / np.hypot(row["ours_err"], row["mcx_err"]))
+    assert row["judged"] and (row["ours_counts"], row["mcx_counts"]) == (90, 60)
+    few = [r for r in cmp["windows"] if r["t0_ns"] <= 0.6 < r["t1_ns"]][0]
+    assert not few["judged"]                                     # 5 MCX photons < 25
+    assert cmp["total"]["ours"] == pytest.approx(100 / 900)
+    assert cmp["total"]["mcx"] == pytest.approx(47 / 500)
+    t = cmp["transmittance"]
+    assert t["ours"] == pytest.approx(300 / 900) and t["mcx"] == pytest.approx(150 / 500)
+    assert cmp["side"]["weight"] == pytest.approx(0.5 / 500) and cmp["side"]["photons"] == 1
+    assert cmp["radial"]["fraction"] == pytest.approx([0.75, 0.25])
+    judged = [r for r in cmp["windows"] + [cmp["total"], t] if r["judged"]]
+    assert cmp["max_abs_z"] == pytest.approx(max(abs(r["z"]) for r in judged))
+    assert cmp["passed"] == (cmp["max_abs_z"] <= 5.0) and not cmp["failed"]
+    text = mc.format_layers(cmp)
+    assert "not judged" in text and "PASS" in text and "bottom (T)" in text
+
+
+def test_compare_layers_flags_a_window_beyond_the_limit():
+    p = mc.layered_params()
+    nt = len(p.time_edges) - 1
+    ours = np.zeros(nt, dtype=np.int64)
+    w, w2, cnt = np.zeros(nt), np.zeros(nt), np.zeros(nt, dtype=np.int64)
+    i = int(np.searchsorted(p.time_edges, 0.3)) - 1              # inside 0.2-0.35 ns
+    ours[i], w[i], w2[i], cnt[i] = 400, 100.0, 80.0, 120         # 0.44 against 0.2
+    c, res = _fake_layers(p, ours, [100, 400, 200, 300, 0], w, w2, cnt, bottom=(150.0, 100.0, 200))
+    cmp = mc.compare_layers(c, p, res)
+    assert not cmp["passed"] and "0.2-0.35 ns" in cmp["failed"] and "all" in cmp["failed"]
+    assert "beyond 5σ" in mc.format_layers(cmp) and "FAIL" in mc.format_layers(cmp)
+
+
+def test_summarise_detected_layers_time_weight_and_clock():
+    # two media and a vacuum padding (medium 3, clock 0): rows d, s1..s3, p1..p3, x, y, z
+    c = 299.792458
+    ppath = np.array([[3.0, 1.0, 2.0], [0.0, 4.0, 6.0], [1.0, 1.0, 1.0]], dtype=np.float32)
+    nscat = np.array([[2, 1, 3], [0, 4, 5], [0, 0, 0]], dtype=np.int32).view(np.float32)
+    x = np.array([101.0, 150.0, 101.0], dtype=np.float32)
+    y = np.array([101.0, 101.0, 101.0], dtype=np.float32)
+    z = np.array([0.0, 0.0, 10.0], dtype=np.float32)                 # top, top, bottom
+    detp = np.vstack([np.ones((1, 3), np.float32), nscat, ppath, x, y, z])
+    mua, n = [0.01, 0.02, 0.0], [1.31, 1.5, 1.0]
+    t = (ppath[0] * 1.31 + ppath[1] * 1.5) / c                       # the vacuum does not count
+    edges = [0.0, (t[0] + t[1]) / 2, 1.0]
+    out = mcxcl_anchor.summarise_detected(detp, 10, mua, n, edges, centre=(101.0, 101.0),
+                                          radius_edges_mm=[0.0, 10.0, 1e9], clock=[1, 1, 0])
+    wt = np.exp(-(0.01 * ppath[0] + 0.02 * ppath[1]))
+    assert out["faces"]["top"] == {"photons": 2, "scatterings": 2 + 0 + 1 + 4,
+                                   "scatterings_sq": 4 + 25}
+    assert out["faces"]["bottom"]["scatterings"] == 8
+    assert out["top_tpsf"]["counts"] == [1, 1]
+    assert out["top_tpsf"]["w"] == pytest.approx(wt[:2], rel=1e-6)
+    assert out["top_tpsf"]["w2"] == pytest.approx(wt[:2] ** 2, rel=1e-6)
+    assert out["face_weights"]["bottom"]["w"] == pytest.approx(wt[2], rel=1e-6)
+    assert out["face_weights"]["bottom"]["photons"] == 1
+    assert out["top_radial"]["w"] == pytest.approx([wt[0], wt[1]], rel=1e-6)
+    # a photon whose time passes the last edge is left out of the face weights
+    late = mcxcl_anchor.summarise_detected(detp, 10, mua, n, [0.0, t[0] * 1.01], clock=[1, 1, 0])
+    assert late["face_weights"]["top"]["photons"] == 1 and late["top_tpsf"]["counts"] == [1]
+    with pytest.raises(ValueError, match="one mua and one n"):
+        mcxcl_anchor.summarise_detected(detp, 10, [0.01], [1.3, 1.5], edges)
+
+
+def test_probe_expectation_and_row():
+    e = mc.probe_expectation(1.5)
+    assert e["R"] == pytest.approx(0.04) and e["top"] + e["bottom"] == pytest.approx(1.0)
+    res = {"nphoton": 10000, "faces": {"top": {"photons": 385}, "bottom": {"photons": 9615},
+                                       "side": {"photons": 0}}}
+    r = mc.probe_row("one medium", "vacuum", res)
+    assert r["top"] == 0.0385 and abs(r["z"]) < 0.1 and r["bottom"] == 0.9615
+    res["faces"]["top"]["photons"] = 0
+    assert mc.probe_row("two", "none", res)["z"] < -15
