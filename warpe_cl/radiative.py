@@ -388,9 +388,10 @@ def radiative_parameters(cfg) -> dict:
                      for i, layer in enumerate(layers)]
         top = next(d for d in per_layer if d["thickness_m"] > 0)
         out = {k: v for k, v in top.items() if k not in ("texture", "phase_g")}
-    legs = [2.0 * d["thickness_m"] * d["n_eff"] / C_M_PER_NS for d in per_layer]
     out["layers"] = per_layer
-    out["echo_times_ns"] = [float(t) for t in np.cumsum(legs)]
+    # each layer's leg 2 h_i n_i / c is its own first back-and-forth time
+    out["echo_times_ns"] = [float(t) for t in np.cumsum([d["first_bf_time_ns"]
+                                                         for d in per_layer])]
     # the first back-and-forth time of a stack is its floor's echo (docs/walk.md §7.2)
     out["first_bf_time_ns"] = out["echo_times_ns"][-1]
     out["thickness_m"] = float(sum(d["thickness_m"] for d in per_layer))

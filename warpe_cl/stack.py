@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .params import C_M_PER_NS, FATES, Counts, WalkParams
+from .params import FATES, Counts, WalkParams
 
 __all__ = ["configured_layers", "layer_variables"]
 
@@ -75,12 +75,13 @@ def layer_variables(counts: Counts, params: WalkParams, derived: dict) -> tuple:
         absorbed = np.array([counts.fates[FATES.index("absorbed_medium")]], dtype=np.int64)
     fraction = np.array([absorbed[x["walk_index"]] / counts.photons
                          if x["walk_index"] is not None else 0.0 for x in layers])
-    legs = [2.0 * x["thickness_m"] * x["n_eff"] / C_M_PER_NS for x in layers]
+    # a stack's echoes come with its radiative parameters; one layer's is its t1
+    echoes = derived.get("echo_times_ns") or [params.first_bf_time]
     variables = {
         "layer_fate_fraction": ("layer", fraction, {
             "units": "1", "long_name": "rays absorbed by the medium of the layer, per launched "
                                       "ray (sums to fate_fraction of absorbed_medium)"}),
-        "echo_time": ("layer", np.cumsum(legs), {
+        "echo_time": ("layer", np.asarray(echoes, dtype=float), {
             "units": "ns", "long_name": "direct-echo delay of the bottom of the layer at "
                                        "nadir, 2 sum h_i n_i / c"}),
         **{f"layer_{key}": ("layer", np.array([x[key] for x in layers]), {
