@@ -67,6 +67,21 @@ class McxclUnavailable(RuntimeError):
 # ---------------------------------------------------------------------------------------------
 # the scene and the numbers (pure: tested in tests/test_mcxcl_compare.py)
 
+def voxel_medium(layer, who: str, what: str) -> tuple:
+    """A slab layer (``warpe_cl.params.Layer``) as MCX voxels: ``(nz, mus, mua)``, its
+    thickness in 1 mm voxels and its coefficients in 1/mm, with E = mus + mua and
+    omega = mus / (mus + mua) (docs/physics.md §4.5). Refuses a complex index (``who`` has
+    k = ...) and a thickness that is not a whole number of voxels (``what`` must be ...)."""
+    if layer.k != 0.0:
+        raise ValueError(f"MCX-CL takes a real refractive index; {who} has k = {layer.k}")
+    h_mm = layer.thickness * 1e3
+    nz = int(round(h_mm))
+    if abs(nz - h_mm) > 1e-6 or nz < 1:
+        raise ValueError(f"{what} must be a whole number of 1 mm voxels, got {h_mm} mm")
+    ext_per_mm = layer.extinction * 1e-3             # E = tau0 / h
+    return nz, ext_per_mm * layer.omega, ext_per_mm * (1.0 - layer.omega)
+
+
 def mcx_scene(params, nphoton: int, box_mm: float | None = None, tstep_ns: float = ANCHOR_TSTEP_NS,
               seed: int = ANCHOR_SEED, gpuid: int = 1) -> dict:
     """The pmcxcl request for a slab :class:`~warpe_cl.params.WalkParams`.
@@ -93,17 +108,8 @@ def mcx_scene(params, nphoton: int, box_mm: float | None = None, tstep_ns: float
     if params.texture != "slab":
         raise ValueError("MCX-CL can only be compared on a slab scene (B1): a granular medium has "
                          "no interface, which MCX's voxel box cannot represent")
-    if params.k != 0.0:
-        raise ValueError(f"MCX-CL takes a real refractive index; this scene has k = {params.k}")
-    thickness_mm = params.thickness * 1e3
-    nz = int(round(thickness_mm))
-    if abs(nz - thickness_mm) > 1e-6 or nz < 1:
-        raise ValueError(f"the slab thickness must be a whole number of 1 mm voxels, got "
-                         f"{thickness_mm} mm")
-    nxy = int(round(box_mm if box_mm is not None else thickness_mm))
-    ext_per_mm = params.extinction * 1e-3             # E = tau0 / h
-    mus = ext_per_mm * params.omega        # omega = mus / (mus + mua): docs/physics.md §4.5
-    mua = ext_per_mm * (1.0 - params.omega)
+    nz, mus, mua = voxel_medium(params.stack[0], "this scene", "the slab thickness")
+    nxy = int(round(box_mm if box_mm is not None else nz))
     t_max = params.max_time if params.max_time is not None else float(params.time_edges[-1])
     tend = t_max * 1e-9
     # whole number of gates; one gate when tstep >= t_max
@@ -345,15 +351,7 @@ def mcx_layers_scene(params, nphoton: int, box_mm: float = LAYER_BOX_MM, pad: st
         if layer.texture != "slab":
             raise ValueError(f"layer {i} is {layer.texture}: MCX's voxels hold slabs only (a "
                              "granular layer has no face of its own)")
-        if layer.k != 0.0:
-            raise ValueError(f"MCX-CL takes a real refractive index; layer {i} has k = {layer.k}")
-        h_mm = layer.thickness * 1e3
-        nz = int(round(h_mm))
-        if abs(nz - h_mm) > 1e-6 or nz < 1:
-            raise ValueError(f"layer {i}: the thickness must be a whole number of 1 mm voxels, "
-                             f"got {h_mm} mm")
-        ext = layer.extinction * 1e-3
-        mus, mua = ext * layer.omega, ext * (1.0 - layer.omega)
+        nz, mus, mua = voxel_medium(layer, f"layer {i}", f"layer {i}: the thickness")
         prop.append([mua, mus, float(layer.g), float(layer.n)])
         media.append([nz, mus, mua, float(layer.g), float(layer.n)])
         labels += [i + 1] * nz
