@@ -47,13 +47,13 @@ inline int emergence_bin(REAL cos_exit)
     return min((int)floor(deg), N_EMERGENCE - 1);
 }
 
-#ifdef WARPE_WEIGHTED
+#if defined(WARPE_WEIGHTED) || defined(WARPE_NADIR)
 #pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
 #if FIXED_WORDS != 3
 #error "fixed_add keeps FIXED_WORDS = 3 words per sum"
 #endif
-/* Weighted tallies (docs/walk.md §6) are sums of weights in 192-bit fixed point, in units of
- * 2^-FIXED_SHIFT (2^-150): acc[0], acc[1], acc[2] are the low, middle and high 64-bit words.
+/* Weighted tallies (docs/walk.md §6) and the nadir sums (§8) are sums of weights (scores) in
+ * 192-bit fixed point, in units of 2^-FIXED_SHIFT (2^-150): acc[0], acc[1], acc[2] are the low, middle and high 64-bit words.
  * Integer addition is exact and commutative, so the sums are the same bits whatever the order
  * in which lanes, work-items and launches add them (no float atomics); a weight of 1e-20 keeps
  * 83 bits. fixed_add adds floor(w 2^FIXED_SHIFT) for 0 <= w < 2^(192 - FIXED_SHIFT); a carry
@@ -61,10 +61,12 @@ inline int emergence_bin(REAL cos_exit)
  * next word. */
 /* True for a weight that the exact sums would drop: NaN, negative, or w >= MAX_WEIGHT (2^21),
  * whose square (the w^2 sums) reaches 2^42 (walk.md §6). */
+#ifdef WARPE_WEIGHTED
 inline int weight_lost(REAL w)
 {
     return !(w >= (REAL)0 && w < (REAL)MAX_WEIGHT);
 }
+#endif
 
 inline void fixed_add(__global ulong *acc, REAL w)
 {
@@ -103,6 +105,47 @@ inline void fixed_add(__global ulong *acc, REAL w)
     }
     if (hi | carry)
         atom_add(acc + 2, hi + carry);
+}
+#endif
+
+#ifdef WARPE_NADIR
+/* fixed_add into sums that only this work-item writes (the nadir sums of a CPU work-item's own
+ * slice, walk.md §8): the same 192-bit addition with plain loads and stores, no atomics. */
+inline void fixed_add_own(__global ulong *acc, REAL w)
+{
+    if (!(w > (REAL)0))
+        return;
+    int e;
+    REAL f = frexp(w, &e);
+#ifdef WARPE_DOUBLE
+    ulong m = (ulong)(f * 0x1p53);
+    int s = e - 53 + FIXED_SHIFT;
+#else
+    ulong m = (ulong)(f * 0x1p24f);
+    int s = e - 24 + FIXED_SHIFT;
+#endif
+    ulong lo = 0, mid = 0, hi = 0;
+    if (s < 0) {
+        if (s > -64)
+            lo = m >> (-s);
+    } else if (s < 64) {
+        lo = m << s;
+        mid = s ? m >> (64 - s) : 0;
+    } else if (s < 128) {
+        mid = m << (s - 64);
+        hi = s > 64 ? m >> (128 - s) : 0;
+    } else if (s < 192) {
+        hi = m << (s - 128);
+    }
+    const ulong a0 = acc[0] + lo;
+    const ulong c0 = a0 < lo ? 1ul : 0ul;
+    const ulong a1 = acc[1] + mid;
+    const ulong c1 = a1 < mid ? 1ul : 0ul;
+    const ulong a2 = a1 + c0;
+    const ulong c2 = a2 < c0 ? 1ul : 0ul;
+    acc[0] = a0;
+    acc[1] = a2;
+    acc[2] += hi + c1 + c2;
 }
 #endif
 

@@ -7,6 +7,7 @@
  * (a stack, walk.md §7: exactly one),
  * WARPE_DOUBLE (precision), WARPE_LANES (photons per work-item), WARPE_POOL (photons a
  * work-item takes ahead, pool_t), WARPE_WEIGHTED (survival weighting, walk.md §6),
+ * WARPE_NADIR (the next-event estimate toward the receiver, walk.md §8),
  * WARPE_RECORD (one record per photon, for the parity tests); the
  * layouts the host reads back come as -D macros too (tally.h). Every physical value is a
  * kernel argument, so a new scenario never recompiles.
@@ -59,6 +60,19 @@ typedef struct {
     __global const int *iface_kind;    /* [N + 1]: 0 transparent, 1 Fresnel */
     REAL gap_near, gap_far_n, gap_far_k;   /* from the gap up into the last layer */
 #endif
+#ifdef WARPE_NADIR
+#ifdef WARPE_TEXTURE_LAYERS
+    __global const REAL *view;   /* [N + 1][N_VIEW]: VIEW_* columns per layer (walk.md §8) */
+#else
+    /* the layer's row of the view table (walk.md §8), and phase_k = (1 - g^2) / (4 pi) */
+    REAL v_sin, v_mu, v_tau_per_m, v_path_per_m, v_factor, phase_k;
+#endif
+    /* the gap's row: a floor reflection below a Fresnel bottom (walk.md §8) */
+    REAL vg_mu, vg_tau, vg_path, vg_factor;
+    /* analog: scores below s_min play a roulette (walk.md §8.3); inv_omega_words and
+     * inv_albedo_words turn a surviving word x < T into a uniform (x + 1/2) / T */
+    REAL s_min, inv_omega_words, inv_albedo_words;
+#endif
 } scene_t;
 
 /* The rays of a work-item's lanes (walk.md §3), one per lane. */
@@ -79,6 +93,19 @@ typedef struct {
     VREAL z_top, z_bottom, E, g, time_scale;
     VUINT omega_lo;              /* absorbed iff x1 >= omega_lo, unless scatter_all */
     VMASK scatter_all;           /* T_omega = 2^32: no word absorbs */
+#endif
+#ifdef WARPE_NADIR
+    /* the ray's pending nadir score (walk.md §8): its consecutive scores in one cell, of time
+     * range [pend_lo, pend_hi), added up before they go to the batch sums; cell -1: none */
+    VREAL pend, pend_lo, pend_hi;
+    VMASK pend_cell;
+#ifdef WARPE_RECORD
+    VREAL nadir_total;           /* every score of the ray (its record) */
+#endif
+#ifdef WARPE_TEXTURE_LAYERS
+    /* layer l's row of the view table, loaded with its other values (load_layer) */
+    VREAL v_sin, v_mu, v_tau_per_m, v_path_per_m, v_tau_above, v_path_above, v_factor;
+#endif
 #endif
 } rays_t;
 
@@ -115,6 +142,24 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
     r.omega_lo = (VUINT)0;
     r.scatter_all = (VMASK)0;
 #endif
+#ifdef WARPE_NADIR
+    r.pend = (VREAL)0;
+    r.pend_lo = (VREAL)0;
+    r.pend_hi = (VREAL)0;
+    r.pend_cell = (VMASK)-1;
+#ifdef WARPE_RECORD
+    r.nadir_total = (VREAL)0;
+#endif
+#ifdef WARPE_TEXTURE_LAYERS
+    r.v_sin = (VREAL)0;
+    r.v_mu = (VREAL)1;
+    r.v_tau_per_m = (VREAL)0;
+    r.v_path_per_m = (VREAL)0;
+    r.v_tau_above = (VREAL)0;
+    r.v_path_above = (VREAL)0;
+    r.v_factor = (VREAL)0;
+#endif
+#endif
     return r;
 }
 
@@ -136,6 +181,16 @@ WALK_STEP void load_layer(rays_t *r, VMASK m, const scene_t *sc)
         r->time_scale = SEL(r->time_scale, (VREAL)row[LAYER_TIME_SCALE], hit);
         r->omega_lo = SEL(r->omega_lo, (VUINT)(uint)min(T, (ulong)0xFFFFFFFFu), MASK32(hit));
         r->scatter_all = SEL(r->scatter_all, (VMASK)(T > 0xFFFFFFFFul ? -1 : 0), hit);
+#ifdef WARPE_NADIR
+        __global const REAL *v = sc->view + N_VIEW * i;
+        r->v_sin = SEL(r->v_sin, (VREAL)v[VIEW_SIN], hit);
+        r->v_mu = SEL(r->v_mu, (VREAL)v[VIEW_MU], hit);
+        r->v_tau_per_m = SEL(r->v_tau_per_m, (VREAL)v[VIEW_TAU_PER_M], hit);
+        r->v_path_per_m = SEL(r->v_path_per_m, (VREAL)v[VIEW_PATH_PER_M], hit);
+        r->v_tau_above = SEL(r->v_tau_above, (VREAL)v[VIEW_TAU_ABOVE], hit);
+        r->v_path_above = SEL(r->v_path_above, (VREAL)v[VIEW_PATH_ABOVE], hit);
+        r->v_factor = SEL(r->v_factor, (VREAL)v[VIEW_FACTOR], hit);
+#endif
     }
 }
 #endif
@@ -166,6 +221,18 @@ typedef struct {
     REAL t1;                     /* first back-and-forth time 2 h n / c, ns
                                   * (docs/physics.md §5.7) */
     REAL ns_per_m;               /* t = L n / c (docs/physics.md §5.7, paper eq. 4) */
+#ifdef WARPE_NADIR
+    /* the work-item's slice of the sums: [NADIR_BATCHES][N_NADIR_ROWS][nadir_cols][FIXED_WORDS]
+     * and of the visits: [N_NADIR_ROWS][nadir_cols]; own: no other work-item writes them */
+    __global ulong *nadir_sum;
+    __global ulong *nadir_visits;
+    int nadir_cols;              /* n_edges + 1: before the first edge, the bins, after */
+    int nadir_own;
+    /* a first guess of a time's bin: floor(b log(t / a)) for log-spaced edges (bin_log), else
+     * floor(b (t - a)); the edges then correct it (walk.md §8) */
+    int bin_log;
+    REAL bin_a, bin_b;
+#endif
 } tallies_t;
 
 /* A work-item's statistics, written to item_stats at the end. */
@@ -342,6 +409,13 @@ WALK_STEP void refill_lanes(rays_t *r, pool_t *pool, int *exhausted, __global ui
 #ifdef WARPE_TEXTURE_LAYERS
     r->layer = SEL(r->layer, (VMASK)0, fresh);
 #endif
+#ifdef WARPE_NADIR
+    r->pend = SEL(r->pend, (VREAL)0, fresh);
+    r->pend_cell = SEL(r->pend_cell, (VMASK)-1, fresh);
+#ifdef WARPE_RECORD
+    r->nadir_total = SEL(r->nadir_total, (VREAL)0, fresh);
+#endif
+#endif
 }
 
 /* The rays carried from one launch to the next (walk.md §5): a launch stops each work-item
@@ -367,6 +441,9 @@ typedef struct {
     IREAL n_bspec[WARPE_LANES], n_top[WARPE_LANES], phase[WARPE_LANES], event[WARPE_LANES];
     IREAL alive[WARPE_LANES], layer[WARPE_LANES];
     uint p_lo[WARPE_LANES], p_hi[WARPE_LANES];
+    REAL pend[WARPE_LANES], pend_lo[WARPE_LANES], pend_hi[WARPE_LANES];
+    REAL nadir_total[WARPE_LANES];
+    IREAL pend_cell[WARPE_LANES];
 } lane_rows_t;
 
 WALK_STEP void rays_to_rows(const rays_t *r, lane_rows_t *l)
@@ -396,6 +473,23 @@ WALK_STEP void rays_to_rows(const rays_t *r, lane_rows_t *l)
     for (int j = 0; j < WARPE_LANES; ++j)
         l->layer[j] = 0;
 #endif
+#ifdef WARPE_NADIR
+    VSTORE(r->pend, l->pend);
+    VSTORE(r->pend_lo, l->pend_lo);
+    VSTORE(r->pend_hi, l->pend_hi);
+    VSTORE(r->pend_cell, l->pend_cell);
+#ifdef WARPE_RECORD
+    VSTORE(r->nadir_total, l->nadir_total);
+#else
+    for (int j = 0; j < WARPE_LANES; ++j)
+        l->nadir_total[j] = (REAL)0;
+#endif
+#else
+    for (int j = 0; j < WARPE_LANES; ++j) {
+        l->pend[j] = l->pend_lo[j] = l->pend_hi[j] = l->nadir_total[j] = (REAL)0;
+        l->pend_cell[j] = -1;
+    }
+#endif
 }
 
 WALK_STEP void rows_to_rays(const lane_rows_t *l, rays_t *r)
@@ -421,6 +515,15 @@ WALK_STEP void rows_to_rays(const lane_rows_t *l, rays_t *r)
     r->p_hi = VLOAD(l->p_hi);
 #ifdef WARPE_TEXTURE_LAYERS
     r->layer = VLOAD(l->layer);
+#endif
+#ifdef WARPE_NADIR
+    r->pend = VLOAD(l->pend);
+    r->pend_lo = VLOAD(l->pend_lo);
+    r->pend_hi = VLOAD(l->pend_hi);
+    r->pend_cell = VLOAD(l->pend_cell);
+#ifdef WARPE_RECORD
+    r->nadir_total = VLOAD(l->nadir_total);
+#endif
 #endif
 }
 
@@ -462,6 +565,11 @@ WALK_STEP void resume_lanes(rays_t *r, const carry_t *cy, int *resuming)
         l.p_lo[j] = ri[STATE_P_LO];
         l.p_hi[j] = ri[STATE_P_HI];
         l.layer[j] = (IREAL)ri[STATE_LAYER];
+        l.pend[j] = rr[STATE_NADIR_PENDING];
+        l.pend_lo[j] = rr[STATE_NADIR_LO];
+        l.pend_hi[j] = rr[STATE_NADIR_HI];
+        l.nadir_total[j] = rr[STATE_NADIR_SUM];
+        l.pend_cell[j] = (IREAL)(int)ri[STATE_NADIR_CELL];
         l.alive[j] = (IREAL)-1;     /* "true" in both mask conventions (lanes.h) */
         row += 1;
     }
@@ -507,6 +615,11 @@ WALK_STEP void park_lanes(const rays_t *r, const pool_t *pool, const carry_t *cy
         ri[STATE_P_LO] = l.p_lo[j];
         ri[STATE_P_HI] = l.p_hi[j];
         ri[STATE_LAYER] = (uint)l.layer[j];
+        rr[STATE_NADIR_PENDING] = l.pend[j];
+        rr[STATE_NADIR_LO] = l.pend_lo[j];
+        rr[STATE_NADIR_HI] = l.pend_hi[j];
+        rr[STATE_NADIR_SUM] = l.nadir_total[j];
+        ri[STATE_NADIR_CELL] = (uint)(int)l.pend_cell[j];
         row += 1;
     }
     for (uint q = pool->next; q < pool->end; ++q, ++row) {
@@ -529,6 +642,11 @@ WALK_STEP void park_lanes(const rays_t *r, const pool_t *pool, const carry_t *cy
         ri[STATE_P_LO] = base_lo + q;          /* as refill_lanes numbers a photon */
         ri[STATE_P_HI] = base_lo + q < base_lo ? base_hi + 1u : base_hi;
         ri[STATE_LAYER] = 0;
+        rr[STATE_NADIR_PENDING] = (REAL)0;
+        rr[STATE_NADIR_LO] = (REAL)0;
+        rr[STATE_NADIR_HI] = (REAL)0;
+        rr[STATE_NADIR_SUM] = (REAL)0;
+        ri[STATE_NADIR_CELL] = 0xFFFFFFFFu;     /* -1: no pending cell */
     }
 }
 
@@ -771,6 +889,224 @@ WALK_STEP int exit_component(int fate, uint n_s, uint n_l, REAL t, const tallies
     return n_l > 0 ? COMPONENT_BF_DIFFUSE : COMPONENT_SCATTERING;
 }
 
+#ifdef WARPE_NADIR
+/* The next-event estimate toward the receiver (walk.md §8). At each volume scattering and each
+ * floor reflection a ray scores s = w q T exp(-tau) / (m^2 mu): the density q per steradian
+ * of leaving along the view direction inside its layer (HG phase function, or Lambert's
+ * mu / pi), times what the view table holds for the virtual path up to vacuum: exp(-tau)
+ * along it, the Fresnel transmissions T of its interfaces and the etendue 1 / (m^2 mu). The
+ * score arrives at t = (L + path) n_0 / c and goes to the row of its component (by the
+ * component rule, with the virtual path's history) and, for the first scattering or floor
+ * reflection of the ray, to the order-1 row too. */
+
+/* A time's column of the nadir rows: 0 before the first edge, 1 + its bin, n_edges at or after
+ * the last edge; and that column's time range [lo, hi) (time_bin's comparisons). */
+WALK_STEP int nadir_column(REAL t, const tallies_t *tally, REAL *lo, REAL *hi)
+{
+    __global const REAL *edges = tally->time_edges;
+    const int last = tally->n_edges - 1;
+    if (t < edges[0]) {
+        *lo = -INFINITY;
+        *hi = edges[0];
+        return 0;
+    }
+    if (t >= edges[last]) {
+        *lo = edges[last];
+        *hi = INFINITY;
+        return tally->n_edges;
+    }
+    /* the guess, then the edges decide: edges[tb] <= t < edges[tb + 1], as time_bin */
+    const REAL x = tally->bin_log ? tally->bin_b * LOG(t / tally->bin_a)
+                                  : tally->bin_b * (t - tally->bin_a);
+    int tb = (int)clamp(floor(x), (REAL)0, (REAL)(last - 1));
+    while (t < edges[tb])
+        --tb;
+    while (t >= edges[tb + 1])
+        ++tb;
+    *lo = edges[tb];
+    *hi = edges[tb + 1];
+    return tb + 1;
+}
+
+/* v into cell `cell` of photon p's batch (p mod NADIR_BATCHES; 2^32 is a multiple of it, so
+ * the low word decides), exactly, and one visit of the cell: with plain adds in a slice the
+ * work-item owns (CPUs: no cache line passed between cores), else with atomics. */
+WALK_STEP void nadir_flush(const tallies_t *tally, uint p_lo, int cell, REAL v)
+{
+    const size_t batch = p_lo % NADIR_BATCHES;
+    __global ulong *acc = tally->nadir_sum
+        + FIXED_WORDS * ((batch * N_NADIR_ROWS) * tally->nadir_cols + (size_t)cell);
+    if (tally->nadir_own) {
+        fixed_add_own(acc, v);
+        tally->nadir_visits[cell] += 1;
+    } else {
+        fixed_add(acc, v);
+        atom_inc(tally->nadir_visits + cell);
+    }
+}
+
+/* The row of a virtual path: bf_diffuse or scattering by the component rule (walk.md §4) with
+ * its history (lamb: it has a floor reflection) and its arrival time tv. */
+WALK_STEP VMASK nadir_row(VMASK lamb, VREAL tv, const tallies_t *tally)
+{
+    const VMASK bf = tally->rule_time_window ? (VMASK)(tv >= tally->t1) : lamb;
+    return SEL((VMASK)NADIR_ROW_SCATTERING, (VMASK)NADIR_ROW_BF_DIFFUSE, bf);
+}
+
+/* The scores s (at times tv, in rows row) of the lanes in m: added to each lane's pending
+ * cell while it stays in it, else the pending cell goes to the sums and the score starts a new
+ * one; the lanes in `first` (order 1) add theirs to the order-1 row at once. A ray's pending
+ * sums depend on its own scores only, so the tallies do not depend on lanes or launches. */
+WALK_STEP void nadir_add(VMASK m, VREAL s, VREAL tv, VMASK row, VMASK first, rays_t *r,
+                         const tallies_t *tally)
+{
+    m &= s > (REAL)0;            /* nothing to add where exp(-tau) underflowed, or lost the
+                                  * roulette */
+
+    const int cols = tally->nadir_cols;
+    const VMASK cell0 = row * (VMASK)cols;
+    const VMASK same = m & (r->pend_cell >= cell0) & (r->pend_cell < cell0 + (VMASK)cols)
+                     & (tv >= r->pend_lo) & (tv < r->pend_hi);
+    r->pend = SEL(r->pend, r->pend + s, same);
+#ifdef WARPE_RECORD
+    r->nadir_total = SEL(r->nadir_total, r->nadir_total + s, m);
+#endif
+    const VMASK moved = m & !same;
+    const VMASK one = m & first;
+    if (!ANY(moved | one))
+        return;
+
+    IREAL mv[WARPE_LANES], on[WARPE_LANES], cell[WARPE_LANES], rw[WARPE_LANES];
+    REAL pv[WARPE_LANES], lo[WARPE_LANES], hi[WARPE_LANES], sv[WARPE_LANES], tt[WARPE_LANES];
+    uint pl[WARPE_LANES];
+    VSTORE(moved, mv);
+    VSTORE(one, on);
+    VSTORE(r->pend_cell, cell);
+    VSTORE(row, rw);
+    VSTORE(r->pend, pv);
+    VSTORE(r->pend_lo, lo);
+    VSTORE(r->pend_hi, hi);
+    VSTORE(s, sv);
+    VSTORE(tv, tt);
+    VSTORE(r->p_lo, pl);
+    uint bits = 0;               /* the lanes to visit, one bit each */
+    for (int j = 0; j < WARPE_LANES; ++j)
+        bits |= (mv[j] || on[j]) ? 1u << j : 0u;
+    while (bits) {
+        const int j = 31 - (int)clz(bits & (0u - bits));
+        bits &= bits - 1u;
+        REAL a, b;
+        const int col = nadir_column(tt[j], tally, &a, &b);
+        if (on[j])
+            nadir_flush(tally, pl[j], NADIR_ROW_ORDER_1 * cols + col, sv[j]);
+        if (mv[j]) {
+            if (cell[j] >= 0)
+                nadir_flush(tally, pl[j], (int)cell[j], pv[j]);
+            cell[j] = (IREAL)((int)rw[j] * cols + col);
+            pv[j] = sv[j];
+            lo[j] = a;
+            hi[j] = b;
+        }
+    }
+    r->pend_cell = VLOAD(cell);
+    r->pend = VLOAD(pv);
+    r->pend_lo = VLOAD(lo);
+    r->pend_hi = VLOAD(hi);
+}
+
+/* The analog walk's roulette of small scores (walk.md §8.3): a score s < s_min becomes s_min
+ * with probability s / s_min, else 0 (unbiased); v is a uniform of the event that nothing
+ * else uses once the ray survived: (x + 1/2) / T of the word x < T that decided it. */
+WALK_STEP VREAL nadir_roulette(VREAL s, VREAL v, const scene_t *sc)
+{
+#ifdef WARPE_WEIGHTED
+    return s;
+#else
+    const VMASK small = s < sc->s_min;
+    return SEL(s, SEL((VREAL)0, (VREAL)sc->s_min, v * sc->s_min < s), small);
+#endif
+}
+
+/* A scattering of the lanes in m, with their direction before it (walk.md §8): q = p(Theta),
+ * the HG phase function normalised to 1 over the sphere,
+ *   p = (1 - g^2) / (4 pi (1 + g^2 - 2 g cos Theta)^(3/2)),
+ * cos Theta = u . (sin_l, 0, -mu_l); tau and the path from its depth in layer l up. */
+WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
+                             const tallies_t *tally)
+{
+#ifdef WARPE_TEXTURE_LAYERS
+    const VREAL g = r->g, sin_v = r->v_sin, mu_v = r->v_mu, depth = r->z - r->z_top;
+    const VREAL tau = r->v_tau_above + r->v_tau_per_m * depth;
+    const VREAL path = r->v_path_above + r->v_path_per_m * depth;
+    const VREAL k = r->v_factor * ((REAL)1 - g * g) * (REAL)(0.25 / WARPE_PI);
+#else
+    const REAL g = sc->g, sin_v = sc->v_sin, mu_v = sc->v_mu;
+    const VREAL tau = sc->v_tau_per_m * r->z;
+    const VREAL path = sc->v_path_per_m * r->z;
+    const REAL k = sc->v_factor * sc->phase_k;
+#endif
+    const VREAL c = r->ux * sin_v - r->uz * mu_v;
+    const VREAL x = ((REAL)1 + g * g) - (REAL)2 * g * c;
+    VREAL s = k * RSQRT(x) * RECIP(x) * EXP(-tau);
+#ifdef WARPE_WEIGHTED
+    s *= r->w;
+#elif defined(WARPE_TEXTURE_LAYERS)
+    const VREAL words = SEL(CONVERT_VREAL(r->omega_lo), (VREAL)0x1p32, r->scatter_all);
+    s = nadir_roulette(s, (CONVERT_VREAL(x1) + (REAL)0.5) / words, sc);
+#else
+    s = nadir_roulette(s, (CONVERT_VREAL(x1) + (REAL)0.5) * sc->inv_omega_words, sc);
+#endif
+    const VREAL tv = (r->Ls + path) * tally->ns_per_m;
+    nadir_add(m, s, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+              (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)0), r, tally);
+}
+
+/* A reflection of the lanes in m by a floor in contact with the last layer, at its bottom
+ * (walk.md §8): q = mu_l / pi, Lambert's law into the view direction inside the layer. Called
+ * after the reflection is counted (n_lamb >= 1). */
+WALK_STEP void nadir_contact(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
+                             const tallies_t *tally)
+{
+#ifdef WARPE_TEXTURE_LAYERS
+    const VREAL depth = r->z - r->z_top;
+    const VREAL tau = r->v_tau_above + r->v_tau_per_m * depth;
+    const VREAL path = r->v_path_above + r->v_path_per_m * depth;
+    const VREAL k = r->v_factor * r->v_mu * (REAL)(1.0 / WARPE_PI);
+#else
+    const VREAL tau = sc->v_tau_per_m * r->z;
+    const VREAL path = sc->v_path_per_m * r->z;
+    const REAL k = sc->v_factor * sc->v_mu * (REAL)(1.0 / WARPE_PI);
+#endif
+    VREAL s = k * EXP(-tau);
+#ifdef WARPE_WEIGHTED
+    s *= r->w;
+#else
+    s = nadir_roulette(s, (CONVERT_VREAL(x1) + (REAL)0.5) * sc->inv_albedo_words, sc);
+#endif
+    const VREAL tv = (r->Ls + path) * tally->ns_per_m;
+    nadir_add(m, s, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+              (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1), r, tally);
+}
+
+#ifdef WARPE_INTERFACES
+/* A reflection of the lanes in m by the floor below a gap (walk.md §8): q = mu_g / pi in the
+ * gap medium, and the gap row's path through every layer (its own interface included). */
+WALK_STEP void nadir_gap(VMASK m, VUINT x0, const scene_t *sc, rays_t *r,
+                         const tallies_t *tally)
+{
+    VREAL s = (VREAL)(sc->vg_factor * sc->vg_mu * (REAL)(1.0 / WARPE_PI) * exp(-sc->vg_tau));
+#ifdef WARPE_WEIGHTED
+    s *= r->w;
+#else
+    s = nadir_roulette(s, (CONVERT_VREAL(x0) + (REAL)0.5) * sc->inv_albedo_words, sc);
+#endif
+    const VREAL tv = (r->Ls + sc->vg_path) * tally->ns_per_m;
+    nadir_add(m, s, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+              (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1), r, tally);
+}
+#endif
+#endif
+
 #ifdef WARPE_WEIGHTED
 /* An exit's weight w in the exact sums of its component's cells (walk.md §6), and w^2 in
  * those of total and time_in_fov: the same cells as the counts of tally_exits. */
@@ -799,7 +1135,7 @@ WALK_STEP void add_weight(const tallies_t *tally, int component, int tb, int eb,
  * (ns) and cosine, and the weight at its end. */
 WALK_STEP void write_record(const tallies_t *tally, size_t i, int fate, int component, uint n_s,
                          uint n_l, int n_bspec, int n_top, int tb, int eb, REAL t,
-                         REAL cos_exit, REAL w, int layer)
+                         REAL cos_exit, REAL w, int layer, REAL nadir)
 {
     __global int *ri = tally->rec_int + N_RECORD_INT * i;
     __global REAL *rr = tally->rec_real + N_RECORD_REAL * i;
@@ -815,6 +1151,7 @@ WALK_STEP void write_record(const tallies_t *tally, size_t i, int fate, int comp
     rr[RECORD_TIME_NS] = t;
     rr[RECORD_COS_EXIT] = cos_exit;
     rr[RECORD_WEIGHT] = w;
+    rr[RECORD_NADIR] = nadir;
 }
 #endif
 
@@ -822,6 +1159,7 @@ WALK_STEP void write_record(const tallies_t *tally, size_t i, int fate, int comp
  * work-item's statistics; an exit (specular or escaped) in its component's total, angular,
  * time_any, and time_in_fov within the component's FOV, or in early before the first edge
  * (never in a bin); weighted, its weight (specular: 1) in the exact sums (walk.md §6).
+ * WARPE_NADIR: the ray's pending nadir score into the sums (walk.md §8).
  * WARPE_RECORD: every ended ray's record. */
 WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *tally, stats_t *st)
 {
@@ -842,12 +1180,26 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
     REAL wt[WARPE_LANES];
     VSTORE(r->w, wt);
 #endif
+#if defined(WARPE_RECORD) || defined(WARPE_NADIR)
+    uint p[WARPE_LANES];
+    VSTORE(r->p_lo, p);
+#endif
 #ifdef WARPE_RECORD
     IREAL nb[WARPE_LANES], nt[WARPE_LANES];
-    uint p[WARPE_LANES];
     VSTORE(r->n_bspec, nb);
     VSTORE(r->n_top, nt);
-    VSTORE(r->p_lo, p);
+#endif
+#ifdef WARPE_NADIR
+    REAL pv[WARPE_LANES];
+#ifdef WARPE_RECORD
+    REAL nadir[WARPE_LANES];
+#endif
+    IREAL pc[WARPE_LANES];
+    VSTORE(r->pend, pv);
+    VSTORE(r->pend_cell, pc);
+#ifdef WARPE_RECORD
+    VSTORE(r->nadir_total, nadir);
+#endif
 #endif
     for (int j = 0; j < WARPE_LANES; ++j) {
         if (!d[j])
@@ -857,6 +1209,15 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
         REAL tj = t[j];
         st->fates[fj] += 1;
         st->scattering_events += n_s;
+#ifdef WARPE_NADIR
+        if (pc[j] >= 0)
+            nadir_flush(tally, p[j], (int)pc[j], pv[j]);
+#endif
+#if defined(WARPE_NADIR) && defined(WARPE_RECORD)
+        const REAL nadir_j = nadir[j];
+#else
+        const REAL nadir_j = (REAL)0;
+#endif
 #ifdef WARPE_TEXTURE_LAYERS
         const int layer = (int)ly[j];
         if (fj == FATE_ABSORBED_MEDIUM)
@@ -902,7 +1263,7 @@ WALK_STEP void tally_exits(const rays_t *r, const ends_t *e, const tallies_t *ta
         const REAL w_end = (REAL)1;
 #endif
         write_record(tally, (size_t)(p[j] - tally->record_base), fj, component, n_s, n_l, (int)nb[j], (int)nt[j], tb,
-                     eb, tj, ce[j], w_end, layer);
+                     eb, tj, ce[j], w_end, layer, nadir_j);
 #endif
     }
 }
@@ -949,6 +1310,14 @@ __kernel void walk(const uint seed, const ulong scenario,
                    , __global ulong *w2_time_in_fov /* [N_COMPONENTS][n_edges - 1][FIXED_WORDS] */
                    , __global ulong *w2_total       /* [N_COMPONENTS][FIXED_WORDS] */
 #endif
+#ifdef WARPE_NADIR             /* the next-event estimate (walk.md §8) */
+                   , __global const REAL *view   /* [n_layers + 1][N_VIEW] */
+                   , const REAL nadir_min        /* s_min of the score roulette (walk.md §8.3) */
+                   , const int bin_log, const REAL bin_a, const REAL bin_b  /* bin guess */
+                   , const uint nadir_slices     /* work-item i writes slice i mod nadir_slices */
+                   , __global ulong *nadir_sum   /* [slices][NADIR_BATCHES][N_NADIR_ROWS][n_edges + 1][FIXED_WORDS] */
+                   , __global ulong *nadir_visits   /* [slices][N_NADIR_ROWS][n_edges + 1] */
+#endif
 #ifdef WARPE_RECORD
                    , __global int *rec_int       /* [photons of the walk][N_RECORD_INT] */
                    , __global REAL *rec_real     /* [photons of the walk][N_RECORD_REAL] */
@@ -970,6 +1339,25 @@ __kernel void walk(const uint seed, const ulong scenario,
                         .gap_far_n = iface_real[N_IFACE_REAL * n_layers + IFACE_UP_FAR_N],
                         .gap_far_k = iface_real[N_IFACE_REAL * n_layers + IFACE_UP_FAR_K],
 #endif
+#ifdef WARPE_NADIR
+#ifdef WARPE_TEXTURE_LAYERS
+                        .view = view,
+#define GAP_ROW (N_VIEW * n_layers)
+#else
+                        .v_sin = view[VIEW_SIN], .v_mu = view[VIEW_MU],
+                        .v_tau_per_m = view[VIEW_TAU_PER_M],
+                        .v_path_per_m = view[VIEW_PATH_PER_M], .v_factor = view[VIEW_FACTOR],
+                        .phase_k = ((REAL)1 - g * g) * (REAL)(0.25 / WARPE_PI),
+#define GAP_ROW N_VIEW
+#endif
+                        .vg_mu = view[GAP_ROW + VIEW_MU], .vg_tau = view[GAP_ROW + VIEW_TAU_ABOVE],
+                        .vg_path = view[GAP_ROW + VIEW_PATH_ABOVE],
+                        .vg_factor = view[GAP_ROW + VIEW_FACTOR],
+                        .s_min = nadir_min,
+                        .inv_omega_words = (REAL)(1.0 / (double)omega_words),
+                        .inv_albedo_words = (REAL)(1.0 / (double)albedo_words),
+#undef GAP_ROW
+#endif
                         };
     const tallies_t tally = {
         .time_in_fov = time_in_fov, .time_any = time_any, .angular = angular, .total = total,
@@ -985,7 +1373,16 @@ __kernel void walk(const uint seed, const ulong scenario,
         .time_edges = time_edges, .n_edges = n_edges,
         .cos_fov = {cos_fov_specular, cos_fov_bf_direct, cos_fov_bf_diffuse, cos_fov_scattering},
         .rule_time_window = rule_time_window, .t1 = t1,
-        .ns_per_m = n / (REAL)WARPE_C_M_PER_NS};    /* paper eq. 4: t = L n_eff / c */
+        .ns_per_m = n / (REAL)WARPE_C_M_PER_NS,     /* paper eq. 4: t = L n_eff / c */
+#ifdef WARPE_NADIR
+        .nadir_sum = nadir_sum + (size_t)(get_global_id(0) % nadir_slices)
+                     * (NADIR_BATCHES * N_NADIR_ROWS * FIXED_WORDS) * (size_t)(n_edges + 1),
+        .nadir_visits = nadir_visits + (size_t)(get_global_id(0) % nadir_slices)
+                        * N_NADIR_ROWS * (size_t)(n_edges + 1),
+        .nadir_cols = n_edges + 1, .nadir_own = nadir_slices >= get_global_size(0),
+        .bin_log = bin_log, .bin_a = bin_a, .bin_b = bin_b,
+#endif
+        };
     const uint base_lo = (uint)first_photon, base_hi = (uint)(first_photon >> 32);
     /* the 64-bit scenario key: its low word keys Philox, its high word is counter word 3 */
     const uint key_lo = (uint)scenario, key_hi = (uint)(scenario >> 32);
@@ -1073,6 +1470,9 @@ __kernel void walk(const uint seed, const ulong scenario,
 
         VMASK coll, bnd;
         free_flight(in_flight, u0, &sc, &r, &e, &coll, &bnd);
+#ifdef WARPE_NADIR
+        const VMASK lamb_before = r.n_lamb;   /* a floor reflection in this event adds one */
+#endif
         /* the azimuth of a scattering or of a floor reflection: psi = 2 pi u3 */
         VREAL cos_psi, sin_psi;
         SINCOS(two_pi * u3, sin_psi, cos_psi);
@@ -1080,6 +1480,9 @@ __kernel void walk(const uint seed, const ulong scenario,
         /* collision (walk.md §3 step 3.4, docs/physics.md §5.4): the medium's toll, then the HG
          * deflection (u2) and the azimuth (u3) */
         coll = medium_toll(coll, u1, x1, &sc, &r, &e);
+#ifdef WARPE_NADIR
+        nadir_scatter(coll, x1, &sc, &r, &tally);     /* before the new direction (walk.md §8) */
+#endif
         r.n_scat += ONE(coll);
         {   /* some lane collides in almost every event: no test */
             VREAL vx = r.ux, vy = r.uy, vz = r.uz;
@@ -1100,10 +1503,28 @@ __kernel void walk(const uint seed, const ulong scenario,
         if (ANY(in_gap))
             gap_event(in_gap, u0, x0, u1, u2, u3, &sc, &r, &e, &st);
 #endif
+#ifdef WARPE_NADIR
+        {   /* the lanes a floor reflected in this event: in the gap, or a floor in contact */
+            const VMASK lamb = r.n_lamb != lamb_before;
+            if (ANY(lamb)) {
+#ifdef WARPE_INTERFACES
+                if (ANY(lamb & in_gap))
+                    nadir_gap(lamb & in_gap, x0, &sc, &r, &tally);
+                if (ANY(lamb & !in_gap))
+                    nadir_contact(lamb & !in_gap, x1, &sc, &r, &tally);
+#else
+                nadir_contact(lamb, x1, &sc, &r, &tally);
+#endif
+            }
+        }
+#endif
 
         if (ANY(e.done)) {
             tally_exits(&r, &e, &tally, &st);
             r.alive &= !e.done;
+#ifdef WARPE_NADIR
+            r.pend_cell = SEL(r.pend_cell, (VMASK)-1, e.done);   /* flushed by tally_exits */
+#endif
             all_alive = 0;
         }
     }

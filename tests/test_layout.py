@@ -59,14 +59,17 @@ def _normal_type(ctype: str) -> str:
 
 @pytest.mark.parametrize("weighted,layered", [(False, False), (True, False), (False, True)])
 @pytest.mark.parametrize("records", [False, True])
-def test_walk_arguments_match_the_kernel(weighted, records, layered):
+@pytest.mark.parametrize("nadir", [False, True])
+def test_walk_arguments_match_the_kernel(weighted, records, layered, nadir):
     """engine.WALK_ARGS is cl/walk.cl's parameter list, in order, with its types, in every
-    build (WARPE_WEIGHTED, WARPE_RECORD and WARPE_TEXTURE_LAYERS add parameters)."""
+    build (WARPE_WEIGHTED, WARPE_RECORD, WARPE_TEXTURE_LAYERS and WARPE_NADIR add
+    parameters)."""
     source = (kernel_dir() / "walk.cl").read_text()
     defined = {m for m, on in (("WARPE_WEIGHTED", weighted), ("WARPE_RECORD", records),
-                               ("WARPE_TEXTURE_LAYERS", layered)) if on}
+                               ("WARPE_TEXTURE_LAYERS", layered), ("WARPE_NADIR", nadir)) if on}
     kernel = _kernel_parameters(source, defined)
-    host = [(_normal_type(a.ctype), a.name) for a in walk_args(weighted, records, layered)]
+    host = [(_normal_type(a.ctype), a.name)
+            for a in walk_args(weighted, records, layered, nadir)]
     assert host == kernel
 
 
@@ -75,7 +78,7 @@ def test_walk_arguments_are_typed_and_named_once():
     assert len(names) == len(set(names))
     for a in WALK_ARGS:
         assert a.is_buffer or a.ctype in ("uint", "ulong", "int", "REAL"), a
-        assert a.only in (None, "weighted", "records", "layers"), a
+        assert a.only in (None, "weighted", "records", "layers", "nadir"), a
         assert not (a.is_buffer and a.value is not None), f"{a.name}: buffers come per launch"
     # the scenario's values exist for a real WalkParams
     p = P.WalkParams(texture="slab", thickness=0.01, extinction=100.0, omega=0.9, g=0.8,
@@ -89,6 +92,7 @@ LAYOUT_NAME = re.compile(r"\b(N_COMPONENTS|N_FATES|N_EMERGENCE|N_ITEM_STATS|N_RE
                          r"N_RECORD_REAL|N_STATE_REAL|N_STATE_INT|COMPONENT_\w+|FATE_\w+|STAT_\w+|"
                          r"RECORD_\w+|STATE_\w+|TIME_BIN_\w+|N_LAYER_STATS|"
                          r"LSTAT_\w+|N_LAYER_REAL|LAYER_\w+|N_IFACE_REAL|IFACE_\w+|"
+                         r"N_NADIR_ROWS|NADIR_ROW_\w+|NADIR_BATCHES|N_VIEW|VIEW_\w+|"
                          r"FIXED_SHIFT|FIXED_WORDS|MAX_WEIGHT)\b")
 
 

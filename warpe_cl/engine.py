@@ -23,9 +23,11 @@ import numpy as np
 from . import device as devmod
 from .errors import WeightError
 from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, IFACE_REAL_COLUMNS,
-                     ITEM_STATS, LAYER_REAL_COLUMNS, LAYER_STATS, RECORD_FIELDS,
+                     ITEM_STATS, LAYER_REAL_COLUMNS, LAYER_STATS, NADIR_BATCHES, NADIR_ROWS,
+                     RECORD_FIELDS,
                      RECORD_INT_COLUMNS, RECORD_REAL_COLUMNS, STATE_INT_COLUMNS,
-                     STATE_REAL_COLUMNS, Counts, WalkParams, kernel_layout, tally_shapes)
+                     STATE_REAL_COLUMNS, Counts, WalkParams, batch_photons, kernel_layout,
+                     tally_shapes)
 
 WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "tally.h", "walk.cl")
 MAX_LAUNCH = 2 ** 31 - 1
@@ -52,10 +54,10 @@ def layout_options() -> tuple:
 
 
 def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
-                  weighted: bool = False) -> tuple:
+                  weighted: bool = False, nadir: bool = False) -> tuple:
     """The ``-D`` switches of the walk kernel: its structure (texture, lane width and the
-    photon pool that goes with it, precision, per-photon records, weighted mode), then the
-    shared layouts of :func:`layout_options`.
+    photon pool that goes with it, precision, per-photon records, weighted mode, the nadir
+    estimator), then the shared layouts of :func:`layout_options`.
     No physical value is compiled in."""
     if lanes not in LANE_WIDTHS:
         raise ValueError(f"lanes must be one of {LANE_WIDTHS}, got {lanes}")
@@ -67,6 +69,8 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
         opts.append("-DWARPE_RECORD")
     if weighted:
         opts.append("-DWARPE_WEIGHTED")
+    if nadir:
+        opts.append("-DWARPE_NADIR")
     return tuple(opts) + layout_options()
 
 
@@ -94,9 +98,9 @@ class KernelArg:
     value : callable or None
         Scalars fixed by the scenario: ``value(params)`` of a :class:`WalkParams`. ``None``:
         the launch provides it, by name (photon range, buffers).
-    only : {None, "weighted", "records", "layers"}
-        Present only in the builds with ``WARPE_WEIGHTED``, ``WARPE_RECORD`` or
-        ``WARPE_TEXTURE_LAYERS``.
+    only : {None, "weighted", "records", "layers", "nadir"}
+        Present only in the builds with ``WARPE_WEIGHTED``, ``WARPE_RECORD``,
+        ``WARPE_TEXTURE_LAYERS`` or ``WARPE_NADIR``.
     """
 
     name: str
@@ -111,6 +115,22 @@ class KernelArg:
 
 def _cos_fov(c: int) -> Callable:
     return lambda p: p.cos_fov[c]
+
+
+def bin_guess(edges) -> tuple:
+    """(log, a, b) of the nadir kernel's first guess of a time's bin (cl/walk.cl
+    ``nadir_column``, which the edges then correct, so any guess gives the same bins):
+    floor(b ln(t / a)) for log-spaced edges, floor(b (t - a)) otherwise (linear, or a
+    guess as good as the first bin's width)."""
+    e = np.asarray(edges, dtype=float)
+    ratio = e[1:] / e[:-1] if e[0] > 0 else None
+    if ratio is not None and np.allclose(ratio, ratio[0], rtol=1e-9, atol=0.0):
+        return 1, float(e[0]), float(1.0 / np.log(ratio[0]))
+    return 0, float(e[0]), float(1.0 / (e[1] - e[0]))
+
+
+def _bin_guess(i: int) -> Callable:
+    return lambda p: bin_guess(p.time_edges)[i]
 
 
 #: The walk kernel's parameters, in order: the one table that :meth:`Engine.run` fills and
@@ -159,6 +179,14 @@ WALK_ARGS = (
     *(KernelArg(name, "__global ulong *", only="weighted")
       for name in ("w_time_in_fov", "w_time_any", "w_angular", "w_total", "w_early",
                    "w2_time_in_fov", "w2_total")),
+    KernelArg("view", "__global const REAL *", only="nadir"),
+    KernelArg("nadir_min", "REAL", lambda p: p.nadir_min_score, only="nadir"),
+    *(KernelArg(name, ctype, _bin_guess(i), only="nadir")
+      for i, (name, ctype) in enumerate((("bin_log", "int"), ("bin_a", "REAL"),
+                                          ("bin_b", "REAL")))),
+    KernelArg("nadir_slices", "uint", only="nadir"),
+    KernelArg("nadir_sum", "__global ulong *", only="nadir"),
+    KernelArg("nadir_visits", "__global ulong *", only="nadir"),
     KernelArg("rec_int", "__global int *", only="records"),
     KernelArg("rec_real", "__global REAL *", only="records"),
     KernelArg("record_base", "uint", only="records"),
@@ -167,9 +195,11 @@ WALK_ARGS = (
 _SCALAR_TYPES = {"uint": np.uint32, "ulong": np.uint64, "int": np.int32}
 
 
-def walk_args(weighted: bool, records: bool, layered: bool = False) -> tuple:
+def walk_args(weighted: bool, records: bool, layered: bool = False,
+              nadir: bool = False) -> tuple:
     """The :data:`WALK_ARGS` of one build of the walk kernel, in order."""
-    present = {None: True, "weighted": weighted, "records": records, "layers": layered}
+    present = {None: True, "weighted": weighted, "records": records, "layers": layered,
+               "nadir": nadir}
     return tuple(a for a in WALK_ARGS if present[a.only])
 
 
@@ -349,7 +379,7 @@ class Engine:
         return 16 * max(1, self.info.compute_units)
 
     def kernel(self, texture: str, precision: str, records: bool, lanes: int,
-               weighted: bool = False):
+               weighted: bool = False, nadir: bool = False):
         """The walk kernel for this structure; programs are built once per process."""
         if precision == "double" and not self.info.fp64:
             raise devmod.DeviceError(f"{self.info.device} has no double precision; "
@@ -358,10 +388,14 @@ class Engine:
             raise devmod.DeviceError(f"{self.info.device} has no 64-bit atomics "
                                      "(cl_khr_int64_base_atomics), which the weighted mode's "
                                      "exact tallies need; use simulation.mode: analog")
-        options = build_options(texture, precision, records, lanes, weighted)
+        if nadir and "cl_khr_int64_base_atomics" not in self.device.extensions:
+            raise devmod.DeviceError(f"{self.info.device} has no 64-bit atomics "
+                                     "(cl_khr_int64_base_atomics), which the nadir "
+                                     "estimator's exact sums need; use simulation.nadir: false")
+        options = build_options(texture, precision, records, lanes, weighted, nadir)
         program = devmod.build_program(self.device, WALK_FILES, options)
         self.kernel_hash = walk_source_hash()
-        key = (texture, precision, records, lanes, weighted)
+        key = (texture, precision, records, lanes, weighted, nadir)
         if key not in self._kernels:
             import pyopencl as cl
             self._kernels[key] = cl.Kernel(program, "walk")
@@ -419,7 +453,8 @@ class Engine:
         weighted = params.weighted
         t_build = time.perf_counter()    # first use: qualification and kernel build
         lanes = self.lanes_for(params.texture, precision, weighted, lanes, check=not qualified)
-        kern = self.kernel(params.texture, precision, records, lanes, weighted)
+        nadir = bool(params.nadir)
+        kern = self.kernel(params.texture, precision, records, lanes, weighted, nadir)
         edges = np.asarray(params.time_edges, dtype=real)
         n_time = len(edges) - 1
         gsize = int(global_size or self.default_global_size())
@@ -435,7 +470,7 @@ class Engine:
         layered = params.layered
         if layered and weighted:
             raise ValueError("the layered walk is analog only (docs/walk.md §7)")
-        args = walk_args(weighted, records, layered)
+        args = walk_args(weighted, records, layered, nadir)
         shapes = tally_shapes(n_time)
         hist = [a.name for a in args if a.name in HISTOGRAMS]
         weights = [a.name for a in args if a.only == "weighted"]
@@ -459,6 +494,19 @@ class Engine:
                 buffers[name] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=table)
             buffers["layer_stats"] = cl.Buffer(ctx, mf.READ_WRITE,
                                                size=8 * len(LAYER_STATS) * gsize)
+        # the nadir sums: one slice per work-item on CPUs (plain adds, walk.md §8), one slice
+        # that every work-item adds to atomically on GPUs
+        slices = 1 if self.info.kind == "gpu" else gsize
+        nadir_shape = (slices, NADIR_BATCHES, len(NADIR_ROWS), n_time + 2)
+        if nadir:
+            from .nadir import view_table
+            buffers["view"] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                        hostbuf=view_table(params).astype(real))
+            buffers["nadir_sum"] = cl.Buffer(ctx, mf.READ_WRITE,
+                                             size=8 * FIXED_WORDS * int(np.prod(nadir_shape)))
+            buffers["nadir_visits"] = cl.Buffer(
+                ctx, mf.READ_WRITE, size=8 * slices * int(np.prod(nadir_shape[2:])))
+            buffers["nadir_slices"] = slices
         zeroed = [buffers[k] for k in (*hist, *weights, *counters)]
         # parked rays, in two buffers that swap roles each launch (written, then resumed)
         carry = [(cl.Buffer(ctx, mf.READ_WRITE, size=itemsize * len(STATE_REAL_COLUMNS) * capacity),
@@ -478,7 +526,7 @@ class Engine:
             return {"resume_count": resume_count, "resume_real": carry[0][0],
                     "resume_int": carry[0][1], "park_real": carry[1][0], "park_int": carry[1][1]}
 
-        warm_key = (params.texture, precision, records, lanes, weighted, local_size)
+        warm_key = (params.texture, precision, records, lanes, weighted, nadir, local_size)
         if warm_key not in self._warmed:
             # PoCL compiles a kernel for its work-group size at its first launch: a launch
             # walking no ray (n_photons 0) does that here, inside the build time; every
@@ -495,7 +543,10 @@ class Engine:
         t_walk = time.perf_counter()
         self.last_build_s = t_walk - t_build
 
-        total = Counts(n_time=n_time, weighted=weighted)
+        total = Counts(n_time=n_time, weighted=weighted, nadir=nadir)
+        if nadir:   # exact sums that add up over the launches, read once at the end
+            for k in ("nadir_sum", "nadir_visits"):
+                cl.enqueue_fill_buffer(queue, buffers[k], np.uint32(0), 0, buffers[k].size)
         lost_weights = 0   # weighted exits whose weight the exact sums cannot hold
         records_of_walk = record_buffers(photons) if records and photons else {}
         handed = 0         # photons handed to launches so far
@@ -545,7 +596,7 @@ class Engine:
             lost_weights += int(stats["lost_weights"])
             took = min(int(taken[0]), n)
             part.photons = took
-            total += part
+            total.add_walk(part)
             handed += took
             carried = _carry_unresumed(queue, carry, carried, int(resumed[0]), int(parked[0]),
                                        itemsize)
@@ -559,6 +610,15 @@ class Engine:
                 budget = int(min(max(budget * scale, 64), MAX_EVENT_BUDGET))
         if lost_weights:
             raise WeightError(lost_weights)
+        if nadir:
+            words = np.empty((*nadir_shape, FIXED_WORDS), dtype=np.uint64)
+            cl.enqueue_copy(queue, words, buffers["nadir_sum"])
+            visits = np.empty((slices, *nadir_shape[2:]), dtype=np.uint64)
+            cl.enqueue_copy(queue, visits, buffers["nadir_visits"])
+            queue.finish()
+            total.nadir_sum = _exact_slice_sums(words)
+            total.nadir_visits[...] = visits.sum(axis=0).astype(np.int64)
+            total.nadir_batch_photons[...] = batch_photons(first_photon, photons)
         if records:
             total.records = _read_records(queue, records_of_walk, photons, real)
         self.last_walk_s = time.perf_counter() - t_walk
@@ -590,6 +650,15 @@ def _exact_sums(words: np.ndarray) -> np.ndarray:
     return sum(words[..., i].astype(object) << (64 * i) for i in range(FIXED_WORDS))
 
 
+def _exact_slice_sums(words: np.ndarray) -> np.ndarray:
+    """The exact sums over the first axis (slices) of fixed-point words (last axis, low word
+    first), as Python ints: each word is split into 32-bit limbs, which add up in uint64
+    without overflow for fewer than 2^32 slices."""
+    limbs = np.concatenate([words & np.uint64(0xFFFFFFFF), words >> np.uint64(32)], axis=-1)
+    limbs = limbs[..., [0, 3, 1, 4, 2, 5]].sum(axis=0, dtype=np.uint64)   # low limb first
+    return sum(limbs[..., i].astype(object) << (32 * i) for i in range(limbs.shape[-1]))
+
+
 def _read_records(queue, buffers: dict, photons: int, real) -> dict:
     """The kernel's per-photon records of a walk (``rec_int``, ``rec_real``) as
     ``Counts.records``: one array per field of :data:`~warpe_cl.params.RECORD_FIELDS`, NaN
@@ -606,5 +675,6 @@ def _read_records(queue, buffers: dict, photons: int, real) -> dict:
     exited = ri[:, RECORD_INT_COLUMNS.index("component")] >= 0
     out = {name: ri[:, j].astype(RECORD_FIELDS[name]) for j, name in enumerate(RECORD_INT_COLUMNS)}
     for j, name in enumerate(RECORD_REAL_COLUMNS):
-        out[name] = rr[:, j] if name == "weight" else np.where(exited, rr[:, j], np.nan)
+        out[name] = (rr[:, j] if name in ("weight", "nadir")
+                     else np.where(exited, rr[:, j], np.nan))
     return out

@@ -57,13 +57,28 @@ ITEM_STATS = tuple(f"fate_{f}" for f in FATES) + ("scattering_events", "mixed_hi
 #: ``rec_real[photon][RECORD_REAL_COLUMNS]`` (REAL).
 RECORD_INT_COLUMNS = ("fate", "component", "n_scat", "n_lamb", "n_bspec", "n_top", "time_bin",
                       "emergence_bin", "layer")
-RECORD_REAL_COLUMNS = ("time_ns", "cos_exit", "weight")
+RECORD_REAL_COLUMNS = ("time_ns", "cos_exit", "weight", "nadir")
 #: The columns of a parked ray (cl/walk.cl ``carry_t``): a launch that spends its event budget
 #: writes each unfinished ray as a row of ``STATE_REAL_COLUMNS`` (REAL) and ``STATE_INT_COLUMNS``
 #: (uint32), and the next launch resumes it from there (docs/walk.md §5).
-STATE_REAL_COLUMNS = ("z", "ux", "uy", "uz", "ls", "lc", "w")
+STATE_REAL_COLUMNS = ("z", "ux", "uy", "uz", "ls", "lc", "w", "nadir_pending", "nadir_lo",
+                      "nadir_hi", "nadir_sum")
 STATE_INT_COLUMNS = ("flights", "n_scat", "n_lamb", "n_bspec", "n_top", "phase", "event",
-                     "p_lo", "p_hi", "layer")
+                     "p_lo", "p_hi", "layer", "nadir_cell")
+#: The rows of the next-event (nadir) tallies (docs/walk.md §8): the two diffuse components of
+#: the virtual paths, then the virtual paths of order 1 (one scattering or floor reflection)
+#: whatever their component. Each row has n_time + 2 columns: before the first edge, the time
+#: bins, at or after the last edge.
+NADIR_ROWS = ("bf_diffuse", "scattering", "order_1")
+#: The photons of a walk fall into this many batches, photon p into batch p mod NADIR_BATCHES:
+#: the nadir sums are kept per batch, whose spread gives their standard error (docs/walk.md §8)
+NADIR_BATCHES = 32
+#: The columns of the view table (``view[l][...]``, REAL; docs/walk.md §8): for each layer l
+#: (then the gap medium below the stack), the view direction inside it (sin, mu: the sine and
+#: cosine of its angle to the vertical), the optical depth and the path (at layer 0's speed)
+#: per metre of depth along it, those of the layers above l, and the factor T / (m^2 mu) that
+#: turns a density per steradian inside l into the reflectance in vacuum.
+VIEW_COLUMNS = ("sin", "mu", "tau_per_m", "path_per_m", "tau_above", "path_above", "factor")
 #: The per-layer statistics of the layered walk (docs/walk.md §7.4), per work-item
 #: (``layer_stats[work-item][slot]``, uint64): rays absorbed in the medium of layer i, rays
 #: terminated in layer i, and transmissions down and up through interface j (j = 0: the top of
@@ -88,6 +103,8 @@ RECORD_FIELDS = {
     "time_ns": np.float64,      # exit time, ns (0 for specular, NaN if not exited)
     "cos_exit": np.float64,     # cos of the emergence angle in vacuum (NaN if not exited)
     "weight": np.float64,       # the ray's weight at its end (1 in the analog walk)
+    "nadir": np.float64,        # the ray's next-event scores toward the view direction, summed
+                                # over its events, sr^-1 (0 without the estimator; walk.md §8)
     "n_scat": np.int64,         # volume scatterings
     "n_lamb": np.int64,         # floor (Lambertian) reflections
     "n_bspec": np.int64,        # specular reflections at the bottom interface (a stack: at
@@ -157,6 +174,11 @@ def kernel_layout() -> dict:
     out["N_IFACE_REAL"] = len(IFACE_REAL_COLUMNS)
     out.update({f"IFACE_{c.upper()}": i for i, c in enumerate(IFACE_REAL_COLUMNS)})
     out.update(FIXED_SHIFT=FIXED_SHIFT, FIXED_WORDS=FIXED_WORDS)
+    out["N_NADIR_ROWS"] = len(NADIR_ROWS)
+    out.update({f"NADIR_ROW_{c.upper()}": i for i, c in enumerate(NADIR_ROWS)})
+    out["NADIR_BATCHES"] = NADIR_BATCHES
+    out["N_VIEW"] = len(VIEW_COLUMNS)
+    out.update({f"VIEW_{c.upper()}": i for i, c in enumerate(VIEW_COLUMNS)})
     text = {k: (f"({v})" if v < 0 else str(v)) for k, v in out.items()}
     text["MAX_WEIGHT"] = float.hex(MAX_WEIGHT)     # exact: a C99 hexadecimal literal
     return text
@@ -286,6 +308,16 @@ class WalkParams:
     substrate : tuple of 2 floats or None
         (n, k) of a substrate below the stack, whose Fresnel contact replaces the vacuum gap
         above the floor (``texture="layers"`` only); None: the floor as for one layer.
+    nadir : bool
+        Also tally the next-event estimate of the reflectance toward the view direction
+        (docs/walk.md §8): the ``nadir`` build of the kernel. The rays are the same bits
+        with or without it.
+    view_zenith : float
+        The receiver's zenith angle in vacuum, degrees in [0, 90) (0: nadir), for the
+        estimator; the incident beam is always vertical.
+    nadir_roulette : float
+        Analog walk: nadir scores below this fraction of an isotropic scattering's score at
+        the top play an unbiased roulette (docs/walk.md §8.3); 0: every score counts.
     """
 
     texture: str
@@ -309,6 +341,9 @@ class WalkParams:
     roulette_survival: float = 0.1
     layers: tuple = ()
     substrate: tuple | None = None
+    nadir: bool = False
+    view_zenith: float = 0.0
+    nadir_roulette: float = 0.0
 
     @property
     def layered(self) -> bool:
@@ -373,6 +408,16 @@ class WalkParams:
         return 2.0 * self.thickness * self.n / C_M_PER_NS
 
     @property
+    def nadir_min_score(self) -> float:
+        """s_min of the analog walk's roulette of small nadir scores (docs/walk.md §8.3), sr^-1:
+        ``nadir_roulette`` times the score of an isotropic scattering at the top,
+        T_0 / (4 pi m_0^2 mu_0); 0 (no roulette) in the weighted mode."""
+        if self.weighted or not self.nadir_roulette > 0:
+            return 0.0
+        from .nadir import view_table
+        return float(self.nadir_roulette) * float(view_table(self)[0, -1]) / (4.0 * np.pi)
+
+    @property
     def cos_fov(self) -> np.ndarray:
         """cos of each component's field of view; -1 for 'any angle' (fov >= 90 deg)."""
         f = np.asarray(self.fov, dtype=float)
@@ -404,6 +449,14 @@ def stack_params(layers, substrate=None, **common) -> WalkParams:
                       extinction=top.extinction, omega=top.omega, g=top.g, n=top.n, k=top.k,
                       layers=layers, substrate=None if substrate is None else
                       (float(substrate[0]), float(substrate[1])), **common)
+
+
+def batch_photons(first_photon: int, photons: int) -> np.ndarray:
+    """Photons of the range first_photon .. first_photon + photons - 1 in each batch
+    (photon p in batch p mod :data:`NADIR_BATCHES`), shape (NADIR_BATCHES,)."""
+    b = np.arange(NADIR_BATCHES)
+    first = (b - first_photon) % NADIR_BATCHES      # offset of batch b's first photon
+    return np.maximum(0, (photons - first + NADIR_BATCHES - 1) // NADIR_BATCHES).astype(np.int64)
 
 
 def _zeros(*shape):
@@ -462,6 +515,16 @@ class Counts:
         Per-photon records (fate, component, time_ns, cos_exit, weight, n_scat, n_lamb,
         n_bspec, n_top, time_bin, emergence_bin) when asked for; component is -1 for rays that
         did not exit.
+    nadir_sum : numpy.ndarray or None, shape (NADIR_BATCHES, len(NADIR_ROWS), n_time + 2)
+        The next-event estimator's exact sums (docs/walk.md §8): per photon batch, row of
+        :data:`NADIR_ROWS` and column (before the first edge, the time bins, after the last
+        edge), the sum of floor(score 2^150) (Python ints; :func:`fixed_to_float`); None
+        without the estimator.
+    nadir_visits : numpy.ndarray or None, shape (len(NADIR_ROWS), n_time + 2)
+        Ray visits that scored in each cell (a ray's consecutive scores in one cell are one
+        visit).
+    nadir_batch_photons : numpy.ndarray, shape (NADIR_BATCHES,)
+        Photons walked in each batch (photon p in batch p mod NADIR_BATCHES).
     weighted : bool
         Weighted walk (docs/walk.md §6): the ``w_*`` and ``w2_*`` tallies hold exact sums of
         floor(w 2^150) and floor(w^2 2^150) (Python ints, object arrays) over the same cells as
@@ -489,10 +552,22 @@ class Counts:
     w2_time_in_fov: np.ndarray = field(default=None, repr=False)
     w2_total: np.ndarray = field(default=None, repr=False)
     w_early: np.ndarray = field(default=None, repr=False)
+    nadir: bool = False
+    nadir_sum: np.ndarray = field(default=None, repr=False)
+    nadir_visits: np.ndarray = field(default=None, repr=False)
+    nadir_batch_photons: np.ndarray = field(default=None, repr=False)
 
     def __post_init__(self):
         if self.layer_stats is None:
             self.layer_stats = _zeros(len(LAYER_STATS))
+        if self.nadir:
+            cols = self.n_time + 2
+            if self.nadir_sum is None:
+                self.nadir_sum = _exact_zeros(NADIR_BATCHES, len(NADIR_ROWS), cols)
+            if self.nadir_visits is None:
+                self.nadir_visits = _zeros(len(NADIR_ROWS), cols)
+            if self.nadir_batch_photons is None:
+                self.nadir_batch_photons = _zeros(NADIR_BATCHES)
         for name, shape in tally_shapes(self.n_time).items():
             if name in WEIGHT_TALLIES:
                 if self.weighted and getattr(self, name) is None:
@@ -513,12 +588,29 @@ class Counts:
         if self.weighted:
             for name in WEIGHT_TALLIES:
                 setattr(self, name, getattr(self, name) + getattr(other, name))
+        if self.nadir != other.nadir:
+            raise ValueError("cannot add counts with and without the nadir estimator")
+        if self.nadir:
+            self.nadir_sum = self.nadir_sum + other.nadir_sum
+            self.nadir_visits += other.nadir_visits
+            self.nadir_batch_photons += other.nadir_batch_photons
         if other.records is not None:
             if self.records is None:
                 self.records = {k: v.copy() for k, v in other.records.items()}
             else:
                 self.records = {k: np.concatenate([self.records[k], other.records[k]])
                                 for k in self.records}
+        return self
+
+    def add_walk(self, other: "Counts") -> "Counts":
+        """Add a launch's counts, which hold no nadir sums (the engine reads those once per
+        walk), to a walk's."""
+        nadir = self.nadir
+        self.nadir = False
+        try:
+            self += other
+        finally:
+            self.nadir = nadir
         return self
 
     def layer_view(self, n_layers: int) -> dict:
@@ -542,4 +634,8 @@ class Counts:
                 and self.weighted == other.weighted
                 and (not self.weighted
                      or all(np.array_equal(getattr(self, n), getattr(other, n))
-                            for n in WEIGHT_TALLIES)))
+                            for n in WEIGHT_TALLIES))
+                and self.nadir == other.nadir
+                and (not self.nadir
+                     or all(np.array_equal(getattr(self, n), getattr(other, n))
+                            for n in ("nadir_sum", "nadir_visits", "nadir_batch_photons"))))

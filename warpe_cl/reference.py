@@ -48,8 +48,9 @@ import numpy as np
 
 from .errors import WeightError
 from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, LAYER_STATS,
-                     MAX_LAYERS, N_EMERGENCE, RECORD_FIELDS, RULES, TEXTURES, TIME_BIN_EARLY,
-                     TIME_BIN_LATE, Counts, WalkParams, fixed_point, lost_weight)
+                     MAX_LAYERS, N_EMERGENCE, NADIR_BATCHES, NADIR_ROWS, RECORD_FIELDS, RULES,
+                     TEXTURES, TIME_BIN_EARLY, TIME_BIN_LATE, Counts, WalkParams,
+                     batch_photons, fixed_point, lost_weight)
 from .rng import PhotonStream
 
 __all__ = ["simulate_reference", "walk_ray", "RayOutcome", "walk_ray_layers",
@@ -63,6 +64,9 @@ SPECULAR, BF_DIRECT, BF_DIFFUSE, SCATTERING = (COMPONENTS.index(name) for name i
 FATE_SPECULAR, FATE_ESCAPED, FATE_ABSORBED_MEDIUM, FATE_ABSORBED_FLOOR, FATE_TERMINATED = (
     FATES.index(name) for name in (
         "specular", "escaped", "absorbed_medium", "absorbed_floor", "terminated"))
+
+ROW_BF_DIFFUSE, ROW_SCATTERING, ROW_ORDER_1 = (NADIR_ROWS.index(name) for name in (
+    "bf_diffuse", "scattering", "order_1"))
 
 TWO_PI = 2.0 * math.pi
 TWO_POW_32 = 4294967296.0
@@ -200,6 +204,162 @@ def rotate_direction(ux: float, uy: float, uz: float, cos_theta: float, psi: flo
             -sin_theta * cos_psi * d + uz * cos_theta)
 
 
+
+# --------------------------------------------------------------------------------------------
+# The next-event (nadir) estimator (walk.md §8)
+# --------------------------------------------------------------------------------------------
+
+def henyey_greenstein_phase(g: float, cos_theta: float) -> float:
+    """The HG phase function normalised to 1 over the sphere, sr⁻¹:
+    p(Θ) = (1 − g²) / (4π (1 + g² − 2g cos Θ)^(3/2))."""
+    return (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5)
+
+
+class NadirScorer:
+    """The estimator of walk.md §8 written out literally: at every scattering and floor
+    reflection, the virtual path from there up to vacuum along the view direction is followed
+    layer by layer, interface by interface, and its score goes to the ray's pending cell.
+
+    The layers are given top first as (texture, face (m, k), index n, extinction E, thickness
+    h, g), the interfaces as (Fresnel?, up face (near, far_n, far_k)) for j = 0..N (j = N:
+    from the gap medium of index ``gap_n`` into the last layer), as :class:`_StackConstants`
+    holds them.
+    """
+
+    def __init__(self, params: WalkParams, layers, fresnel, up_face, gap_n: float,
+                 edges: list, omega_words, albedo_words: int):
+        sin_v = math.sin(math.radians(float(params.view_zenith)))
+        self.sin_v = sin_v
+        self.layers = layers
+        self.fresnel = fresnel
+        self.up_face = up_face
+        self.gap_n = gap_n
+        self.edges = edges
+        self.n_time = len(edges) - 1
+        self.cols = self.n_time + 2
+        self.n0 = float(layers[0][2])
+        self.ns_per_metre = self.n0 / C_M_PER_NS
+        self.history_rule = params.rule == "history"
+        self.t1 = float(params.first_bf_time)
+        self.weighted = params.weighted
+        self.omega_words = omega_words
+        self.albedo_words = albedo_words
+        # the roulette's s_min: a fraction of an isotropic scattering's score at the top
+        top_m = layers[0][1][0]
+        mu0 = math.sqrt(1.0 - (sin_v / top_m) ** 2)
+        top = self._transmission(0, mu0) / (top_m * top_m * mu0) / (4.0 * math.pi)
+        self.s_min = (0.0 if self.weighted or not params.nadir_roulette > 0
+                      else float(params.nadir_roulette) * top)
+        self.sums = [[[0] * self.cols for _ in NADIR_ROWS] for _ in range(NADIR_BATCHES)]
+        self.visits = [[0] * self.cols for _ in NADIR_ROWS]
+
+    def _transmission(self, j: int, mu: float) -> float:
+        """1 − R of interface j crossed upwards at incidence μ (walk.md §7.1)."""
+        if not self.fresnel[j]:
+            return 1.0
+        near, far_n, far_k = self.up_face[j]
+        if near * math.sqrt(max(0.0, 1.0 - mu * mu)) >= far_n:
+            return 0.0
+        if far_n == 1.0 and far_k == 0.0:
+            return 1.0 - internal_reflectance(mu, near)
+        return 1.0 - external_reflectance(mu, far_n / near, far_k / near)
+
+    def _up(self, layer: int, height: float):
+        """The virtual path from ``height`` m below the top of ``layer`` up to vacuum:
+        (τ, path at layer 0's speed (m), product of the transmissions)."""
+        tau = path = 0.0
+        trans = 1.0
+        for i in range(layer, -1, -1):
+            _, face, n_i, extinction, thickness, _ = self.layers[i]
+            s = self.sin_v / face[0]
+            mu = math.sqrt(max(0.0, 1.0 - s * s))
+            d = height if i == layer else thickness
+            tau += extinction * d / mu
+            path += d * (n_i / self.n0) / mu
+            trans *= self._transmission(i, mu)
+        return tau, path, trans
+
+    def new_ray(self, photon: int):
+        self.batch = photon % NADIR_BATCHES
+        self.cell = -1
+        self.pending = 0.0
+        self.total = 0.0
+
+    def _column(self, t: float) -> int:
+        i = bisect.bisect_right(self.edges, t) - 1
+        return 0 if i < 0 else (self.cols - 1 if i >= self.n_time else i + 1)
+
+    def _add(self, s: float, t: float, lamb: bool, order_1: bool, word: int, words: int):
+        if not self.weighted and s < self.s_min:
+            # roulette (walk.md §8.3): the uniform (x + 1/2) / T of the surviving word x < T
+            if ((word + 0.5) / words) * self.s_min < s:
+                s = self.s_min
+            else:
+                return
+        if not s > 0.0:
+            return
+        self.total += s
+        if self.history_rule:
+            row = ROW_BF_DIFFUSE if lamb else ROW_SCATTERING
+        else:
+            row = ROW_BF_DIFFUSE if t >= self.t1 else ROW_SCATTERING
+        col = self._column(t)
+        if order_1:
+            self.sums[self.batch][ROW_ORDER_1][col] += fixed_point(s)
+            self.visits[ROW_ORDER_1][col] += 1
+        cell = row * self.cols + col
+        if cell == self.cell:
+            self.pending += s
+        else:
+            self.flush()
+            self.cell = cell
+            self.pending = s
+
+    def flush(self):
+        """The pending cell into the batch's sums (walk.md §8.2)."""
+        if self.cell >= 0:
+            row, col = divmod(self.cell, self.cols)
+            self.sums[self.batch][row][col] += fixed_point(self.pending)
+            self.visits[row][col] += 1
+            self.cell = -1
+
+    def scatter(self, layer, z, z_top, ux, uz, path, n_scat, n_lamb, weight, word):
+        """A volume scattering at depth z in ``layer``, direction (ux, ·, uz) before it."""
+        tau, up_path, trans = self._up(layer, z - z_top)
+        _, face, _, _, _, g = self.layers[layer]
+        s_in = self.sin_v / face[0]
+        mu = math.sqrt(max(0.0, 1.0 - s_in * s_in))
+        cos_theta = ux * s_in - uz * mu       # toward (sin, 0, −μ), z downwards
+        score = (henyey_greenstein_phase(g, cos_theta) * trans * math.exp(-tau)
+                 / (face[0] * face[0] * mu) * weight)
+        t = (path + up_path) * self.ns_per_metre
+        self._add(score, t, n_lamb > 0, n_scat == 0 and n_lamb == 0, word,
+                  self.omega_words[layer])
+
+    def contact(self, layer, path, n_scat, n_lamb, weight, word):
+        """A reflection by a floor in contact with ``layer`` (its bottom); n_lamb counts it."""
+        _, face, _, _, thickness, _ = self.layers[layer]
+        tau, up_path, trans = self._up(layer, thickness)
+        s_in = self.sin_v / face[0]
+        mu = math.sqrt(max(0.0, 1.0 - s_in * s_in))
+        score = (mu / math.pi) * trans * math.exp(-tau) / (face[0] * face[0] * mu) * weight
+        t = (path + up_path) * self.ns_per_metre
+        self._add(score, t, True, n_scat == 0 and n_lamb == 1, word, self.albedo_words)
+
+    def gap(self, path, n_scat, n_lamb, weight, word):
+        """A reflection by the floor below the gap medium; n_lamb counts it."""
+        last = len(self.layers) - 1
+        tau, up_path, trans = self._up(last, self.layers[last][4])
+        m = self.gap_n
+        if m <= self.sin_v:
+            return
+        mu = math.sqrt(max(0.0, 1.0 - (self.sin_v / m) ** 2))
+        trans *= self._transmission(last + 1, mu)
+        score = (mu / math.pi) * trans * math.exp(-tau) / (m * m * mu) * weight
+        t = (path + up_path) * self.ns_per_metre
+        self._add(score, t, True, n_scat == 0 and n_lamb == 1, word, self.albedo_words)
+
+
 # --------------------------------------------------------------------------------------------
 # One ray (walk.md §3)
 # --------------------------------------------------------------------------------------------
@@ -274,7 +434,7 @@ class RayOutcome(NamedTuple):
     weight: float = 1.0
 
 
-def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
+def walk_ray(walk: _WalkConstants, next_block, nadir: NadirScorer | None = None) -> RayOutcome:
     """Walk one ray from launch to its fate, exactly as docs/walk.md §3 says.
 
     Parameters
@@ -284,6 +444,8 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
     next_block : callable
         Returns the four uniforms (u0, u1, u2, u3) in (0, 1] of the ray's next event
         (``PhotonStream.block``): event k of a ray uses Philox block k (walk.md §2).
+    nadir : NadirScorer, optional
+        Scores every scattering and floor reflection toward the view direction (walk.md §8).
 
     Returns
     -------
@@ -381,6 +543,9 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
                 # U1 > omega decided on the word x1 (walk.md §2): the double uniform is
                 # (x1 + 1/2) 2^-32 exactly, so int(u1 2^32) is x1 itself.
                 return ended(FATE_ABSORBED_MEDIUM)
+            if nadir is not None:   # walk.md §8: with the direction before the scattering
+                nadir.scatter(0, z, 0.0, ux, uz, path, n_scat, n_lamb, weight,
+                              int(u1 * TWO_POW_32))
             n_scat += 1
             cos_theta = henyey_greenstein_cosine(g, u2)
             psi = TWO_PI * u3
@@ -415,6 +580,8 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
                         return ended(FATE_ABSORBED_FLOOR)
                     # (2) Lambertian reflection into vacuum: μ_v = sqrt(g1), ψ = 2π g2
                     n_lamb += 1
+                    if nadir is not None:
+                        nadir.gap(path, n_scat, n_lamb, weight, int(g0 * TWO_POW_32))
                     mu_vacuum = math.sqrt(g1)
                     psi = TWO_PI * g2
                     # (3) the slab's lower face reflects it back to the floor, or it refracts in
@@ -431,6 +598,8 @@ def walk_ray(walk: _WalkConstants, next_block) -> RayOutcome:
                 if not floor_reflects(u1):
                     return ended(FATE_ABSORBED_FLOOR)
                 n_lamb += 1
+                if nadir is not None:
+                    nadir.contact(0, path, n_scat, n_lamb, weight, int(u1 * TWO_POW_32))
                 mu = math.sqrt(u2)
                 psi = TWO_PI * u3
                 sin_floor = math.sqrt(1.0 - mu * mu)
@@ -578,7 +747,8 @@ class LayeredRayOutcome(NamedTuple):
     up: tuple
 
 
-def walk_ray_layers(stack: _StackConstants, next_block) -> LayeredRayOutcome:
+def walk_ray_layers(stack: _StackConstants, next_block,
+                    nadir: NadirScorer | None = None) -> LayeredRayOutcome:
     """Walk one ray through a stack of layers from launch to its fate (walk.md §7.2).
 
     Parameters
@@ -587,6 +757,8 @@ def walk_ray_layers(stack: _StackConstants, next_block) -> LayeredRayOutcome:
         The stack's constants (:meth:`_StackConstants.from_params`).
     next_block : callable
         Returns the four uniforms (u0, u1, u2, u3) of the ray's next event (walk.md §2).
+    nadir : NadirScorer, optional
+        Scores every scattering and floor reflection toward the view direction (walk.md §8).
 
     Returns
     -------
@@ -659,6 +831,9 @@ def walk_ray_layers(stack: _StackConstants, next_block) -> LayeredRayOutcome:
                 return ended(FATE_TERMINATED)
             if int(u1 * TWO_POW_32) >= omega_words[layer]:
                 return ended(FATE_ABSORBED_MEDIUM)
+            if nadir is not None:
+                nadir.scatter(layer, z, z_top[layer], ux, uz, path, n_scat, n_lamb, 1.0,
+                              int(u1 * TWO_POW_32))
             n_scat += 1
             cos_theta = henyey_greenstein_cosine(gs[layer], u2)
             psi = TWO_PI * u3
@@ -684,6 +859,8 @@ def walk_ray_layers(stack: _StackConstants, next_block) -> LayeredRayOutcome:
                 if int(u1 * TWO_POW_32) >= albedo_words:
                     return ended(FATE_ABSORBED_FLOOR)  # ℓ = N − 1
                 n_lamb += 1
+                if nadir is not None:
+                    nadir.contact(layer, path, n_scat, n_lamb, 1.0, int(u1 * TWO_POW_32))
                 mu = math.sqrt(u2)
                 psi = TWO_PI * u3
                 sin_floor = math.sqrt(max(0.0, 1.0 - mu * mu))
@@ -707,6 +884,8 @@ def walk_ray_layers(stack: _StackConstants, next_block) -> LayeredRayOutcome:
                     return ended(FATE_ABSORBED_FLOOR)  # ℓ = N
                 # (2) a Lambertian direction in the gap medium: μ_g = √u1, ψ = 2π u2
                 n_lamb += 1
+                if nadir is not None:
+                    nadir.gap(path, n_scat, n_lamb, 1.0, int(g0 * TWO_POW_32))
                 mu_gap = math.sqrt(g1)
                 psi = TWO_PI * g2
                 # (3) back to the floor (TIR, or u3 <= R), or refracted into the last layer
@@ -857,7 +1036,9 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     first_bf_time = float(params.first_bf_time)  # t1 = 2 h n / c (stack: 2 Σ h_i n_i / c), ns
     ns_per_metre = float(params.n) / C_M_PER_NS  # t = L n / c (stack: n = n_0, walk.md §7.2)
 
-    counts = Counts(n_time=n_time, photons=int(photons), weighted=params.weighted)
+    counts = Counts(n_time=n_time, photons=int(photons), weighted=params.weighted,
+                    nadir=bool(params.nadir))
+    nadir = _nadir_scorer(params, walk, edges) if params.nadir else None
     weighted = params.weighted
     fates = [0] * len(FATES)
     total = [0] * len(COMPONENTS)
@@ -881,8 +1062,12 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     while done < photons:
         streams = PhotonStream.many(params.seed, params.scenario, first_photon + done,
                                     min(batch, photons - done), precision="double")
-        for stream in streams:
-            ray = walk_one(walk, stream.block)
+        for i, stream in enumerate(streams):
+            if nadir is not None:
+                nadir.new_ray(first_photon + done + i)
+            ray = walk_one(walk, stream.block, nadir)
+            if nadir is not None:
+                nadir.flush()
             fates[ray.fate] += 1
             if layered:
                 if ray.fate == FATE_ABSORBED_MEDIUM:
@@ -960,6 +1145,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                 rows["time_bin"].append(time_bin)
                 rows["emergence_bin"].append(emergence_bin)
                 rows["layer"].append(ray.layer if layered else 0)
+                rows["nadir"].append(nadir.total if nadir is not None else 0.0)
         done += len(streams)
         if progress is not None:
             progress(done)
@@ -975,11 +1161,35 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
     counts.scattering_events = int(scattering_events)
     counts.mixed_history = int(mixed_history)
     counts.layer_stats[:] = layer_stats
+    if nadir is not None:
+        for b in range(NADIR_BATCHES):
+            for r in range(len(NADIR_ROWS)):
+                counts.nadir_sum[b, r, :] = nadir.sums[b][r]
+        counts.nadir_visits[...] = nadir.visits
+        counts.nadir_batch_photons[...] = batch_photons(first_photon, photons)
     if rows is not None:
         counts.records = {name: np.asarray(values, dtype=dtype)
                           for (name, values), dtype in zip(rows.items(),
                                                            RECORD_FIELDS.values())}
     return counts
+
+
+def _nadir_scorer(params: WalkParams, walk, edges: list) -> NadirScorer:
+    """The estimator of a walk (walk.md §8): its layers, top first, as (texture, face, n, E,
+    h, g) with the true extinction E (both modes), and its interfaces."""
+    if params.layered:
+        layers = [(x.texture, _face(x.texture, x.n, x.k), float(x.n), float(x.extinction),
+                   float(x.thickness), float(x.g)) for x in params.layers]
+        return NadirScorer(params, layers, walk.fresnel, walk.up_face, walk.gap_n, edges,
+                           walk.omega_words, walk.albedo_words)
+    face = _face(params.texture, params.n, params.k)
+    layers = [(params.texture, face, float(params.n), float(params.extinction),
+               float(params.thickness), float(params.g))]
+    gap_fresnel = params.texture == "slab" and params.bottom_interface == "fresnel"
+    fresnel = (params.texture == "slab", gap_fresnel)
+    up_face = ((face[0], 1.0, 0.0), (1.0, face[0], face[1]))
+    return NadirScorer(params, layers, fresnel, up_face, 1.0, edges, (params.omega_words,),
+                       params.albedo_words)
 
 
 class ReferenceEngine:
