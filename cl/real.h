@@ -29,14 +29,10 @@ typedef float REAL;
 #ifdef WARPE_DOUBLE
 #define LOG(x) log(x)
 #define EXP(x) exp(x)
-#define RSQRT(x) rsqrt(x)
-#define RECIP(x) ((REAL)1 / (x))
 #define SINCOS(x, s, c) ((s) = sincos((x), &(c)))
 #else
 #define LOG(x) native_log(x)
 #define EXP(x) native_exp(x)
-#define RSQRT(x) native_rsqrt(x)
-#define RECIP(x) native_recip(x)
 #define SINCOS(x, s, c) ((s) = native_sin(x), (c) = native_cos(x))
 #endif
 /* speed of light in vacuum, m/ns */

@@ -946,10 +946,12 @@ WALK_STEP void nadir_flush(const tallies_t *tally, uint p_lo, int cell, REAL v)
 }
 
 /* The row of a virtual path: bf_diffuse or scattering by the component rule (walk.md §4) with
- * its history (lamb: it has a floor reflection) and its arrival time tv. */
+ * its history (lamb: it has a floor reflection) and its arrival time tv. A path with a floor
+ * reflection arrives at t >= t1 exactly; rounding could put the straight down-and-up ones
+ * just below t1 in single precision, so the time window takes lamb as t >= t1 (walk.md §8.1). */
 WALK_STEP VMASK nadir_row(VMASK lamb, VREAL tv, const tallies_t *tally)
 {
-    const VMASK bf = tally->rule_time_window ? (VMASK)(tv >= tally->t1) : lamb;
+    const VMASK bf = tally->rule_time_window ? (lamb | (VMASK)(tv >= tally->t1)) : lamb;
     return SEL((VMASK)NADIR_ROW_SCATTERING, (VMASK)NADIR_ROW_BF_DIFFUSE, bf);
 }
 
@@ -1047,7 +1049,7 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
 #endif
     const VREAL c = r->ux * sin_v - r->uz * mu_v;
     const VREAL x = ((REAL)1 + g * g) - (REAL)2 * g * c;
-    VREAL s = k * RSQRT(x) * RECIP(x) * EXP(-tau);
+    VREAL s = k * rsqrt(x) / x * EXP(-tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
 #elif defined(WARPE_TEXTURE_LAYERS)

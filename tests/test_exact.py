@@ -214,18 +214,24 @@ def _perturbed(value):
 
 
 def test_every_value_changes_the_scenario_key():
-    """Any single value of the resolved medium or simulation blocks (seed and photons apart)
-    gives another 64-bit key, hence other streams; seed and photons do not change it."""
+    """Any single value of the resolved medium or simulation blocks (seed, photons and the
+    nadir estimator's keys apart) gives another 64-bit key, hence other streams; seed and
+    photons do not change it, nor do the estimator's keys (it draws no number: the same rays
+    at any view, docs/walk.md §8)."""
     import copy
+    from warpe_cl.api import UNKEYED
     cfg = load_preset(BASE)
     base = scenario_key(None, cfg)
     assert 0 < base < 2 ** 64
     assert scenario_key(None, cfg.with_overrides({"simulation.seed": 9})) == base
     assert scenario_key(None, cfg.with_overrides({"simulation.photons": 99})) == base
+    assert scenario_key(None, cfg.with_overrides({"simulation.nadir": False,
+                                                  "simulation.view_zenith": "30 deg",
+                                                  "simulation.nadir_roulette": 0.0})) == base
     checked = 0
     for block in ("medium", "simulation"):
         for leaf in _leaves(cfg.data[block], block):
-            if leaf in ("simulation.seed", "simulation.photons"):
+            if leaf in UNKEYED:
                 continue
             data = copy.deepcopy(cfg.data)
             node = data

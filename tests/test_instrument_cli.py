@@ -53,6 +53,13 @@ def test_lambertian_floor_run_with_instrument_block(tmp_path, capsys, engine):
                        + ds["reflectance"].sel(component="scattering")) * width).sum())
     p = 0.5 * math.sin(math.radians(60)) ** 2
     assert abs(integral / (0.5 / math.pi) - 1) < 5 * math.sqrt((1 - p) / (20000 * p))
+    # the chain uses the nadir estimate (docs/walk.md §8), which this file has; it reads A/pi
+    # too: every floor reflection (probability A) scores 1/pi, binomial relative sd
+    # sqrt((1 - A) / (N A)) = 0.71 % for N = 2e4: 5 sigma is 3.5 %
+    assert ds.attrs["instrument_diffuse_estimate"] == "nadir"
+    integral = float(((ds["nadir_reflectance"].sel(component="bf_diffuse")
+                       + ds["nadir_reflectance"].sel(component="scattering")) * width).sum())
+    assert abs(integral / (0.5 / math.pi) - 1) < 5 * math.sqrt(0.5 / (20000 * 0.5))
     photons = float(ds["photons_at_aperture"].sel(part="diffuse"))
     from warpe_cl.instrument import load_instrument, radiometry
     assert photons == pytest.approx(radiometry.photons_per_reflectance(

@@ -52,7 +52,12 @@ def walk_params(cfg: Config, scenario: int = 0) -> tuple:
         mode=cfg.get("simulation.mode"),
         roulette_weight=float(cfg.get("simulation.roulette_weight")),
         roulette_survival=float(cfg.get("simulation.roulette_survival")),
+        nadir=bool(cfg.get("simulation.nadir")),
+        view_zenith=float(cfg.get("simulation.view_zenith")),
+        nadir_roulette=float(cfg.get("simulation.nadir_roulette")),
     )
+    if common["nadir"] and nadir_unavailable(cfg, derived) is not None:
+        common["nadir"] = False
     if "layers" in derived:
         layers = tuple(Layer(d["texture"], d["thickness_m"], d["extinction_per_m"], d["omega"],
                              d["phase_g"], d["n_eff"], d["k_eff"])
@@ -73,12 +78,35 @@ def walk_params(cfg: Config, scenario: int = 0) -> tuple:
     return params, derived
 
 
+def nadir_unavailable(cfg: Config, derived: dict | None = None) -> str | None:
+    """Why this configuration gets no nadir estimate, or None (docs/walk.md §8.5): the
+    estimator is not made where a Fresnel mirror lies below a scattering layer (the result
+    says so in its ``nadir_estimator`` attribute; the FOV reflectance is written as always)."""
+    derived = radiative_parameters(cfg) if derived is None else derived
+    common = dict(albedo=0.0, time_edges=time_edges(cfg),
+                  bottom_interface=cfg.get("medium.bottom_interface"))
+    if "layers" in derived:
+        layers = tuple(Layer(d["texture"], d["thickness_m"], d["extinction_per_m"], d["omega"],
+                             d["phase_g"], d["n_eff"], d["k_eff"])
+                       for d in derived["layers"] if d["thickness_m"] > 0)
+        substrate = ((derived["substrate_n"], derived["substrate_k"])
+                     if "substrate_n" in derived else None)
+        params = stack_params(layers, substrate=substrate, **common)
+    else:
+        params = WalkParams(texture=cfg.get("medium.texture"), thickness=1.0, extinction=0.0,
+                            omega=0.0, g=0.0, n=derived["n_eff"], k=derived["k_eff"], **common)
+    from .nadir import mirror_below
+    return mirror_below(params)
+
+
 #: The blocks of a point's configuration that key its random streams (scenario_key).
 KEYED_BLOCKS = ("medium", "materials", "wavelength", "simulation")
 #: Simulation keys left out of the key: the seed is the other key word, and the photon count is
 #: left out so that a longer run extends a shorter one ray for ray (photon p draws the same
-#: numbers whatever the number of photons).
-UNKEYED = ("simulation.seed", "simulation.photons")
+#: numbers whatever the number of photons). The nadir estimator's keys are left out because it
+#: draws no number: the same rays are walked with or without it, at any view angle.
+UNKEYED = ("simulation.seed", "simulation.photons", "simulation.nadir",
+           "simulation.view_zenith", "simulation.nadir_roulette")
 
 
 def keyed_configuration(data: dict) -> dict:
@@ -153,6 +181,19 @@ def get_engine(device: str | None = None):
     return _engines[spec]
 
 
+def _nadir_attrs(cfg: Config, params: WalkParams, derived: dict) -> dict:
+    """The ``nadir_estimator`` attribute: what the nadir variables are, or why there are
+    none (docs/walk.md §8)."""
+    if params.nadir:
+        return {"view_zenith_deg": float(params.view_zenith),
+                "nadir_estimator": "next-event estimate toward the view direction "
+                                   "(docs/walk.md §8)"}
+    if not cfg.get("simulation.nadir"):
+        return {"nadir_estimator": "none: simulation.nadir is false"}
+    return {"nadir_estimator": f"none: {nadir_unavailable(cfg, derived)}; the estimator does "
+                               "not follow mirror paths (docs/walk.md §8.5)"}
+
+
 def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):
     """Run one scenario (a configuration without sweep) and return its Dataset.
 
@@ -191,8 +232,12 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
         "bottom_interface": params.bottom_interface if params.texture == "slab" else "none",
         "engine": engine.name,
         "kernel_sha256": engine.kernel_hash or "",
+        **_nadir_attrs(cfg, params, derived),
         **engine.provenance,
     })
+    if counts.nadir:
+        from .nadir import reduce_nadir
+        arrays.update(reduce_nadir(counts, params, arrays))
     ds = io.build_dataset(arrays, counts, params, derived, attrs)
     ds["wall_time"] = ((), time.perf_counter() - t0, {"units": "s",
                                                       "long_name": "time spent in simulate"})

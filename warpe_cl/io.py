@@ -160,6 +160,8 @@ def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
                 "units": "deg", "long_name": "emergence angle in vacuum, bin centre"}),
         },
     )
+    if "nadir_reflectance" in arrays:
+        ds = ds.assign(nadir_variables(arrays))
     from .stack import layer_variables
     layer_vars, layer_coords = layer_variables(counts, params, derived)
     ds = ds.assign_coords(layer_coords).assign(layer_vars)
@@ -171,6 +173,40 @@ def build_dataset(arrays: dict, counts, params, derived: dict, attrs: dict):
             ds.attrs[f"species_{key}"] = values if key == "material" else np.asarray(values)
     ds.attrs.update(attrs)
     return ds
+
+
+def nadir_variables(arrays: dict) -> dict:
+    """The next-event estimator's output variables (docs/interface.md §5.1, docs/walk.md §8)."""
+    ct = ("component", "time")
+    exact = ("bidirectional reflectance toward the view direction (next-event estimate; "
+             "specular and bf_direct: the lobe-scaled FOV values)")
+    return {
+        "nadir_reflectance": (ct, arrays["nadir_reflectance"], {
+            "units": "ns-1 sr-1", "long_name": exact + ", per ns"}),
+        "nadir_reflectance_stderr": (ct, arrays["nadir_reflectance_stderr"], {
+            "units": "ns-1 sr-1",
+            "long_name": "standard error of nadir_reflectance (spread of 32 photon batches)"}),
+        "nadir_ray_count": (ct, arrays["nadir_ray_count"], {
+            "units": "1", "long_name": "ray visits behind nadir_reflectance (a ray's "
+                                       "consecutive scores in one bin are one visit)"}),
+        "nadir_brdf": ("component", arrays["nadir_brdf"], {
+            "units": "sr-1", "long_name": exact + ", integrated over all times"}),
+        "nadir_brdf_stderr": ("component", arrays["nadir_brdf_stderr"], {
+            "units": "sr-1", "long_name": "standard error of nadir_brdf"}),
+        "nadir_order_reflectance": (("order", "time"), arrays["nadir_order_reflectance"], {
+            "units": "ns-1 sr-1",
+            "long_name": "nadir_reflectance of the paths with one scattering or floor "
+                         "reflection (order 1), every diffuse component"}),
+        "nadir_order_reflectance_stderr": (("order", "time"),
+                                           arrays["nadir_order_reflectance_stderr"], {
+            "units": "ns-1 sr-1", "long_name": "standard error of nadir_order_reflectance"}),
+        "nadir_order_brdf": ("order", arrays["nadir_order_brdf"], {
+            "units": "sr-1", "long_name": "nadir_brdf of the order-1 paths"}),
+        "nadir_order_brdf_stderr": ("order", arrays["nadir_order_brdf_stderr"], {
+            "units": "sr-1", "long_name": "standard error of nadir_order_brdf"}),
+        "order": ("order", np.array([1]), {"long_name": "scatterings and floor reflections "
+                                                        "of a path"}),
+    }
 
 
 def utc_now() -> str:
@@ -261,6 +297,7 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
             if dim not in ds.indexes:
                 longest[dim] = max(longest.get(dim, 0), size)
     datasets = [_pad(ds, longest) for ds in datasets]
+    datasets = _fill_missing(datasets)
     first = datasets[0].attrs            # an attribute varies if any scenario differs from
     varying = {k for k in {k for ds in datasets for k in ds.attrs}   # the first: O(N), not N^2
                if any(not _same_attr(ds.attrs.get(k), first.get(k)) for ds in datasets)}
@@ -284,6 +321,22 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
         out = out.assign_coords(sweep_coordinates(key, [p[key] for p in points]))
     out = out.assign_coords(scenario=np.arange(len(datasets)))
     out.attrs.update(attrs or {})
+    return out
+
+
+def _fill_missing(datasets: list) -> list:
+    """Scenarios that lack a variable others have (the nadir estimate, made only where it is
+    exact: docs/walk.md §8.5) get it filled with NaN, so that the sweep stacks."""
+    import xarray as xr
+    template = {}
+    for ds in datasets:
+        for name, var in ds.data_vars.items():
+            template.setdefault(name, ds[name])
+    out = []
+    for ds in datasets:
+        missing = {name: xr.full_like(t, np.nan, dtype=float)
+                   for name, t in template.items() if name not in ds.data_vars}
+        out.append(ds.assign(missing) if missing else ds)
     return out
 
 

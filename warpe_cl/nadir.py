@@ -25,7 +25,30 @@ import numpy as np
 from .params import NADIR_ROWS, VIEW_COLUMNS, WalkParams, fixed_to_float
 from .radiative import fresnel_external, fresnel_internal
 
-__all__ = ["view_table", "up_transmission", "reduce_nadir"]
+__all__ = ["view_table", "up_transmission", "reduce_nadir", "mirror_below"]
+
+
+def mirror_below(params: WalkParams) -> str | None:
+    """Why the estimator would be incomplete for ``params``, or None where it is exact.
+
+    The estimator follows each virtual path straight up (docs/walk.md §8.5). A Fresnel face
+    *below* a scattering layer is a mirror: a ray scattered down along the view direction's
+    mirror image reflects there and leaves toward the receiver too, and with the faces above
+    it the paths bounce back and forth. Those mirror paths are not scored yet, so where such a
+    face exists (a slab over a vacuum gap, a stack with a Fresnel contact below its top) the
+    nadir estimate is not made. A top face alone is exact: what it reflects down meets the
+    Lambertian floor or a transparent contact, never a mirror.
+    """
+    from .engine import layer_tables
+    if not params.layered:
+        if params.texture == "slab" and params.bottom_interface == "fresnel":
+            return "the slab's lower face over the vacuum gap is a mirror"
+        return None
+    kinds = layer_tables(params, np.float64)["iface_kind"]
+    below = [j for j in range(1, len(kinds)) if kinds[j]]
+    if below:
+        return f"the stack's Fresnel contact {below[0]} (counted from the top, 0) is a mirror"
+    return None
 
 
 def _faces(params: WalkParams) -> tuple:

@@ -410,12 +410,15 @@ class WalkParams:
     @property
     def nadir_min_score(self) -> float:
         """s_min of the analog walk's roulette of small nadir scores (docs/walk.md §8.3), sr^-1:
-        ``nadir_roulette`` times the score of an isotropic scattering at the top,
-        T_0 / (4 pi m_0^2 mu_0); 0 (no roulette) in the weighted mode."""
+        ``nadir_roulette`` times the score of a scattering at the top of the first layer
+        straight back up, p(pi) T_0 / (m_0^2 mu_0), p the HG phase function of its g; 0 (no
+        roulette) in the weighted mode."""
         if self.weighted or not self.nadir_roulette > 0:
             return 0.0
         from .nadir import view_table
-        return float(self.nadir_roulette) * float(view_table(self)[0, -1]) / (4.0 * np.pi)
+        g = float(self.stack[0].g)
+        back = (1.0 - g * g) / (4.0 * np.pi * (1.0 + g) ** 3)      # p(pi)
+        return float(self.nadir_roulette) * float(view_table(self)[0, -1]) * back
 
     @property
     def cos_fov(self) -> np.ndarray:

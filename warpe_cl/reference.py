@@ -244,10 +244,12 @@ class NadirScorer:
         self.weighted = params.weighted
         self.omega_words = omega_words
         self.albedo_words = albedo_words
-        # the roulette's s_min: a fraction of an isotropic scattering's score at the top
+        # the roulette's s_min: a fraction of the score of a scattering at the top straight
+        # back up, p(pi) T_0 / (m_0^2 mu_0) (walk.md §8.3)
         top_m = layers[0][1][0]
         mu0 = math.sqrt(1.0 - (sin_v / top_m) ** 2)
-        top = self._transmission(0, mu0) / (top_m * top_m * mu0) / (4.0 * math.pi)
+        top = (self._transmission(0, mu0) / (top_m * top_m * mu0)
+               * henyey_greenstein_phase(layers[0][5], -1.0))
         self.s_min = (0.0 if self.weighted or not params.nadir_roulette > 0
                       else float(params.nadir_roulette) * top)
         self.sums = [[[0] * self.cols for _ in NADIR_ROWS] for _ in range(NADIR_BATCHES)]
@@ -302,7 +304,8 @@ class NadirScorer:
         if self.history_rule:
             row = ROW_BF_DIFFUSE if lamb else ROW_SCATTERING
         else:
-            row = ROW_BF_DIFFUSE if t >= self.t1 else ROW_SCATTERING
+            # a path with a floor reflection arrives at t >= t1 exactly (walk.md §8.1)
+            row = ROW_BF_DIFFUSE if (lamb or t >= self.t1) else ROW_SCATTERING
         col = self._column(t)
         if order_1:
             self.sums[self.batch][ROW_ORDER_1][col] += fixed_point(s)

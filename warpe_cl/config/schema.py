@@ -285,6 +285,18 @@ SCHEMA: list[Field] = [
        help="Field of view of the background (volume scattering) component."),
     _F("simulation.fov.bf_diffuse", "angle", "3 deg", low=0.0, high=90.0, low_open=True,
        help="Field of view of the BF diffuse (floor-reflected) component."),
+    _F("simulation.nadir", "bool", True,
+       help="Also estimate the reflectance in the exact view direction with a next-event "
+            "estimator (docs/walk.md §8): the outputs nadir_reflectance and nadir_brdf next "
+            "to the FOV reflectance, which the instrument chain then uses. The rays are the "
+            "same with or without it."),
+    _F("simulation.view_zenith", "angle", "0 deg", low=0.0, high=89.0,
+       help="Zenith angle of the receiver for the nadir estimate, in vacuum (0: nadir; the "
+            "laser beam is always vertical)."),
+    _F("simulation.nadir_roulette", "float", 0.1, low=0.0, high=1.0,
+       help="Analog walk: nadir scores below this fraction of an isotropic scattering's "
+            "score at the top play an unbiased roulette (docs/walk.md §8.3), which trades a "
+            "little variance of deep events for speed; 0: every score counts."),
     _F("simulation.min_rays", "int", 3, low=0,
        help="Time bins holding fewer rays than this are flagged as under-sampled "
             "(the specular is exempt)."),

@@ -87,4 +87,5 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
     prov = {f"instrument_{k}": v for k, v in io.provenance().items()
             if k in ("warpe_cl_version", "created_utc", "command", "numpy_version", "host")}
     prov.update({"instrument_seed": int(seed), "instrument_shots": shots})
+    prov["instrument_diffuse_estimate"] = surface.diffuse_estimate(ds)
     return output.build(ds, results, params, sweep, prov)

@@ -1,7 +1,9 @@
 """What the surface simulation hands to the instrument, docs/instrument.md §3.0.
 
 From a result file (docs/interface.md §5): the diffuse response R_d(t) = reflectance of
-``scattering`` + ``bf_diffuse`` (sr⁻¹ ns⁻¹, log-spaced bins), and the specular and BF-direct
+``scattering`` + ``bf_diffuse`` (sr⁻¹ ns⁻¹, log-spaced bins) — the next-event estimate in the
+exact view direction, ``nadir_reflectance``, when the file has it (docs/walk.md §8), else the
+numerical-FOV ``reflectance`` (:func:`diffuse_estimate` says which) — and the specular and BF-direct
 returns as fractions per launched ray (``ray_count / photons``) with their delays: t = 0 for the
 specular, t_k = k · 2 h n_eff / c for the k-th BF-direct passage (``first_bf_time_ns``), so that
 the instrument applies the aperture and lobe geometry once (the file's specular reflectance,
@@ -62,6 +64,13 @@ def check_variables(ds, source: str = "<dataset>"):
         raise ConfigError(f"component coordinate lacks {', '.join(lacking)}", key=source)
 
 
+def diffuse_estimate(ds) -> str:
+    """Which diffuse reflectance the instrument uses: ``"nadir"`` (``nadir_reflectance``, the
+    next-event estimate in the view direction) when ``ds`` has it, else ``"fov"``
+    (``reflectance``, counted in the numerical fields of view)."""
+    return "nadir" if "nadir_reflectance" in ds.variables else "fov"
+
+
 def wavelength_of(ds, scenario: int | None = None) -> float | None:
     """The wavelength (m) the surface response was computed at: a swept ``wavelength``
     coordinate, else the ``wavelength`` of the stored configuration; None if neither."""
@@ -110,7 +119,8 @@ class _Arrays:
         self.ds = ds
         self.edges = np.asarray(ds["time_edges"].values, float)
         comps = [str(c) for c in ds["component"].values]
-        refl = ds["reflectance"].transpose(..., "component", "time").values
+        name = "nadir_reflectance" if diffuse_estimate(ds) == "nadir" else "reflectance"
+        refl = ds[name].transpose(..., "component", "time").values
         self.diffuse = sum(np.asarray(refl[..., comps.index(c), :], float) for c in DIFFUSE)
         counts = ds["ray_count"].transpose(..., "component", "time").values
         self.bf = np.asarray(counts[..., comps.index("bf_direct"), :], float)
