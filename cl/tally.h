@@ -68,10 +68,9 @@ inline int weight_lost(REAL w)
 }
 #endif
 
-inline void fixed_add(__global ulong *acc, REAL w)
+/* floor(w 2^FIXED_SHIFT) for w > 0 as its low, middle and high 64-bit words. */
+inline void fixed_words(REAL w, ulong *lo, ulong *mid, ulong *hi)
 {
-    if (!(w > (REAL)0))
-        return;
     int e;
     REAL f = frexp(w, &e);                 /* w = f 2^e, f in [1/2, 1) */
 #ifdef WARPE_DOUBLE
@@ -81,19 +80,29 @@ inline void fixed_add(__global ulong *acc, REAL w)
     ulong m = (ulong)(f * 0x1p24f);
     int s = e - 24 + FIXED_SHIFT;
 #endif
-    ulong lo = 0, mid = 0, hi = 0;
+    *lo = 0;
+    *mid = 0;
+    *hi = 0;
     if (s < 0) {
         if (s > -64)
-            lo = m >> (-s);
+            *lo = m >> (-s);
     } else if (s < 64) {
-        lo = m << s;
-        mid = s ? m >> (64 - s) : 0;
+        *lo = m << s;
+        *mid = s ? m >> (64 - s) : 0;
     } else if (s < 128) {
-        mid = m << (s - 64);
-        hi = s > 64 ? m >> (128 - s) : 0;
+        *mid = m << (s - 64);
+        *hi = s > 64 ? m >> (128 - s) : 0;
     } else if (s < 192) {
-        hi = m << (s - 128);
+        *hi = m << (s - 128);
     }
+}
+
+inline void fixed_add(__global ulong *acc, REAL w)
+{
+    if (!(w > (REAL)0))
+        return;
+    ulong lo, mid, hi;
+    fixed_words(w, &lo, &mid, &hi);
     ulong old = atom_add(acc, lo);
     ulong carry = (old + lo < old) ? 1ul : 0ul;
     if (mid | carry) {
@@ -115,28 +124,8 @@ inline void fixed_add_own(__global ulong *acc, REAL w)
 {
     if (!(w > (REAL)0))
         return;
-    int e;
-    REAL f = frexp(w, &e);
-#ifdef WARPE_DOUBLE
-    ulong m = (ulong)(f * 0x1p53);
-    int s = e - 53 + FIXED_SHIFT;
-#else
-    ulong m = (ulong)(f * 0x1p24f);
-    int s = e - 24 + FIXED_SHIFT;
-#endif
-    ulong lo = 0, mid = 0, hi = 0;
-    if (s < 0) {
-        if (s > -64)
-            lo = m >> (-s);
-    } else if (s < 64) {
-        lo = m << s;
-        mid = s ? m >> (64 - s) : 0;
-    } else if (s < 128) {
-        mid = m << (s - 64);
-        hi = s > 64 ? m >> (128 - s) : 0;
-    } else if (s < 192) {
-        hi = m << (s - 128);
-    }
+    ulong lo, mid, hi;
+    fixed_words(w, &lo, &mid, &hi);
     const ulong a0 = acc[0] + lo;
     const ulong c0 = a0 < lo ? 1ul : 0ul;
     const ulong a1 = acc[1] + mid;

@@ -13,12 +13,14 @@ docs/interface.md §2.2 works the same way, e.g. ``device="auto"``, the default)
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import time
 
 from . import io, tally
 from .config import Config, load_preset, time_edges
+from .nadir import mirror_below
 from .params import Layer, WalkParams, stack_params
 from .progress import Progress
 from .radiative import radiative_parameters
@@ -56,35 +58,6 @@ def walk_params(cfg: Config, scenario: int = 0) -> tuple:
         view_zenith=float(cfg.get("simulation.view_zenith")),
         nadir_roulette=float(cfg.get("simulation.nadir_roulette")),
     )
-    if common["nadir"] and nadir_unavailable(cfg, derived) is not None:
-        common["nadir"] = False
-    if "layers" in derived:
-        layers = tuple(Layer(d["texture"], d["thickness_m"], d["extinction_per_m"], d["omega"],
-                             d["phase_g"], d["n_eff"], d["k_eff"])
-                       for d in derived["layers"] if d["thickness_m"] > 0)
-        substrate = ((derived["substrate_n"], derived["substrate_k"])
-                     if "substrate_n" in derived else None)
-        return stack_params(layers, substrate=substrate, **common), derived
-    params = WalkParams(
-        texture=cfg.get("medium.texture"),
-        thickness=derived["thickness_m"],
-        extinction=derived["extinction_per_m"],
-        omega=derived["omega"],
-        g=cfg.get("medium.phase_g"),
-        n=derived["n_eff"],
-        k=derived["k_eff"],
-        **common,
-    )
-    return params, derived
-
-
-def nadir_unavailable(cfg: Config, derived: dict | None = None) -> str | None:
-    """Why this configuration gets no nadir estimate, or None (docs/walk.md §8.5): the
-    estimator is not made where a Fresnel mirror lies below a scattering layer (the result
-    says so in its ``nadir_estimator`` attribute; the FOV reflectance is written as always)."""
-    derived = radiative_parameters(cfg) if derived is None else derived
-    common = dict(albedo=0.0, time_edges=time_edges(cfg),
-                  bottom_interface=cfg.get("medium.bottom_interface"))
     if "layers" in derived:
         layers = tuple(Layer(d["texture"], d["thickness_m"], d["extinction_per_m"], d["omega"],
                              d["phase_g"], d["n_eff"], d["k_eff"])
@@ -93,10 +66,21 @@ def nadir_unavailable(cfg: Config, derived: dict | None = None) -> str | None:
                      if "substrate_n" in derived else None)
         params = stack_params(layers, substrate=substrate, **common)
     else:
-        params = WalkParams(texture=cfg.get("medium.texture"), thickness=1.0, extinction=0.0,
-                            omega=0.0, g=0.0, n=derived["n_eff"], k=derived["k_eff"], **common)
-    from .nadir import mirror_below
-    return mirror_below(params)
+        params = WalkParams(
+            texture=cfg.get("medium.texture"),
+            thickness=derived["thickness_m"],
+            extinction=derived["extinction_per_m"],
+            omega=derived["omega"],
+            g=cfg.get("medium.phase_g"),
+            n=derived["n_eff"],
+            k=derived["k_eff"],
+            **common,
+        )
+    # no estimate where a Fresnel mirror lies below a scattering layer (docs/walk.md §8.5):
+    # the result says so in its nadir_estimator attribute, the FOV reflectance is as always
+    if params.nadir and mirror_below(params) is not None:
+        params = dataclasses.replace(params, nadir=False)
+    return params, derived
 
 
 #: The blocks of a point's configuration that key its random streams (scenario_key).
@@ -181,7 +165,7 @@ def get_engine(device: str | None = None):
     return _engines[spec]
 
 
-def _nadir_attrs(cfg: Config, params: WalkParams, derived: dict) -> dict:
+def _nadir_attrs(cfg: Config, params: WalkParams) -> dict:
     """The ``nadir_estimator`` attribute: what the nadir variables are, or why there are
     none (docs/walk.md §8)."""
     if params.nadir:
@@ -190,8 +174,8 @@ def _nadir_attrs(cfg: Config, params: WalkParams, derived: dict) -> dict:
                                    "(docs/walk.md §8)"}
     if not cfg.get("simulation.nadir"):
         return {"nadir_estimator": "none: simulation.nadir is false"}
-    return {"nadir_estimator": f"none: {nadir_unavailable(cfg, derived)}; the estimator does "
-                               "not follow mirror paths (docs/walk.md §8.5)"}
+    return {"nadir_estimator": f"none: {mirror_below(params)}; the estimator does not follow "
+                               "mirror paths (docs/walk.md §8.5)"}
 
 
 def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):
@@ -232,7 +216,7 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
         "bottom_interface": params.bottom_interface if params.texture == "slab" else "none",
         "engine": engine.name,
         "kernel_sha256": engine.kernel_hash or "",
-        **_nadir_attrs(cfg, params, derived),
+        **_nadir_attrs(cfg, params),
         **engine.provenance,
     })
     if counts.nadir:

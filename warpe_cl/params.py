@@ -316,8 +316,9 @@ class WalkParams:
         The receiver's zenith angle in vacuum, degrees in [0, 90) (0: nadir), for the
         estimator; the incident beam is always vertical.
     nadir_roulette : float
-        Analog walk: nadir scores below this fraction of an isotropic scattering's score at
-        the top play an unbiased roulette (docs/walk.md §8.3); 0: every score counts.
+        Analog walk: nadir scores below this fraction of the score of a scattering at the
+        top straight back up (:attr:`nadir_min_score`) play an unbiased roulette
+        (docs/walk.md §8.3); 0: every score counts.
     """
 
     texture: str

@@ -294,9 +294,9 @@ SCHEMA: list[Field] = [
        help="Zenith angle of the receiver for the nadir estimate, in vacuum (0: nadir; the "
             "laser beam is always vertical)."),
     _F("simulation.nadir_roulette", "float", 0.1, low=0.0, high=1.0,
-       help="Analog walk: nadir scores below this fraction of an isotropic scattering's "
-            "score at the top play an unbiased roulette (docs/walk.md §8.3), which trades a "
-            "little variance of deep events for speed; 0: every score counts."),
+       help="Analog walk: nadir scores below this fraction of the score of a scattering at "
+            "the top straight back up play an unbiased roulette (docs/walk.md §8.3), which "
+            "trades a little variance of deep events for speed; 0: every score counts."),
     _F("simulation.min_rays", "int", 3, low=0,
        help="Time bins holding fewer rays than this are flagged as under-sampled "
             "(the specular is exempt)."),
