@@ -218,3 +218,40 @@ def test_outputs_and_instrument_choice():
     assert "nadir_reflectance" not in off and off.attrs["instrument_diffuse_estimate"] == "fov"
     # the estimator is not part of the scenario key: the same rays with or without it
     assert off.attrs["scenario_key"] == ds.attrs["scenario_key"]
+
+
+def test_instrument_on_a_sweep_where_only_some_scenarios_have_the_nadir_estimate():
+    """A sweep of a slab over a Fresnel mirror (no nadir estimate: its nadir_reflectance is
+    NaN in the stacked file) and the same slab in contact with its floor: the instrument chain
+    uses each scenario's own estimate, says which per scenario, and no NaN reaches the
+    waveform (the whole-paper run's bela_cases once failed here with 'lam value too large')."""
+    import warpe_cl
+    from warpe_cl.instrument import apply_instrument
+    from warpe_cl.instrument.surface import responses
+    cfg = warpe_cl.load_preset("radiative/slab_co2_1m", overrides={
+        "simulation.photons": 500,
+        "sweep": {"medium.bottom_interface": ["fresnel", "none"]}})
+    ds = warpe_cl.simulate(cfg, device="numpy", progress=False)
+    assert ds["nadir_estimator"].values[0].startswith("none:")          # why, per scenario
+    assert ds["nadir_estimator"].values[1].startswith("next-event")
+    assert np.isnan(ds["nadir_reflectance"].isel(scenario=0)).all()
+    assert np.isfinite(ds["nadir_reflectance"].isel(scenario=1)).all()
+    # with an instrument block, simulate applies it scenario by scenario, and the stacked
+    # result keeps which estimate each used
+    inst = warpe_cl.simulate(cfg.with_overrides({"instrument": {"name": "bela"}}),
+                             device="numpy", progress=False)
+    assert inst.attrs["instrument_diffuse_estimate"] == "mixed"
+    assert list(inst["diffuse_estimate"].values) == ["fov", "nadir"]
+    out = apply_instrument(ds, "bela", shots=3)
+    assert out.attrs["instrument_diffuse_estimate"] == "mixed"
+    assert list(out["diffuse_estimate"].values) == ["fov", "nadir"]
+    assert np.isfinite(out["expected_mv"]).all() and np.isfinite(out["signal_mv"]).all()
+    each = responses(ds)
+    np.testing.assert_array_equal(
+        each[0].diffuse, sum(ds["reflectance"].isel(scenario=0).sel(component=c)
+                             for c in ("bf_diffuse", "scattering")))
+    np.testing.assert_array_equal(
+        each[1].diffuse, sum(ds["nadir_reflectance"].isel(scenario=1).sel(component=c)
+                             for c in ("bf_diffuse", "scattering")))
+    # an interpolation between scenarios (the inversion's) takes one estimate for all: FOV
+    assert {r.estimate for r in responses(ds, uniform=True)} == {"fov"}

@@ -317,11 +317,28 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
                                                         "streams (16 hexadecimal digits)"))
             out[k] = ("scenario", np.asarray(values),
                       {"long_name": meaning, **({"units": units} if units else {})})
+    for k, (name, meaning) in VARYING_TEXT.items():   # what differs per scenario, kept
+        if k in varying:
+            out[name] = ("scenario", np.asarray([str(ds.attrs.get(k, "")) for ds in datasets]),
+                         {"long_name": meaning})
+            if k == "instrument_diffuse_estimate":
+                out.attrs[k] = "mixed"
     for key in points[0]:
         out = out.assign_coords(sweep_coordinates(key, [p[key] for p in points]))
     out = out.assign_coords(scenario=np.arange(len(datasets)))
     out.attrs.update(attrs or {})
     return out
+
+
+#: Attributes of one scenario that become a per-scenario variable (name, meaning) when they
+#: differ between the scenarios of a sweep, instead of being dropped with the other varying
+#: attributes.
+VARYING_TEXT = {
+    "nadir_estimator": ("nadir_estimator", "what nadir_reflectance is, or why the scenario has "
+                                           "none (docs/walk.md §8)"),
+    "instrument_diffuse_estimate": ("diffuse_estimate", "diffuse reflectance the instrument "
+                                    "used: nadir (nadir_reflectance) or fov (reflectance)"),
+}
 
 
 def _fill_missing(datasets: list) -> list:

@@ -88,4 +88,11 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
             if k in ("warpe_cl_version", "created_utc", "command", "numpy_version", "host")}
     prov.update({"instrument_seed": int(seed), "instrument_shots": shots})
     prov["instrument_diffuse_estimate"] = surface.diffuse_estimate(ds)
-    return output.build(ds, results, params, sweep, prov)
+    out = output.build(ds, results, params, sweep, prov)
+    if sweep:
+        import numpy as np       # which estimate each scenario used ("mixed" above: some of each)
+        from ..io import VARYING_TEXT
+        name, meaning = VARYING_TEXT["instrument_diffuse_estimate"]
+        out[name] = ("scenario", np.array([r.estimate for r in responses]),
+                     {"long_name": meaning})
+    return out

@@ -3,7 +3,7 @@
 From a result file (docs/interface.md §5): the diffuse response R_d(t) = reflectance of
 ``scattering`` + ``bf_diffuse`` (sr⁻¹ ns⁻¹, log-spaced bins) — the next-event estimate in the
 exact view direction, ``nadir_reflectance``, when the file has it (docs/walk.md §8), else the
-numerical-FOV ``reflectance`` (:func:`diffuse_estimate` says which) — and the specular and BF-direct
+numerical-FOV ``reflectance`` (:func:`diffuse_estimates` says which, scenario by scenario) — and the specular and BF-direct
 returns as fractions per launched ray (``ray_count / photons``) with their delays: t = 0 for the
 specular, t_k = k · 2 h n_eff / c for the k-th BF-direct passage (``first_bf_time_ns``), so that
 the instrument applies the aperture and lobe geometry once (the file's specular reflectance,
@@ -38,11 +38,15 @@ class SurfaceResponse:
         (component, delay ns, fraction per launched ray) of the specular and BF-direct returns.
     wavelength : float or None
         m.
+    estimate : str
+        Which reflectance ``diffuse`` is: ``"nadir"`` (``nadir_reflectance``) or ``"fov"``
+        (``reflectance``).
     """
     edges: np.ndarray
     diffuse: np.ndarray
     returns: list = field(default_factory=list)
     wavelength: float | None = None
+    estimate: str = "fov"
 
     @property
     def diffuse_integral(self) -> float:
@@ -64,11 +68,28 @@ def check_variables(ds, source: str = "<dataset>"):
         raise ConfigError(f"component coordinate lacks {', '.join(lacking)}", key=source)
 
 
+def diffuse_estimates(ds) -> list:
+    """Which diffuse reflectance the instrument uses, per scenario (one item without a sweep):
+    ``"nadir"`` (``nadir_reflectance``, the next-event estimate in the view direction) where the
+    scenario has it, else ``"fov"`` (``reflectance``, counted in the numerical fields of view).
+    In a sweep a scenario lacks it (NaN) where the estimate is not exact, e.g. a slab over a
+    Fresnel mirror next to a granular layer (docs/walk.md §8.5)."""
+    n = ds.sizes["scenario"] if "scenario" in ds.dims else None
+    if "nadir_reflectance" not in ds.variables:
+        return ["fov"] * (n or 1)
+    values = np.asarray(ds["nadir_reflectance"].values, float)
+    if n is None or "scenario" not in ds["nadir_reflectance"].dims:
+        return ["nadir" if np.all(np.isfinite(values)) else "fov"] * (n or 1)
+    axis = ds["nadir_reflectance"].dims.index("scenario")
+    finite = np.all(np.isfinite(np.moveaxis(values, axis, 0).reshape(n, -1)), axis=1)
+    return ["nadir" if f else "fov" for f in finite]
+
+
 def diffuse_estimate(ds) -> str:
-    """Which diffuse reflectance the instrument uses: ``"nadir"`` (``nadir_reflectance``, the
-    next-event estimate in the view direction) when ``ds`` has it, else ``"fov"``
-    (``reflectance``, counted in the numerical fields of view)."""
-    return "nadir" if "nadir_reflectance" in ds.variables else "fov"
+    """One word for :func:`diffuse_estimates`: ``"nadir"`` or ``"fov"`` when every scenario uses
+    the same, else ``"mixed"``."""
+    kinds = set(diffuse_estimates(ds))
+    return kinds.pop() if len(kinds) == 1 else "mixed"
 
 
 def wavelength_of(ds, scenario: int | None = None) -> float | None:
@@ -103,11 +124,13 @@ def response(ds, scenario: int | None = None) -> SurfaceResponse:
     return _Arrays(ds).response(scenario)
 
 
-def responses(ds) -> list:
+def responses(ds, uniform: bool = False) -> list:
     """The :class:`SurfaceResponse` of every scenario of the sweep ``ds``, each equal to
     ``response(ds, i)``; the arrays are read once (a database of 1,000 scenarios in a
-    fraction of a second)."""
-    arrays = _Arrays(ds)
+    fraction of a second). ``uniform``: one estimate for all, the FOV reflectance unless every
+    scenario has the nadir one (an interpolation between scenarios, as the inversion's, must
+    not mix the two)."""
+    arrays = _Arrays(ds, uniform)
     return [arrays.response(i) for i in range(ds.sizes["scenario"])]
 
 
@@ -115,13 +138,19 @@ class _Arrays:
     """The variables :func:`response` reads, as numpy arrays (a leading scenario axis for a
     sweep)."""
 
-    def __init__(self, ds):
+    def __init__(self, ds, uniform: bool = False):
         self.ds = ds
         self.edges = np.asarray(ds["time_edges"].values, float)
         comps = [str(c) for c in ds["component"].values]
-        name = "nadir_reflectance" if diffuse_estimate(ds) == "nadir" else "reflectance"
-        refl = ds[name].transpose(..., "component", "time").values
-        self.diffuse = sum(np.asarray(refl[..., comps.index(c), :], float) for c in DIFFUSE)
+        self.estimates = diffuse_estimates(ds)
+        if uniform and len(set(self.estimates)) > 1:
+            self.estimates = ["fov"] * len(self.estimates)
+        self.diffuse = {}
+        for name, kind in (("reflectance", "fov"), ("nadir_reflectance", "nadir")):
+            if kind in self.estimates:
+                refl = ds[name].transpose(..., "component", "time").values
+                self.diffuse[kind] = sum(np.asarray(refl[..., comps.index(c), :], float)
+                                         for c in DIFFUSE)
         counts = ds["ray_count"].transpose(..., "component", "time").values
         self.bf = np.asarray(counts[..., comps.index("bf_direct"), :], float)
         self.photons = np.asarray(ds["photons"].values, float)
@@ -160,5 +189,6 @@ class _Arrays:
                     t = k * t1
             merged[t] = merged.get(t, 0.0) + bf[j] / photons
         returns += [("bf_direct", t, f) for t, f in sorted(merged.items())]
-        return SurfaceResponse(edges, np.array(pick(self.diffuse), float), returns,
-                               wavelength_of(self.ds, scenario))
+        kind = self.estimates[0 if scenario is None else scenario]
+        return SurfaceResponse(edges, np.array(pick(self.diffuse[kind]), float), returns,
+                               wavelength_of(self.ds, scenario), kind)

@@ -229,7 +229,7 @@ class Space:
         t1 = (sub["first_bf_time_ns"].values if "first_bf_time_ns" in sub.variables
               else np.full(sub.sizes["scenario"], math.nan))
         values = [np.asarray(sub[a.key].values, float) for a in self.axes]
-        for i, r in enumerate(responses(sub)):
+        for i, r in enumerate(responses(sub, uniform=True)):
             index = tuple(int(np.searchsorted(a.values, v[i])) for a, v in zip(self.axes, values))
             self.nodes[index] = NodeResponse(r, float(t1[i]))
         self.wavelength = self.nodes.flat[0].surface.wavelength
