@@ -45,6 +45,13 @@ typedef ulong VULONG;
 #define CONVERT_VREAL(x) ((REAL)(x))
 #define CONVERT_VMASK(x) ((IREAL)(x))
 #define CONVERT_VUINT(x) ((uint)(x))
+#ifdef WARPE_DOUBLE
+#define AS_VREAL(x) as_double(x)
+#define AS_VMASK(x) as_long(x)
+#else
+#define AS_VREAL(x) as_float(x)
+#define AS_VMASK(x) as_int(x)
+#endif
 #define ANY(m) ((m) != 0)
 #define ALL(m) ((m) != 0)
 #define SEL(a, b, m) ((m) ? (b) : (a))     /* b where m, else a */
@@ -73,6 +80,14 @@ typedef WARPE_CAT(ulong, WARPE_LANES) VULONG;
 #define MASK32(m) (m)
 #endif
 #define CONVERT_VUINT(x) WARPE_CAT(convert_uint, WARPE_LANES)(x)
+/* the bits of a VREAL as a VMASK and back */
+#ifdef WARPE_DOUBLE
+#define AS_VREAL(x) WARPE_CAT(as_double, WARPE_LANES)(x)
+#define AS_VMASK(x) WARPE_CAT(as_long, WARPE_LANES)(x)
+#else
+#define AS_VREAL(x) WARPE_CAT(as_float, WARPE_LANES)(x)
+#define AS_VMASK(x) WARPE_CAT(as_int, WARPE_LANES)(x)
+#endif
 /* ANY / ALL read a mask's lanes as bytes (0 or -1, no lane out of a char's range): one
  * narrowing and one 64-bit test instead of any()'s / all()'s reduction of the sign bits
  * through four max or min steps, which Intel's compiler emits (1.05x the events/s of the

@@ -163,6 +163,53 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
     return r;
 }
 
+#ifdef WARPE_NADIR
+/* e^-tau (tau >= 0) for the nadir scores. Double precision: exp. Single precision: 2^n 2^f
+ * with y = -tau log2(e) = n + f, n = rint(y), |f| <= 1/2, and 2^f by a degree-5 polynomial in
+ * fma steps (a weighted least-squares fit of 2^f on [-1/2, 1/2]: 3.4e-7 relative at most, 6
+ * ulp); 0 below 2^-125, so that no device's flushing of denormals matters. Only correctly
+ * rounded operations: for the same tau, the same bits at every lane width and on every
+ * device (native_exp is each device's own, and differs between its vector and scalar forms),
+ * and cheaper than native_exp on Intel's CPU runtime (docs/performance.md). */
+WALK_STEP VREAL exp_neg(VREAL tau)
+{
+#ifdef WARPE_DOUBLE
+    return exp(-tau);
+#else
+    const VREAL y = -tau * (REAL)1.4426950408889634;
+    const VREAL n = rint(y);
+    const VREAL f = y - n;
+    VREAL p = fma(f, (VREAL)0.0012915669940412045f, (VREAL)0.009668530896306038f);
+    p = fma(f, p, (VREAL)0.055516887456178665f);
+    p = fma(f, p, (VREAL)0.24022264778614044f);
+    p = fma(f, p, (VREAL)0.6931464672088623f);
+    p = fma(f, p, (VREAL)1.0f);
+    const VREAL scale = AS_VREAL((CONVERT_VMASK(fmax(n, (REAL)-126)) + (VMASK)127) << 23);
+    return SEL((VREAL)0, p * scale, n >= (REAL)-125);
+#endif
+}
+
+/* x^(-3/2) (x > 0), of the HG phase function. Double precision: rsqrt(x) / x, as the
+ * reference computes it. Single precision: y^3, y the inverse square root from the bits of x
+ * (0x5f3759df - bits / 2: within 3.5 %, Lomont 2003) and three Newton steps
+ * y (3/2 - x y^2 / 2), within a few ulp. Like exp_neg, only correctly rounded operations (the
+ * same bits everywhere), and cheaper than the accurate rsqrt and a division, which were three
+ * of the slowest instructions of an event (docs/performance.md). */
+WALK_STEP VREAL pow_m3_2(VREAL x)
+{
+#ifdef WARPE_DOUBLE
+    return rsqrt(x) / x;
+#else
+    const VREAL hx = (REAL)0.5 * x;
+    VREAL y = AS_VREAL((VMASK)0x5f3759df - (AS_VMASK(x) >> 1));
+    y = y * fma(-hx * y, y, (VREAL)1.5);
+    y = y * fma(-hx * y, y, (VREAL)1.5);
+    y = y * fma(-hx * y, y, (VREAL)1.5);
+    return y * y * y;
+#endif
+}
+#endif
+
 #ifdef WARPE_TEXTURE_LAYERS
 /* The lanes in m take the values of the layer they are in (walk.md §7.3): a select per layer,
  * done only when a ray changes layer or a lane takes a ray. */
@@ -1049,7 +1096,7 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
 #endif
     const VREAL c = r->ux * sin_v - r->uz * mu_v;
     const VREAL x = ((REAL)1 + g * g) - (REAL)2 * g * c;
-    VREAL s = k * rsqrt(x) / x * EXP(-tau);
+    VREAL s = k * pow_m3_2(x) * exp_neg(tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
 #elif defined(WARPE_TEXTURE_LAYERS)
@@ -1079,7 +1126,7 @@ WALK_STEP void nadir_contact(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     const VREAL path = sc->v_path_per_m * r->z;
     const REAL k = sc->v_factor * sc->v_mu * (REAL)(1.0 / WARPE_PI);
 #endif
-    VREAL s = k * EXP(-tau);
+    VREAL s = k * exp_neg(tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
 #else

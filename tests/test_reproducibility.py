@@ -102,3 +102,39 @@ def test_lane_width_from_the_environment(monkeypatch):
         default_lanes("cpu", "single")
     monkeypatch.delenv("WARPE_CL_LANES")
     assert default_lanes("cpu", "single") == 16 and default_lanes("gpu", "single") == 1
+
+
+def test_reusing_walks_walks_a_repeated_scenario_once(monkeypatch):
+    """Inside ``reusing_walks`` a walk that repeats one already made (same walk parameters,
+    seed, scenario key, photons, precision) reuses its counts, the same bits as walking it
+    again; another photon count, or another scenario key, walks; outside the block nothing is
+    kept."""
+    import warpe_cl
+    from warpe_cl import api
+    engine = api.get_engine("numpy")
+    walked = []
+    run = engine.run
+
+    def spy(params, photons, **kw):
+        walked.append((params.scenario, photons))
+        return run(params, photons, **kw)
+
+    monkeypatch.setattr(engine, "run", spy)
+    cfg = load_preset("radiative/slab_co2_1m", overrides={"simulation.photons": 300,
+                                                          "medium.bottom_interface": "none"})
+
+    def simulate(c):
+        return warpe_cl.simulate(c, device="numpy", progress=False)
+
+    fresh = simulate(cfg)
+    with api.reusing_walks():
+        first = simulate(cfg)
+        again = simulate(cfg)
+        simulate(cfg.with_overrides({"simulation.photons": 301}))
+        simulate(cfg.with_overrides({"simulation.seed": 2}))
+    simulate(cfg)
+    assert len(walked) == 5                    # fresh, first, 301 photons, seed 2, last
+    for name in ("reflectance", "ray_count", "nadir_reflectance", "fraction"):
+        np.testing.assert_array_equal(again[name].values, first[name].values)
+        np.testing.assert_array_equal(fresh[name].values, first[name].values)
+    assert api._walks is None

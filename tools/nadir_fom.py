@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""Speed and figure of merit of the next-event (nadir) estimator on bench scene B1.
+"""Speed and figure of merit of the next-event (nadir) estimator on bench scene B1 (or --scene).
 
     python tools/nadir_fom.py [--photons N] [--rounds R] [--roulettes 0,0.01,0.1,1]
-                              [--cones 1,3,12] [--device SPEC] [--write [FILE]]
+                              [--cones 1,3,12] [--scene B1] [--device SPEC] [--write [FILE]]
 
 Scene B1 of tools/bench.py (60 mm slab, tau0 = 60.3, omega = 0.99502, n = 1.3, g = 0.8,
 Lambertian floor A = 0.15, 5 ns cap) is walked with ``simulation.nadir: false`` and with the
@@ -69,10 +69,11 @@ def fom(value: float, sigma: float, seconds: float) -> float:
     return math.inf if sigma == 0 else value * value / (sigma * sigma * seconds)
 
 
-def one_run(overrides: dict, photons: int, cones, device=None, scene_overrides=None) -> dict:
-    """Walk B1 once with ``overrides`` (and ``scene_overrides``, the same for every
-    configuration): T, events/s, and the estimates with their FOMs."""
-    scene = copy.deepcopy(SCENES["B1"])
+def one_run(overrides: dict, photons: int, cones, device=None, scene_overrides=None,
+            scene_name: str = "B1") -> dict:
+    """Walk bench scene ``scene_name`` once with ``overrides`` (and ``scene_overrides``, the
+    same for every configuration): T, events/s, and the estimates with their FOMs."""
+    scene = copy.deepcopy(SCENES[scene_name])
     cfg = warpe_cl.load_preset(scene, overrides={"simulation.photons": photons,
                                                  **(scene_overrides or {}), **overrides})
     ds, counts, walk = run_with_counts(cfg, device)
@@ -100,12 +101,14 @@ def measure(args) -> dict:
     """Warm-up, then --rounds interleaved rounds of every configuration."""
     configs = configurations(args.roulettes)
     for _, over in configs:                     # builds each kernel, untimed
-        one_run(over, min(args.photons, 10_000), args.cones, args.device, args.scene)
+        one_run(over, min(args.photons, 10_000), args.cones, args.device, args.scene,
+                args.scene_name)
     runs = {label: [] for label, _ in configs}
     for i in range(args.rounds):
         line = []
         for label, over in configs:
-            row = one_run(over, args.photons, args.cones, args.device, args.scene)
+            row = one_run(over, args.photons, args.cones, args.device, args.scene,
+                          args.scene_name)
             runs[label].append(row)
             line.append(f"{label} {row['events_per_s']:.3g}")
         print(f"round {i + 1}/{args.rounds}: scattering events/s: " + ", ".join(line),
@@ -117,7 +120,7 @@ def table(runs: dict, args, header: str) -> list:
     """The report's lines."""
     off = runs["nadir off"]
     lines = [header,
-             f"# B1 (tools/bench.py){args.variant}, {args.photons:.3g} photons per run, "
+             f"# {args.scene_name} (tools/bench.py){args.variant}, {args.photons:.3g} photons per run, "
              f"{rounds_text(args.rounds)}, median [min-max]; T = walk time; "
              f"FOM = 1 / ((sigma / value)^2 T), 1/s",
              "",
@@ -174,6 +177,8 @@ def main(argv=None) -> int:
     p.add_argument("--roulettes", default="0,0.01,0.1,1",
                    help="simulation.nadir_roulette values (default 0,0.01,0.1,1)")
     p.add_argument("--cones", default="1,3,12", help="FOV cones, whole degrees (default 1,3,12)")
+    p.add_argument("--scene", dest="scene_name", default="B1", choices=sorted(SCENES),
+                   help="the bench scene of tools/bench.py (default B1)")
     p.add_argument("--device", default=None)
     p.add_argument("--write", nargs="?", const=str(DEFAULT_OUT), default=None, metavar="FILE",
                    help=f"also write the table (default file {DEFAULT_OUT})")
@@ -183,7 +188,7 @@ def main(argv=None) -> int:
     args.cones = [int(c) for c in args.cones.split(",")]
     t0 = time.perf_counter()
     get_engine(args.device)
-    args.scene, note = with_estimator(copy.deepcopy(SCENES["B1"]), {})
+    args.scene, note = with_estimator(copy.deepcopy(SCENES[args.scene_name]), {})
     args.variant = (" with medium.bottom_interface: none (floor in optical contact)"
                     if note else "")
     header = f"# {machine_line(args.device)}"

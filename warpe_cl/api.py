@@ -13,9 +13,12 @@ docs/interface.md §2.2 works the same way, e.g. ``device="auto"``, the default)
 """
 from __future__ import annotations
 
+import contextlib
+import copy
 import dataclasses
 import hashlib
 import json
+import pickle
 import time
 
 from . import io, tally
@@ -26,6 +29,49 @@ from .progress import Progress
 from .radiative import radiative_parameters
 
 _engines: dict = {}
+#: The walks kept by :func:`reusing_walks` (None: none kept), by :func:`_walk_key`.
+_walks: dict | None = None
+
+
+@contextlib.contextmanager
+def reusing_walks():
+    """Within this block, a walk that repeats one already made (the same device, walk
+    parameters, seed and scenario key, photons and precision: the same bits, docs/walk.md §1)
+    is not walked again; its counts are reused. For a run of several presets that share a
+    scenario, as ``tools/reproduce_paper.py``, where the BELA figure's granular case is a curve
+    of ``gran_co2_thickness``. The kept counts are dropped when the block ends.
+
+        >>> with reusing_walks():
+        ...     ds = simulate(cfg)           # doctest: +SKIP
+    """
+    global _walks
+    outer = _walks
+    _walks = {} if outer is None else outer
+    try:
+        yield
+    finally:
+        _walks = outer
+
+
+def _walk_key(engine, params: WalkParams, photons: int, precision: str) -> tuple:
+    """What a walk's counts depend on: the engine, every walk parameter (the seed and the
+    scenario key among them), the photon count and the precision."""
+    digest = hashlib.sha256(pickle.dumps(params, protocol=4)).hexdigest()
+    return (getattr(engine, "name", type(engine).__name__), digest, int(photons), precision)
+
+
+def _walk(engine, params: WalkParams, photons: int, precision: str, progress):
+    """``engine.run(params, photons, ...)``, or the counts of the same walk kept by
+    :func:`reusing_walks` (a copy: the caller may add to them)."""
+    key = _walk_key(engine, params, photons, precision) if _walks is not None else None
+    if key is not None and key in _walks:
+        if progress is not None:
+            progress(photons)
+        return copy.deepcopy(_walks[key])
+    counts = engine.run(params, photons, precision=precision, progress=progress)
+    if key is not None:
+        _walks[key] = copy.deepcopy(counts)
+    return counts
 
 
 def walk_params(cfg: Config, scenario: int = 0) -> tuple:
@@ -196,8 +242,8 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
     # on a terminal, once the run has taken 2 s; removed when it ends
     bar = Progress(photons, progress, unit="ray", unit_scale=True, delay=2.0, leave=False)
     try:
-        counts = engine.run(params, photons, precision=precision,
-                            progress=None if progress is False else bar.update_to)
+        counts = _walk(engine, params, photons, precision,
+                       None if progress is False else bar.update_to)
     finally:
         bar.close()
     arrays = tally.reduce_counts(counts, params, solid_angle=cfg.get("simulation.solid_angle"),
