@@ -66,6 +66,9 @@ typedef struct {
 #else
     /* the layer's row of the view table (walk.md §8), and phase_k = (1 - g^2) / (4 pi) */
     REAL v_sin, v_mu, v_tau_per_m, v_path_per_m, v_factor, phase_k;
+    /* a slab over a vacuum gap: its mirror paths, [n_mirror][N_MIRROR] (walk.md §8.5) */
+    __global const REAL *mirror;
+    int n_mirror;
 #endif
     /* the gap's row: a floor reflection below a Fresnel bottom (walk.md §8) */
     REAL vg_mu, vg_tau, vg_path, vg_factor;
@@ -1099,15 +1102,43 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     VREAL s = k * pow_m3_2(x) * exp_neg(tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
+    const VREAL v = (VREAL)0;    /* no roulette */
 #elif defined(WARPE_TEXTURE_LAYERS)
     const VREAL words = SEL(CONVERT_VREAL(r->omega_lo), (VREAL)0x1p32, r->scatter_all);
-    s = nadir_roulette(s, (CONVERT_VREAL(x1) + (REAL)0.5) / words, sc);
+    const VREAL v = (CONVERT_VREAL(x1) + (REAL)0.5) / words;
 #else
-    s = nadir_roulette(s, (CONVERT_VREAL(x1) + (REAL)0.5) * sc->inv_omega_words, sc);
+    const VREAL v = (CONVERT_VREAL(x1) + (REAL)0.5) * sc->inv_omega_words;
 #endif
+    const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)0);
     const VREAL tv = (r->Ls + path) * tally->ns_per_m;
-    nadir_add(m, s, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
-              (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)0), r, tally);
+    nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+              first, r, tally);
+#if defined(WARPE_INTERFACES) && !defined(WARPE_TEXTURE_LAYERS)
+    /* a slab over a vacuum gap: the mirror paths of mirror_table (walk.md §8.5), each played
+     * the roulette with the event's uniform (each stays unbiased) */
+    for (int i = 0; i < sc->n_mirror; ++i) {
+        __global const REAL *row = sc->mirror + N_MIRROR * i;
+        const int kind = (int)row[MIRROR_KIND];
+        VREAL si, ti;
+        if (kind == MIRROR_UP) {             /* up, then k round trips */
+            si = s * row[MIRROR_FACTOR];
+            ti = path + row[MIRROR_PATH];
+        } else if (kind == MIRROR_DOWN) {    /* down along the mirror image, reflected below */
+            const VREAL below = (REAL)sc->h - r->z;
+            const VREAL xd = ((REAL)1 + g * g) - (REAL)2 * g * (r->ux * sin_v + r->uz * mu_v);
+            si = k * row[MIRROR_FACTOR] * pow_m3_2(xd) * exp_neg(sc->v_tau_per_m * below);
+#ifdef WARPE_WEIGHTED
+            si *= r->w;
+#endif
+            ti = sc->v_path_per_m * below + row[MIRROR_PATH];
+        } else {
+            continue;                        /* the gap's paths: nadir_gap */
+        }
+        const VREAL tvi = (r->Ls + ti) * tally->ns_per_m;
+        nadir_add(m, nadir_roulette(si, v, sc), tvi,
+                  nadir_row(r->n_lamb > (VMASK)0, tvi, tally), first, r, tally);
+    }
+#endif
 }
 
 /* A reflection of the lanes in m by a floor in contact with the last layer, at its bottom
@@ -1146,12 +1177,25 @@ WALK_STEP void nadir_gap(VMASK m, VUINT x0, const scene_t *sc, rays_t *r,
     VREAL s = (VREAL)(sc->vg_factor * sc->vg_mu * (REAL)(1.0 / WARPE_PI) * exp(-sc->vg_tau));
 #ifdef WARPE_WEIGHTED
     s *= r->w;
+    const VREAL v = (VREAL)0;    /* no roulette */
 #else
-    s = nadir_roulette(s, (CONVERT_VREAL(x0) + (REAL)0.5) * sc->inv_albedo_words, sc);
+    const VREAL v = (CONVERT_VREAL(x0) + (REAL)0.5) * sc->inv_albedo_words;
 #endif
+    const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1);
     const VREAL tv = (r->Ls + sc->vg_path) * tally->ns_per_m;
-    nadir_add(m, s, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
-              (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1), r, tally);
+    nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+              first, r, tally);
+#ifndef WARPE_TEXTURE_LAYERS
+    /* a slab over the gap: k round trips between its faces after the crossing (walk.md §8.5) */
+    for (int i = 0; i < sc->n_mirror; ++i) {
+        __global const REAL *row = sc->mirror + N_MIRROR * i;
+        if ((int)row[MIRROR_KIND] != MIRROR_GAP)
+            continue;
+        const VREAL tvi = (r->Ls + (sc->vg_path + row[MIRROR_PATH])) * tally->ns_per_m;
+        nadir_add(m, nadir_roulette(s * row[MIRROR_FACTOR], v, sc), tvi,
+                  nadir_row(r->n_lamb > (VMASK)0, tvi, tally), first, r, tally);
+    }
+#endif
 }
 #endif
 #endif
@@ -1361,6 +1405,8 @@ __kernel void walk(const uint seed, const ulong scenario,
 #endif
 #ifdef WARPE_NADIR             /* the next-event estimate (walk.md §8) */
                    , __global const REAL *view   /* [n_layers + 1][N_VIEW] */
+                   , __global const REAL *mirror /* [max(n_mirror, 1)][N_MIRROR] */
+                   , const int n_mirror          /* its rows: 0 but for a slab over a gap */
                    , const REAL nadir_min        /* s_min of the score roulette (walk.md §8.3) */
                    , const int bin_log, const REAL bin_a, const REAL bin_b  /* bin guess */
                    , const uint nadir_slices     /* work-item i writes slice i mod nadir_slices */
@@ -1397,6 +1443,7 @@ __kernel void walk(const uint seed, const ulong scenario,
                         .v_tau_per_m = view[VIEW_TAU_PER_M],
                         .v_path_per_m = view[VIEW_PATH_PER_M], .v_factor = view[VIEW_FACTOR],
                         .phase_k = ((REAL)1 - g * g) * (REAL)(0.25 / WARPE_PI),
+                        .mirror = mirror, .n_mirror = n_mirror,
 #define GAP_ROW N_VIEW
 #endif
                         .vg_mu = view[GAP_ROW + VIEW_MU], .vg_tau = view[GAP_ROW + VIEW_TAU_ABOVE],

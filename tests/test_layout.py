@@ -93,6 +93,7 @@ LAYOUT_NAME = re.compile(r"\b(N_COMPONENTS|N_FATES|N_EMERGENCE|N_ITEM_STATS|N_RE
                          r"RECORD_\w+|STATE_\w+|TIME_BIN_\w+|N_LAYER_STATS|"
                          r"LSTAT_\w+|N_LAYER_REAL|LAYER_\w+|N_IFACE_REAL|IFACE_\w+|"
                          r"N_NADIR_ROWS|NADIR_ROW_\w+|NADIR_BATCHES|N_VIEW|VIEW_\w+|"
+                         r"N_MIRROR|MIRROR_\w+|"
                          r"FIXED_SHIFT|FIXED_WORDS|MAX_WEIGHT)\b")
 
 

@@ -323,9 +323,9 @@ def test_peak_of_a_late_return_on_log_bins():
 
 def test_reproduce_paper_bela_figure_runs(tmp_path):
     """tools/reproduce_paper.py --only bela_cases end to end, at 300 rays per curve: the preset
-    (a granular layer with the nadir estimate next to a slab over a mirror without one), its
-    figure, and the BELA instrument figure on that mixed sweep (it once failed there: the
-    chain read the slab's NaN nadir_reflectance)."""
+    (a granular layer and a slab over a vacuum gap), its figure, and the BELA instrument figure
+    on that sweep, with the nadir estimate of both (it once failed there, when the slab had
+    none: the chain read its NaN nadir_reflectance)."""
     import sys
 
     import xarray as xr
@@ -337,6 +337,6 @@ def test_reproduce_paper_bela_figure_runs(tmp_path):
                     "--data", str(data)]) == 0
     assert (out / "bela_cases_instrument.png").is_file() and (out / "bela_cases.png").is_file()
     with xr.open_dataset(data / "bela_cases_instrument_0.01deg.nc") as ds:
-        assert ds.attrs["instrument_diffuse_estimate"] == "mixed"
-        assert list(ds["diffuse_estimate"].values) == ["nadir", "fov"]
+        assert ds.attrs["instrument_diffuse_estimate"] == "nadir"
+        assert list(ds["diffuse_estimate"].values) == ["nadir", "nadir"]
         assert np.isfinite(ds["expected_mv"].values).all()

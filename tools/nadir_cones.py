@@ -31,11 +31,10 @@ against the FOV one under each rule):
     (errors of FOV and nadir combined in quadrature), its chi^2 / dof against the flat-BRDF
     expectation and the ratio of the sums over those bins.
 
-warpe-cl makes no nadir estimate where a Fresnel face lies below a scattering layer (a slab
-over its vacuum gap: the paper's presets): the estimator follows virtual paths straight up and
-not their mirror images off that face (warpe_cl/nadir.py, ``mirror_below``). There the tool
-says so and puts the floor in optical contact (``medium.bottom_interface: none``), the nearest
-scene for which the estimate is exact, and labels its output accordingly.
+A slab over its vacuum gap (the paper's presets) is estimated with the mirror paths of its
+lower face (docs/walk.md §8.5). warpe-cl makes no nadir estimate for a stack with a Fresnel
+contact below its top (warpe_cl/nadir.py, ``mirror_below``): the tool stops there with the
+reason.
 
 With ``cone`` normalisation a reflectance flat in angle reads (1 + cos theta) / 2 of the BRDF
 in the cone (counts / N = f pi sin^2 theta); the tables print that expectation (``flat``) next
@@ -125,23 +124,12 @@ def nadir_refusal(preset, overrides: dict) -> str | None:
     return f"no nadir estimate: {mirror_below(params)} (docs/walk.md §8.5)"
 
 
-def with_estimator(preset, overrides: dict) -> tuple:
-    """``overrides`` under which the nadir estimate is made, and a note (None if unchanged).
-
-    Where warpe-cl declines it because a slab's lower face over the vacuum gap is a mirror
-    (the paper's presets, bench scene B1), the floor is put in optical contact
-    (``medium.bottom_interface: none``), the nearest scene for which the estimate is exact;
-    the note says so. Raises SystemExit where that does not help, or the user chose the
-    interface."""
+def check_estimator(preset, overrides: dict) -> None:
+    """SystemExit with the reason where warpe-cl makes no nadir estimate for ``preset`` with
+    ``overrides`` (a stack's Fresnel contact below its top, docs/walk.md §8.5)."""
     reason = nadir_refusal(preset, overrides)
-    if reason is None:
-        return dict(overrides), None
-    fallback = {**overrides, "medium.bottom_interface": "none"}
-    if "medium.bottom_interface" in overrides or nadir_refusal(preset, fallback) is not None:
+    if reason is not None:
         raise SystemExit(f"no nadir estimate for {preset}: {reason}")
-    return fallback, (f"NOTE: {reason}\nNOTE: so this comparison runs the preset with "
-                      f"medium.bottom_interface: none (the floor in optical contact with the "
-                      f"slab), the nearest scene the estimate is exact for.")
 
 
 # ---------------------------------------------------------------- estimates
@@ -237,7 +225,7 @@ def study(args) -> dict:
     for rule in args.rules:
         base = {"simulation.photons": args.photons, "simulation.component_rule": rule,
                 **args.overrides}
-        base, args.note = with_estimator(args.preset, base)
+        check_estimator(args.preset, base)
         cfg = warpe_cl.load_preset(args.preset, overrides=base)
         kind = args.solid_angle or cfg.get("simulation.solid_angle")
         t0 = time.perf_counter()
@@ -347,8 +335,7 @@ def draw(res: dict, path: Path, args) -> None:
     ax2.set_ylabel("diffuse reflectance, FOV / nadir (per bin)")
     ax2.set_title(f"(b) reflectance vs nadir_reflectance ({first})")
     ax2.legend(fontsize=8)
-    variant = ", floor in optical contact (bottom_interface: none)" if args.note else ""
-    fig.suptitle(f"{r['name']}{variant}: the limit of small cones "
+    fig.suptitle(f"{r['name']}: the limit of small cones "
                  f"({args.photons:.3g} photons per run)")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -389,8 +376,6 @@ def main(argv=None) -> int:
     res = study(args)
     print(f"# {machine_line(args.device)}")
     print(f"# preset {args.preset}" + (f", overrides {args.overrides}" if args.overrides else ""))
-    if args.note:
-        print(args.note)
     print_tables(res, args)
     if args.figure:
         draw(res, Path(args.figure), args)

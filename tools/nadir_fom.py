@@ -24,11 +24,8 @@ reduction). Per configuration, median [min-max] over rounds:
   cones of --cones degrees, time-integrated from ``angular_reflectance`` (rays in the cone,
   Poisson sigma = sqrt(rays), the same T).
 
-warpe-cl makes no nadir estimate for B1 as written: its slab's lower face over the vacuum gap
-is a mirror whose paths the estimator does not follow (warpe_cl/nadir.py, ``mirror_below``).
-The tool then walks B1 with the floor in optical contact (``medium.bottom_interface: none``),
-in every configuration alike, and says so (at 60 mm and tau0 = 60.3 the floor hardly shows
-in B1's 5 ns).
+B1's slab lies over a vacuum gap: the estimate includes the mirror paths of its lower face
+(docs/walk.md §8.5; at τ0 = 60 none is above the mirror table's cut).
 
 Prints the table with the machine and the OpenCL device; --write also writes it to
 docs/bench/2026-11-23_nadir_fom.txt (or FILE).
@@ -45,8 +42,8 @@ from pathlib import Path
 
 import warpe_cl
 from bench import SCENES, fmt_spread, rounds_text, spread  # tools/ is first on sys.path
-from nadir_cones import (DIFFUSE, fov_cone, machine_line, nadir_sum, run_with_counts,
-                         with_estimator)
+from nadir_cones import (DIFFUSE, check_estimator, fov_cone, machine_line, nadir_sum,
+                         run_with_counts)
 from warpe_cl.api import get_engine
 
 DEFAULT_OUT = Path("docs/bench/2026-11-23_nadir_fom.txt")
@@ -69,13 +66,12 @@ def fom(value: float, sigma: float, seconds: float) -> float:
     return math.inf if sigma == 0 else value * value / (sigma * sigma * seconds)
 
 
-def one_run(overrides: dict, photons: int, cones, device=None, scene_overrides=None,
-            scene_name: str = "B1") -> dict:
-    """Walk bench scene ``scene_name`` once with ``overrides`` (and ``scene_overrides``, the
-    same for every configuration): T, events/s, and the estimates with their FOMs."""
+def one_run(overrides: dict, photons: int, cones, device=None, scene_name: str = "B1") -> dict:
+    """Walk bench scene ``scene_name`` once with ``overrides``: T, events/s, and the estimates
+    with their FOMs."""
     scene = copy.deepcopy(SCENES[scene_name])
     cfg = warpe_cl.load_preset(scene, overrides={"simulation.photons": photons,
-                                                 **(scene_overrides or {}), **overrides})
+                                                 **overrides})
     ds, counts, walk = run_with_counts(cfg, device)
     events = float(ds["scattering_events"])
     row = {"walk_s": walk, "events": events, "events_per_s": events / walk, "nadir": {},
@@ -101,14 +97,12 @@ def measure(args) -> dict:
     """Warm-up, then --rounds interleaved rounds of every configuration."""
     configs = configurations(args.roulettes)
     for _, over in configs:                     # builds each kernel, untimed
-        one_run(over, min(args.photons, 10_000), args.cones, args.device, args.scene,
-                args.scene_name)
+        one_run(over, min(args.photons, 10_000), args.cones, args.device, args.scene_name)
     runs = {label: [] for label, _ in configs}
     for i in range(args.rounds):
         line = []
         for label, over in configs:
-            row = one_run(over, args.photons, args.cones, args.device, args.scene,
-                          args.scene_name)
+            row = one_run(over, args.photons, args.cones, args.device, args.scene_name)
             runs[label].append(row)
             line.append(f"{label} {row['events_per_s']:.3g}")
         print(f"round {i + 1}/{args.rounds}: scattering events/s: " + ", ".join(line),
@@ -120,7 +114,7 @@ def table(runs: dict, args, header: str) -> list:
     """The report's lines."""
     off = runs["nadir off"]
     lines = [header,
-             f"# {args.scene_name} (tools/bench.py){args.variant}, {args.photons:.3g} photons per run, "
+             f"# {args.scene_name} (tools/bench.py), {args.photons:.3g} photons per run, "
              f"{rounds_text(args.rounds)}, median [min-max]; T = walk time; "
              f"FOM = 1 / ((sigma / value)^2 T), 1/s",
              "",
@@ -188,12 +182,8 @@ def main(argv=None) -> int:
     args.cones = [int(c) for c in args.cones.split(",")]
     t0 = time.perf_counter()
     get_engine(args.device)
-    args.scene, note = with_estimator(copy.deepcopy(SCENES[args.scene_name]), {})
-    args.variant = (" with medium.bottom_interface: none (floor in optical contact)"
-                    if note else "")
+    check_estimator(copy.deepcopy(SCENES[args.scene_name]), {})
     header = f"# {machine_line(args.device)}"
-    if note:
-        header += "\n# " + note.replace("\n", "\n# ")
     print(header, flush=True)
     runs = measure(args)
     lines = table(runs, args, header)

@@ -122,7 +122,7 @@ def walk_params(cfg: Config, scenario: int = 0) -> tuple:
             k=derived["k_eff"],
             **common,
         )
-    # no estimate where a Fresnel mirror lies below a scattering layer (docs/walk.md §8.5):
+    # no estimate where a stack has a Fresnel contact below its top (docs/walk.md §8.5):
     # the result says so in its nadir_estimator attribute, the FOV reflectance is as always
     if params.nadir and mirror_below(params) is not None:
         params = dataclasses.replace(params, nadir=False)
@@ -221,7 +221,7 @@ def _nadir_attrs(cfg: Config, params: WalkParams) -> dict:
     if not cfg.get("simulation.nadir"):
         return {"nadir_estimator": "none: simulation.nadir is false"}
     return {"nadir_estimator": f"none: {mirror_below(params)}; the estimator does not follow "
-                               "mirror paths (docs/walk.md §8.5)"}
+                               "a stack's mirror paths (docs/walk.md §8.5)"}
 
 
 def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):

@@ -180,6 +180,8 @@ WALK_ARGS = (
       for name in ("w_time_in_fov", "w_time_any", "w_angular", "w_total", "w_early",
                    "w2_time_in_fov", "w2_total")),
     KernelArg("view", "__global const REAL *", only="nadir"),
+    KernelArg("mirror", "__global const REAL *", only="nadir"),
+    KernelArg("n_mirror", "int", lambda p: len(_mirror(p)), only="nadir"),
     KernelArg("nadir_min", "REAL", lambda p: p.nadir_min_score, only="nadir"),
     *(KernelArg(name, ctype, _bin_guess(i), only="nadir")
       for i, (name, ctype) in enumerate((("bin_log", "int"), ("bin_a", "REAL"),
@@ -191,6 +193,12 @@ WALK_ARGS = (
     KernelArg("rec_real", "__global REAL *", only="records"),
     KernelArg("record_base", "uint", only="records"),
 )
+
+def _mirror(params: WalkParams) -> np.ndarray:
+    """The mirror paths of the nadir estimate (warpe_cl.nadir.mirror_table)."""
+    from .nadir import mirror_table
+    return mirror_table(params)
+
 
 _SCALAR_TYPES = {"uint": np.uint32, "ulong": np.uint64, "int": np.int32}
 
@@ -502,6 +510,10 @@ class Engine:
             from .nadir import view_table
             buffers["view"] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                         hostbuf=view_table(params).astype(real))
+            mirror = _mirror(params)
+            padded = np.vstack([mirror, np.zeros((1, mirror.shape[1]))])   # no empty buffer
+            buffers["mirror"] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                          hostbuf=padded.astype(real))
             buffers["nadir_sum"] = cl.Buffer(ctx, mf.READ_WRITE,
                                              size=8 * FIXED_WORDS * int(np.prod(nadir_shape)))
             buffers["nadir_visits"] = cl.Buffer(

@@ -283,8 +283,9 @@ def combine_scenarios(datasets: list, points: list, attrs: dict | None = None):
     unit, the written text beside them), the per-scenario derived parameters (tau0, omega, ...,
     :func:`derived_variables`, stacked as every variable; from the attributes of a file written
     before they were variables) and Philox scenario keys become variables, attributes shared
-    by every scenario stay attributes, and ``attrs`` (e.g. the whole preset with its sweep
-    block) is added last.
+    by every scenario stay attributes (those of :data:`VARYING_TEXT` that differ become
+    per-scenario variables), and ``attrs`` (e.g. the whole preset with its sweep block) is
+    added last.
     A dimension without coordinate whose length differs between scenarios (``photon``, the
     time tags of a photon-counting instrument) is padded at its end to the longest with NaN,
     as :func:`warpe_cl.instrument.output.build` pads it.

@@ -22,7 +22,12 @@ import math
 
 import numpy as np
 
-from .params import NADIR_ROWS, VIEW_COLUMNS, WalkParams, fixed_to_float
+from .params import MIRROR_COLUMNS, MIRROR_KINDS, NADIR_ROWS, VIEW_COLUMNS, WalkParams, \
+    fixed_to_float
+
+#: The mirror table leaves out the virtual paths whose factor (the product of their
+#: reflections and of e^-tau of their whole crossings) is below this (docs/walk.md §8.5).
+MIRROR_CUT = 1e-9
 from .radiative import fresnel_external, fresnel_internal
 
 __all__ = ["view_table", "up_transmission", "reduce_nadir", "mirror_below"]
@@ -31,24 +36,66 @@ __all__ = ["view_table", "up_transmission", "reduce_nadir", "mirror_below"]
 def mirror_below(params: WalkParams) -> str | None:
     """Why the estimator would be incomplete for ``params``, or None where it is exact.
 
-    The estimator follows each virtual path straight up (docs/walk.md §8.5). A Fresnel face
-    *below* a scattering layer is a mirror: a ray scattered down along the view direction's
-    mirror image reflects there and leaves toward the receiver too, and with the faces above
-    it the paths bounce back and forth. Those mirror paths are not scored yet, so where such a
-    face exists (a slab over a vacuum gap, a stack with a Fresnel contact below its top) the
-    nadir estimate is not made. A top face alone is exact: what it reflects down meets the
-    Lambertian floor or a transparent contact, never a mirror.
+    The estimator follows each virtual path up along the view direction and, in a single slab
+    over a vacuum gap, its mirror paths too (:func:`mirror_table`, docs/walk.md §8.5): a ray
+    scattered down along the view's mirror image reflects on the slab's lower face and leaves
+    toward the receiver, and every path bounces between the two faces. A stack with a Fresnel
+    contact below its top has mirrors between layers whose paths are not followed: no nadir
+    estimate there.
     """
     from .engine import layer_tables
     if not params.layered:
-        if params.texture == "slab" and params.bottom_interface == "fresnel":
-            return "the slab's lower face over the vacuum gap is a mirror"
         return None
     kinds = layer_tables(params, np.float64)["iface_kind"]
     below = [j for j in range(1, len(kinds)) if kinds[j]]
     if below:
         return f"the stack's Fresnel contact {below[0]} (counted from the top, 0) is a mirror"
     return None
+
+
+def mirror_table(params: WalkParams) -> np.ndarray:
+    """The mirror paths of a slab over a vacuum gap (docs/walk.md §8.5), shape (K, 3): one row
+    per virtual path besides the straight ones, columns :data:`~warpe_cl.params.MIRROR_COLUMNS`
+    (kind, factor, extra path in m at the slab's speed). With μ the view direction's cosine in
+    the slab, a = exp(−E h / μ) the transmission of one crossing, R_t and R_b the reflectances
+    of the upper and lower faces at μ, ρ = R_t R_b a² one round trip and P = h / μ its half:
+
+    - ``up`` (k ≥ 1): from a scattering, up along the view, k round trips: factor ρ^k, path
+      2 k P (the straight path, k = 0, is the view table's);
+    - ``down`` (k ≥ 0): from a scattering, down along the view's mirror image (its depth part
+      E (h − z) / μ and (h − z) / μ taken in the kernel), reflected by the lower face, one
+      crossing up and k round trips: factor R_b a ρ^k, path P + 2 k P;
+    - ``gap`` (k ≥ 1): from the floor below the gap, k round trips after the crossing the
+      view table's gap row holds: factor ρ^k, path 2 k P.
+
+    Paths whose factor is below :data:`MIRROR_CUT` are left out (a bias below 1e-9 of the
+    straight score). Empty for every other configuration (no mirror below a scattering
+    layer, or a stack, whose mirrors :func:`mirror_below` refuses).
+    """
+    if params.layered or params.texture != "slab" or params.bottom_interface != "fresnel":
+        return np.zeros((0, len(MIRROR_COLUMNS)))
+    faces, gap = _faces(params)
+    m = faces[0][0]
+    sin_v = math.sin(math.radians(float(params.view_zenith)))
+    mu = math.sqrt(max(0.0, 1.0 - (sin_v / m) ** 2))
+    h = float(params.stack[0].thickness)
+    a = math.exp(-float(params.stack[0].extinction) * h / mu)
+    r_top = 1.0 - up_transmission(mu, m, 1.0, 0.0)
+    r_bottom = 1.0 - up_transmission(mu, m, gap[0], gap[1])
+    rho = r_top * r_bottom * a * a
+    half = h / mu
+    kind = {k: float(i) for i, k in enumerate(MIRROR_KINDS)}
+    rows = []
+    for name, first, factor, path in (("up", 1, rho, 2.0 * half),
+                                      ("down", 0, r_bottom * a, half),
+                                      ("gap", 1, rho, 2.0 * half)):
+        k = first
+        while factor >= MIRROR_CUT and k < 64:
+            rows.append([kind[name], factor, path])
+            factor *= rho
+            path += 2.0 * half
+            k += 1
+    return np.asarray(rows, dtype=np.float64).reshape(-1, len(MIRROR_COLUMNS))
 
 
 def _faces(params: WalkParams) -> tuple:

@@ -79,6 +79,10 @@ NADIR_BATCHES = 32
 #: per metre of depth along it, those of the layers above l, and the factor T / (m^2 mu) that
 #: turns a density per steradian inside l into the reflectance in vacuum.
 VIEW_COLUMNS = ("sin", "mu", "tau_per_m", "path_per_m", "tau_above", "path_above", "factor")
+#: Columns of the nadir estimator's mirror table (warpe_cl.nadir.mirror_table): the kind of
+#: virtual path (MIRROR_UP, MIRROR_DOWN, MIRROR_GAP), its factor and its extra path (m).
+MIRROR_COLUMNS = ("kind", "factor", "path")
+MIRROR_KINDS = ("up", "down", "gap")
 #: The per-layer statistics of the layered walk (docs/walk.md §7.4), per work-item
 #: (``layer_stats[work-item][slot]``, uint64): rays absorbed in the medium of layer i, rays
 #: terminated in layer i, and transmissions down and up through interface j (j = 0: the top of
@@ -179,6 +183,9 @@ def kernel_layout() -> dict:
     out["NADIR_BATCHES"] = NADIR_BATCHES
     out["N_VIEW"] = len(VIEW_COLUMNS)
     out.update({f"VIEW_{c.upper()}": i for i, c in enumerate(VIEW_COLUMNS)})
+    out["N_MIRROR"] = len(MIRROR_COLUMNS)
+    out.update({f"MIRROR_{c.upper()}": i for i, c in enumerate(MIRROR_COLUMNS)})
+    out.update({f"MIRROR_{k.upper()}": i for i, k in enumerate(MIRROR_KINDS)})
     text = {k: (f"({v})" if v < 0 else str(v)) for k, v in out.items()}
     text["MAX_WEIGHT"] = float.hex(MAX_WEIGHT)     # exact: a C99 hexadecimal literal
     return text

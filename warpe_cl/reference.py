@@ -48,9 +48,11 @@ import numpy as np
 
 from .errors import WeightError
 from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, LAYER_STATS,
-                     MAX_LAYERS, N_EMERGENCE, NADIR_BATCHES, NADIR_ROWS, RECORD_FIELDS, RULES,
+                     MAX_LAYERS, MIRROR_KINDS, N_EMERGENCE, NADIR_BATCHES, NADIR_ROWS,
+                     RECORD_FIELDS, RULES,
                      TEXTURES, TIME_BIN_EARLY, TIME_BIN_LATE, Counts, WalkParams,
                      batch_photons, fixed_point, lost_weight)
+from .nadir import mirror_table
 from .rng import PhotonStream
 
 __all__ = ["simulate_reference", "walk_ray", "RayOutcome", "walk_ray_layers",
@@ -254,6 +256,9 @@ class NadirScorer:
                       else float(params.nadir_roulette) * top)
         self.sums = [[[0] * self.cols for _ in NADIR_ROWS] for _ in range(NADIR_BATCHES)]
         self.visits = [[0] * self.cols for _ in NADIR_ROWS]
+        # a slab over a vacuum gap: its mirror paths, (kind, factor, extra path) (walk.md §8.5)
+        self.mirror = [(MIRROR_KINDS[int(k)], float(f), float(d))
+                       for k, f, d in mirror_table(params)]
 
     def _transmission(self, j: int, mu: float) -> float:
         """1 − R of interface j crossed upwards at incidence μ (walk.md §7.1)."""
@@ -336,8 +341,21 @@ class NadirScorer:
         score = (henyey_greenstein_phase(g, cos_theta) * trans * math.exp(-tau)
                  / (face[0] * face[0] * mu) * weight)
         t = (path + up_path) * self.ns_per_metre
-        self._add(score, t, n_lamb > 0, n_scat == 0 and n_lamb == 0, word,
-                  self.omega_words[layer])
+        order_1 = n_scat == 0 and n_lamb == 0
+        self._add(score, t, n_lamb > 0, order_1, word, self.omega_words[layer])
+        for kind, factor, extra in self.mirror:      # a single slab: layer 0
+            if kind == "up":                         # up, then round trips
+                self._add(score * factor, (path + (up_path + extra)) * self.ns_per_metre,
+                          n_lamb > 0, order_1, word, self.omega_words[layer])
+            elif kind == "down":                     # down, reflected by the lower face
+                _, _, n_i, extinction, thickness, _ = self.layers[0]
+                below = thickness - z
+                down = ux * s_in + uz * mu           # toward (sin, 0, +μ)
+                mirrored = (henyey_greenstein_phase(g, down) * factor
+                            * math.exp(-extinction * below / mu) * self._transmission(0, mu)
+                            / (face[0] * face[0] * mu) * weight)
+                t_down = (path + (below * (n_i / self.n0) / mu + extra)) * self.ns_per_metre
+                self._add(mirrored, t_down, n_lamb > 0, order_1, word, self.omega_words[layer])
 
     def contact(self, layer, path, n_scat, n_lamb, weight, word):
         """A reflection by a floor in contact with ``layer`` (its bottom); n_lamb counts it."""
@@ -361,6 +379,10 @@ class NadirScorer:
         score = (mu / math.pi) * trans * math.exp(-tau) / (m * m * mu) * weight
         t = (path + up_path) * self.ns_per_metre
         self._add(score, t, True, n_scat == 0 and n_lamb == 1, word, self.albedo_words)
+        for kind, factor, extra in self.mirror:      # round trips in the slab above the gap
+            if kind == "gap":
+                self._add(score * factor, (path + (up_path + extra)) * self.ns_per_metre,
+                          True, n_scat == 0 and n_lamb == 1, word, self.albedo_words)
 
 
 # --------------------------------------------------------------------------------------------

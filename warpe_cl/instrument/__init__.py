@@ -25,6 +25,8 @@ module              stage
 """
 from __future__ import annotations
 
+import numpy as np
+
 from .params import BUILTIN, InstrumentParams, check_parameter, load_instrument
 
 __all__ = ["apply_instrument", "load_instrument", "InstrumentParams", "BUILTIN"]
@@ -89,8 +91,7 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
     prov.update({"instrument_seed": int(seed), "instrument_shots": shots})
     prov["instrument_diffuse_estimate"] = surface.diffuse_estimate(ds)
     out = output.build(ds, results, params, sweep, prov)
-    if sweep:
-        import numpy as np       # which estimate each scenario used ("mixed" above: some of each)
+    if sweep:                  # which estimate each scenario used ("mixed" above: some of each)
         from ..io import VARYING_TEXT
         name, meaning = VARYING_TEXT["instrument_diffuse_estimate"]
         out[name] = ("scenario", np.array([r.estimate for r in responses]),

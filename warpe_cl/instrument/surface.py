@@ -2,12 +2,13 @@
 
 From a result file (docs/interface.md §5): the diffuse response R_d(t) = reflectance of
 ``scattering`` + ``bf_diffuse`` (sr⁻¹ ns⁻¹, log-spaced bins) — the next-event estimate in the
-exact view direction, ``nadir_reflectance``, when the file has it (docs/walk.md §8), else the
-numerical-FOV ``reflectance`` (:func:`diffuse_estimates` says which, scenario by scenario) — and the specular and BF-direct
-returns as fractions per launched ray (``ray_count / photons``) with their delays: t = 0 for the
-specular, t_k = k · 2 h n_eff / c for the k-th BF-direct passage (``first_bf_time_ns``), so that
-the instrument applies the aperture and lobe geometry once (the file's specular reflectance,
-already divided by a lobe solid angle, is not used). The wavelength is read from the resolved
+exact view direction, ``nadir_reflectance``, where the scenario has it (docs/walk.md §8), else
+the numerical-FOV ``reflectance`` (:func:`diffuse_estimates` says which, scenario by
+scenario) — and the specular and BF-direct returns as fractions per launched ray
+(``ray_count / photons``) with their delays: t = 0 for the specular, t_k = k · 2 h n_eff / c
+for the k-th BF-direct passage (``first_bf_time_ns``), so that the instrument applies the
+aperture and lobe geometry once (the file's specular reflectance, already divided by a lobe
+solid angle, is not used). The wavelength is read from the resolved
 configuration stored with the result.
 """
 from __future__ import annotations
