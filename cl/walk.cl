@@ -997,11 +997,13 @@ WALK_STEP void nadir_flush(const tallies_t *tally, uint p_lo, int cell, REAL v)
 
 /* The row of a virtual path: bf_diffuse or scattering by the component rule (walk.md §4) with
  * its history (lamb: it has a floor reflection) and its arrival time tv. A path with a floor
- * reflection arrives at t >= t1 exactly; rounding could put the straight down-and-up ones
- * just below t1 in single precision, so the time window takes lamb as t >= t1 (walk.md §8.1). */
+ * reflection arrives at t >= t1 exactly, and so does one that went straight down to the
+ * slab's lower face and back up; rounding put those at t1 itself just below it, so the time
+ * window takes lamb as t >= t1, and t >= t1 (1 - 2^-16) as t >= t1 (walk.md §8.1). */
 WALK_STEP VMASK nadir_row(VMASK lamb, VREAL tv, const tallies_t *tally)
 {
-    const VMASK bf = tally->rule_time_window ? (lamb | (VMASK)(tv >= tally->t1)) : lamb;
+    const VMASK late = (VMASK)(tv >= tally->t1 * (REAL)(1.0 - 0x1p-16));
+    const VMASK bf = tally->rule_time_window ? (lamb | late) : lamb;
     return SEL((VMASK)NADIR_ROW_SCATTERING, (VMASK)NADIR_ROW_BF_DIFFUSE, bf);
 }
 

@@ -309,8 +309,10 @@ class NadirScorer:
         if self.history_rule:
             row = ROW_BF_DIFFUSE if lamb else ROW_SCATTERING
         else:
-            # a path with a floor reflection arrives at t >= t1 exactly (walk.md §8.1)
-            row = ROW_BF_DIFFUSE if (lamb or t >= self.t1) else ROW_SCATTERING
+            # a path with a floor reflection arrives at t >= t1 exactly, the straight ones
+            # down to the lower face and back at t1 itself, within rounding (walk.md §8.1)
+            row = ROW_BF_DIFFUSE if (lamb or t >= self.t1 * (1.0 - 2.0 ** -16)) \
+                else ROW_SCATTERING
         col = self._column(t)
         if order_1:
             self.sums[self.batch][ROW_ORDER_1][col] += fixed_point(s)
