@@ -947,7 +947,9 @@ WALK_STEP int exit_component(int fate, uint n_s, uint n_l, REAL t, const tallies
  * along it, the Fresnel transmissions T of its interfaces and the etendue 1 / (m^2 mu). The
  * score arrives at t = (L + path) n_0 / c and goes to the row of its component (by the
  * component rule, with the virtual path's history) and, for the first scattering or floor
- * reflection of the ray, to the order-1 row too. */
+ * reflection of the ray, to the order-1 row too. In a slab over a vacuum gap the virtual paths
+ * that the slab's faces reflect score too, each at its own time (the mirror table, walk.md
+ * §8.5). */
 
 /* A time's column of the nadir rows: 0 before the first edge, 1 + its bin, n_edges at or after
  * the last edge; and that column's time range [lo, hi) (time_bin's comparisons). */
