@@ -258,3 +258,86 @@ def test_instrument_on_a_sweep_where_only_some_scenarios_have_the_nadir_estimate
                              for c in ("bf_diffuse", "scattering")))
     # an interpolation between scenarios (the inversion's) takes one estimate for all: FOV
     assert {r.estimate for r in responses(ds, uniform=True)} == {"fov"}
+
+
+def _order1_over_a_gap(n, omega, g, h, E, edges, samples=40_000):
+    """The order-1 nadir reflectance of a slab over a vacuum gap with a black floor, per time
+    bin, written out from the geometry alone (not from nadir.mirror_table): the unscattered
+    beam enters (1 - R) and passes down and up the slab, reflected by its faces (R each, at
+    normal incidence R = ((n - 1)/(n + 1))^2 for both faces from inside, as from outside);
+    it scatters first at each point with density omega E exp(-E s) ds; from there the virtual
+    paths to the receiver start up or down along the vertical, bounce between the faces and
+    leave through the top (1 - R), each with p(Theta) of its start direction, e^-tau of its
+    length and the etendue 1 / n^2, at t = (path of the beam + path of the virtual path) n / c.
+    Midpoint sums over ``samples`` points per pass, histogrammed on ``edges``."""
+    r = ((n - 1) / (n + 1)) ** 2
+    ds = h / samples
+    s = (np.arange(samples) + 0.5) * ds
+    cut = 1e-13
+    times, weights = [], []
+    j, beam = 0, 1.0 - r                           # pass j of the beam, its weight at entry
+    while beam > cut:
+        down = j % 2 == 0                          # passes alternate: down, up, down, ...
+        z = s if down else h - s
+        density = beam * omega * E * np.exp(-E * s) * ds
+        base = j * h + s                            # the beam's path to the scattering
+        for start_up in (True, False):
+            # u . v: v up along the view is (0, 0, -1) (z downwards); the beam's u is (0, 0, +-1)
+            cos_theta = (-1.0 if down else 1.0) * (1.0 if start_up else -1.0)
+            p = henyey_greenstein_phase(g, cos_theta)
+            first = z if start_up else (h - z) + h  # to the top, or down and back up
+            factor = 1.0 if start_up else r             # the lower face's reflection
+            k = 0
+            while np.max(factor * np.exp(-E * first)) * (r * r * np.exp(-2 * E * h)) ** k > cut:
+                length = first + 2 * k * h
+                amplitude = (density * p * factor * (r * r * np.exp(-2 * E * h)) ** k
+                             * np.exp(-E * first) * (1.0 - r) / n ** 2)
+                times.append((base + length) * n / C_M_PER_NS)
+                weights.append(amplitude)
+                k += 1
+        beam *= r * np.exp(-E * h)                  # reflected by the face it reaches
+        j += 1
+    # the straight-down-and-back paths arrive at bin centres only (edges chosen so), and
+    # rounding cannot move them across an edge
+    return np.histogram(np.concatenate(times), bins=edges, weights=np.concatenate(weights))[0]
+
+
+def test_first_order_time_dependence_over_a_vacuum_gap(engine):
+    """A slab over a vacuum gap, black floor: the order-1 row, bin by bin, against the same
+    paths written out from the geometry (_order1_over_a_gap): the straight path up, the
+    mirror paths down to the lower face and back (a delta at t1 = 2 h n / c from the beam's
+    first pass, whose forward peak p(0) makes it large), the round trips between the faces,
+    and the first scatterings of the beam after the faces reflected it. A high index (R = 0.11)
+    and a thin slab (tau0 = 0.3) make every one of these frequent; bins before 1.5 t1 take
+    the beam's first three passes only (a pass j scatters at path >= j h), all well sampled
+    (the fourth holds ~1e-3 of the scatterings)."""
+    n, omega, g, h, tau0 = 2.0, 0.95, 0.5, 0.05, 0.3
+    E = tau0 / h
+    t1 = 2.0 * h * n / C_M_PER_NS
+    # 24 bins per t1, t1 and its multiples at bin centres (the deltas), up to 4 t1
+    edges = np.concatenate([[0.0], (np.arange(0, 97) + 0.5) * t1 / 24])
+    p = WalkParams(texture="slab", thickness=h, extinction=E, omega=omega, g=g, n=n, k=0.0,
+                   albedo=0.0, time_edges=edges, bottom_interface="fresnel", nadir=True,
+                   nadir_roulette=0.0)
+    counts = engine.run(p, 200_000)
+    sums = fixed_to_float(counts.nadir_sum)[:, ORDER_1, 1:-1]           # (batches, bins)
+    value = sums.sum(axis=0) / counts.photons
+    err = _batch_error(sums, counts.nadir_batch_photons)
+    expected = _order1_over_a_gap(n, omega, g, h, E, edges)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    delta = int(np.argmin(np.abs(centres - t1)))
+    assert expected[delta] > 5 * expected[delta - 1]     # the down-path delta stands out
+    window = (centres < 1.5 * t1) & (expected > 0)
+    late = window & (centres > t1 * 1.01)                 # only mirror paths arrive there
+    assert late.sum() >= 10
+    z_scores = (value[window] - expected[window]) / err[window]
+    # 5 sigma per bin (~36 bins: a false alarm ~2e-5)
+    assert np.max(np.abs(z_scores)) < 5.0, (np.argmax(np.abs(z_scores)), z_scores)
+    assert err[delta] < 0.02 * expected[delta]          # sharp where the mirror path lands
+    # the mirror paths alone, summed over (t1, 1.5 t1): their error from the batches of the
+    # summed bins, 5 sigma; sharp (2 % here: doubling the round trips' factor fails it)
+    late_sums = sums[:, late].sum(axis=1)
+    late_value, late_err = late_sums.sum() / counts.photons, float(
+        _batch_error(late_sums, counts.nadir_batch_photons))
+    assert abs(late_value - expected[late].sum()) < 5.0 * late_err
+    assert late_err < 0.05 * expected[late].sum()
