@@ -328,13 +328,13 @@ def test_first_order_time_dependence_over_a_vacuum_gap(engine):
     delta = int(np.argmin(np.abs(centres - t1)))
     assert expected[delta] > 5 * expected[delta - 1]     # the down-path delta stands out
     window = (centres < 1.5 * t1) & (expected > 0)
-    late = window & (centres > t1 * 1.01)                 # only mirror paths arrive there
+    late = window & (centres > t1 * 1.01)      # mirror paths and the twice-reflected beam's
     assert late.sum() >= 10
     z_scores = (value[window] - expected[window]) / err[window]
     # 5 sigma per bin (~36 bins: a false alarm ~2e-5)
     assert np.max(np.abs(z_scores)) < 5.0, (np.argmax(np.abs(z_scores)), z_scores)
     assert err[delta] < 0.02 * expected[delta]          # sharp where the mirror path lands
-    # the mirror paths alone, summed over (t1, 1.5 t1): their error from the batches of the
+    # what arrives in (t1, 1.5 t1), summed: its error from the batches of the
     # summed bins, 5 sigma; sharp (2 % here: doubling the round trips' factor fails it)
     late_sums = sums[:, late].sum(axis=1)
     late_value, late_err = late_sums.sum() / counts.photons, float(
