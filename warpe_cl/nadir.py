@@ -14,7 +14,8 @@ way, whose transmissions T_j = 1 - R_j(mu_j) multiply. Radiance across a refract
 keeps L / m^2 (the etendue m^2 mu dOmega is conserved), so a density q per steradian inside
 layer l becomes q T mu_v / (m_l^2 mu_l) per steradian of vacuum, and the bidirectional
 reflectance (per unit incident irradiance, i.e. divided by mu_v) is
-q T exp(-tau) / (m_l^2 mu_l): the ``factor`` column is T / (m_l^2 mu_l).
+q T exp(-tau) / (m_l^2 mu_l): the ``factor`` column is T / (m_l^2 mu_l). In a slab over a
+vacuum gap the paths that its faces reflect score too (:func:`mirror_table`).
 """
 from __future__ import annotations
 
@@ -24,13 +25,13 @@ import numpy as np
 
 from .params import MIRROR_COLUMNS, MIRROR_KINDS, NADIR_ROWS, VIEW_COLUMNS, WalkParams, \
     fixed_to_float
+from .radiative import fresnel_external, fresnel_internal
+
+__all__ = ["view_table", "mirror_table", "up_transmission", "reduce_nadir", "mirror_below"]
 
 #: The mirror table leaves out the virtual paths whose factor (the product of their
 #: reflections and of e^-tau of their whole crossings) is below this (docs/walk.md §8.5).
 MIRROR_CUT = 1e-9
-from .radiative import fresnel_external, fresnel_internal
-
-__all__ = ["view_table", "up_transmission", "reduce_nadir", "mirror_below"]
 
 
 def mirror_below(params: WalkParams) -> str | None:
