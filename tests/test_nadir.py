@@ -22,6 +22,18 @@ EDGES = np.concatenate([[0.0], np.logspace(-4, 3, 71)])
 ORDER_1 = NADIR_ROWS.index("order_1")
 
 
+def _order1_bins(engine, n, omega, g, h, E, edges, bottom, roulette, photons=200_000):
+    """Walk a slab (black floor) and return the order-1 nadir reflectance per time bin, its
+    batch error and the counts."""
+    p = WalkParams(texture="slab", thickness=h, extinction=E, omega=omega, g=g, n=n, k=0.0,
+                   albedo=0.0, time_edges=edges, bottom_interface=bottom, nadir=True,
+                   nadir_roulette=roulette)
+    counts = engine.run(p, photons)
+    sums = fixed_to_float(counts.nadir_sum)[:, ORDER_1, 1:-1]           # (batches, bins)
+    return sums.sum(axis=0) / counts.photons, _batch_error(sums, counts.nadir_batch_photons), \
+        counts
+
+
 def _order1(counts):
     """(value, stderr) of the time-integrated order-1 nadir reflectance, sr^-1."""
     sums = fixed_to_float(counts.nadir_sum)[:, ORDER_1, :].sum(axis=-1)
@@ -58,13 +70,7 @@ def test_first_order_time_dependence_in_a_finite_slab(engine):
     n, omega, g, h, tau0 = 1.31, 0.95, 0.5, 0.05, 3.0
     E = tau0 / h
     edges = np.linspace(0.0, 2.0 * h * n / C_M_PER_NS * 1.25, 26)
-    p = WalkParams(texture="slab", thickness=h, extinction=E, omega=omega, g=g, n=n, k=0.0,
-                   albedo=0.0, time_edges=edges, bottom_interface="none", nadir=True,
-                   nadir_roulette=0.1)
-    counts = engine.run(p, 200_000)
-    sums = fixed_to_float(counts.nadir_sum)[:, ORDER_1, 1:-1]           # (batches, bins)
-    value = sums.sum(axis=0) / counts.photons
-    err = _batch_error(sums, counts.nadir_batch_photons)
+    value, err, _ = _order1_bins(engine, n, omega, g, h, E, edges, "none", 0.1)
     r0 = ((n - 1) / (n + 1)) ** 2
     amplitude = (1 - r0) * omega * henyey_greenstein_phase(g, -1.0) \
         * (1 - float(fresnel_internal(1.0, n))) / n ** 2
@@ -316,13 +322,8 @@ def test_first_order_time_dependence_over_a_vacuum_gap(engine):
     t1 = 2.0 * h * n / C_M_PER_NS
     # 24 bins per t1, t1 and its multiples at bin centres (the deltas), up to 4 t1
     edges = np.concatenate([[0.0], (np.arange(0, 97) + 0.5) * t1 / 24])
-    p = WalkParams(texture="slab", thickness=h, extinction=E, omega=omega, g=g, n=n, k=0.0,
-                   albedo=0.0, time_edges=edges, bottom_interface="fresnel", nadir=True,
-                   nadir_roulette=0.0)
-    counts = engine.run(p, 200_000)
+    value, err, counts = _order1_bins(engine, n, omega, g, h, E, edges, "fresnel", 0.0)
     sums = fixed_to_float(counts.nadir_sum)[:, ORDER_1, 1:-1]           # (batches, bins)
-    value = sums.sum(axis=0) / counts.photons
-    err = _batch_error(sums, counts.nadir_batch_photons)
     expected = _order1_over_a_gap(n, omega, g, h, E, edges)
     centres = 0.5 * (edges[1:] + edges[:-1])
     delta = int(np.argmin(np.abs(centres - t1)))
