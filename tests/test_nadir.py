@@ -145,17 +145,21 @@ def test_estimator_leaves_the_rays_alone(engine):
 
 def test_sums_do_not_depend_on_launches_or_work_items(engine):
     """A ray's pending score is parked with it (walk.md §5), and the sums are exact integers:
-    the same bits for an event budget of 1 per launch, another global size, and two halves."""
-    params = _cases()["stack_gap"]
-    whole = engine.run(params, 3000)
-    cut = engine.run(params, 3000, event_budget=1)
-    other = engine.run(params, 3000, global_size=5)
-    halves = engine.run(params, 1400)
-    halves += engine.run(params, 1600, first_photon=1400)
-    for c in (cut, other, halves):
-        assert np.array_equal(c.nadir_sum, whole.nadir_sum)
-        assert np.array_equal(c.nadir_visits, whole.nadir_visits)
-        assert np.array_equal(c.nadir_batch_photons, whole.nadir_batch_photons)
+    the same bits for an event budget of 1 per launch, another global size, two halves, and
+    the GPUs' form of the sums (one slice for every work-item, 64-bit atomics), here on the
+    CPU device, in a slab over a gap (its mirror paths) and in a stack."""
+    for name in ("stack_gap", "slab_gap_thin"):
+        params = _cases()[name]
+        whole = engine.run(params, 3000)
+        cut = engine.run(params, 3000, event_budget=1)
+        other = engine.run(params, 3000, global_size=5)
+        shared = engine.run(params, 3000, shared_nadir=True)
+        halves = engine.run(params, 1400)
+        halves += engine.run(params, 1600, first_photon=1400)
+        for c in (cut, other, shared, halves):
+            assert np.array_equal(c.nadir_sum, whole.nadir_sum), name
+            assert np.array_equal(c.nadir_visits, whole.nadir_visits), name
+            assert np.array_equal(c.nadir_batch_photons, whole.nadir_batch_photons), name
 
 
 def test_lane_widths_agree_to_rounding(engine):

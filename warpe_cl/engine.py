@@ -413,7 +413,7 @@ class Engine:
             first_photon: int = 0, records: bool = False, batch: int | None = None,
             global_size: int | None = None, local_size: int | None = None,
             lanes: int | None = None, progress=None, qualified: bool = False,
-            event_budget: int | None = None) -> Counts:
+            event_budget: int | None = None, shared_nadir: bool | None = None) -> Counts:
         """Walk ``photons`` rays, numbered from ``first_photon``.
 
         Parameters
@@ -444,6 +444,10 @@ class Engine:
             next launch (docs/walk.md §5; results never depend on it). By default
             :data:`FIRST_EVENT_BUDGET`, then scaled so that a launch takes about
             ``target_launch_s``.
+        shared_nadir : bool, optional
+            The nadir sums in one slice that every work-item adds to with 64-bit atomics (True),
+            or one slice per work-item with plain adds (False); by default the first on GPUs,
+            the second on CPUs (docs/walk.md §8.2; results never depend on it).
 
         Returns
         -------
@@ -504,7 +508,9 @@ class Engine:
                                                size=8 * len(LAYER_STATS) * gsize)
         # the nadir sums: one slice per work-item on CPUs (plain adds, walk.md §8), one slice
         # that every work-item adds to atomically on GPUs
-        slices = 1 if self.info.kind == "gpu" else gsize
+        if shared_nadir is None:
+            shared_nadir = self.info.kind == "gpu"
+        slices = 1 if shared_nadir else gsize
         nadir_shape = (slices, NADIR_BATCHES, len(NADIR_ROWS), n_time + 2)
         if nadir:
             from .nadir import view_table
