@@ -129,9 +129,6 @@ def bin_guess(edges) -> tuple:
     return 0, float(e[0]), float(1.0 / (e[1] - e[0]))
 
 
-def _bin_guess(i: int) -> Callable:
-    return lambda p: bin_guess(p.time_edges)[i]
-
 
 #: The walk kernel's parameters, in order: the one table that :meth:`Engine.run` fills and
 #: tests/test_layout.py checks against the kernel's source.
@@ -181,11 +178,11 @@ WALK_ARGS = (
                    "w2_time_in_fov", "w2_total")),
     KernelArg("view", "__global const REAL *", only="nadir"),
     KernelArg("mirror", "__global const REAL *", only="nadir"),
-    KernelArg("n_mirror", "int", lambda p: len(_mirror(p)), only="nadir"),
+    KernelArg("n_mirror", "int", only="nadir"),
     KernelArg("nadir_min", "REAL", lambda p: p.nadir_min_score, only="nadir"),
-    *(KernelArg(name, ctype, _bin_guess(i), only="nadir")
-      for i, (name, ctype) in enumerate((("bin_log", "int"), ("bin_a", "REAL"),
-                                          ("bin_b", "REAL")))),
+    KernelArg("bin_log", "int", only="nadir"),
+    KernelArg("bin_a", "REAL", only="nadir"),
+    KernelArg("bin_b", "REAL", only="nadir"),
     KernelArg("nadir_slices", "uint", only="nadir"),
     KernelArg("nadir_sum", "__global ulong *", only="nadir"),
     KernelArg("nadir_visits", "__global ulong *", only="nadir"),
@@ -193,12 +190,6 @@ WALK_ARGS = (
     KernelArg("rec_real", "__global REAL *", only="records"),
     KernelArg("record_base", "uint", only="records"),
 )
-
-def _mirror(params: WalkParams) -> np.ndarray:
-    """The mirror paths of the nadir estimate (warpe_cl.nadir.mirror_table)."""
-    from .nadir import mirror_table
-    return mirror_table(params)
-
 
 _SCALAR_TYPES = {"uint": np.uint32, "ulong": np.uint64, "int": np.int32}
 
@@ -513,13 +504,15 @@ class Engine:
         slices = 1 if shared_nadir else gsize
         nadir_shape = (slices, NADIR_BATCHES, len(NADIR_ROWS), n_time + 2)
         if nadir:
-            from .nadir import view_table
+            from .nadir import mirror_table, view_table
             buffers["view"] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                         hostbuf=view_table(params).astype(real))
-            mirror = _mirror(params)
+            mirror = mirror_table(params)
             padded = np.vstack([mirror, np.zeros((1, mirror.shape[1]))])   # no empty buffer
             buffers["mirror"] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                           hostbuf=padded.astype(real))
+            buffers["n_mirror"] = len(mirror)
+            buffers.update(zip(("bin_log", "bin_a", "bin_b"), bin_guess(params.time_edges)))
             buffers["nadir_sum"] = cl.Buffer(ctx, mf.READ_WRITE,
                                              size=8 * FIXED_WORDS * int(np.prod(nadir_shape)))
             buffers["nadir_visits"] = cl.Buffer(
