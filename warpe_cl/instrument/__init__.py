@@ -89,11 +89,11 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
     prov = {f"instrument_{k}": v for k, v in io.provenance().items()
             if k in ("warpe_cl_version", "created_utc", "command", "numpy_version", "host")}
     prov.update({"instrument_seed": int(seed), "instrument_shots": shots})
-    prov["instrument_diffuse_estimate"] = surface.diffuse_estimate(ds)
+    estimates = [r.estimate for r in responses]
+    prov["instrument_diffuse_estimate"] = surface.diffuse_estimate(ds, estimates)
     out = output.build(ds, results, params, sweep, prov)
     if sweep:                  # which estimate each scenario used ("mixed" above: some of each)
         from ..io import VARYING_TEXT
         name, meaning = VARYING_TEXT["instrument_diffuse_estimate"]
-        out[name] = ("scenario", np.array([r.estimate for r in responses]),
-                     {"long_name": meaning})
+        out[name] = ("scenario", np.array(estimates), {"long_name": meaning})
     return out

@@ -86,10 +86,10 @@ def diffuse_estimates(ds) -> list:
     return ["nadir" if f else "fov" for f in finite]
 
 
-def diffuse_estimate(ds) -> str:
-    """One word for :func:`diffuse_estimates`: ``"nadir"`` or ``"fov"`` when every scenario uses
-    the same, else ``"mixed"``."""
-    kinds = set(diffuse_estimates(ds))
+def diffuse_estimate(ds, estimates: list | None = None) -> str:
+    """One word for :func:`diffuse_estimates` (or the ``estimates`` already taken from ``ds``):
+    ``"nadir"`` or ``"fov"`` when every scenario uses the same, else ``"mixed"``."""
+    kinds = set(diffuse_estimates(ds) if estimates is None else estimates)
     return kinds.pop() if len(kinds) == 1 else "mixed"
 
 
