@@ -66,10 +66,11 @@ typedef struct {
 #else
     /* the layer's row of the view table (walk.md §8), and phase_k = (1 - g^2) / (4 pi) */
     REAL v_sin, v_mu, v_tau_per_m, v_path_per_m, v_factor, phase_k;
-    /* a slab over a vacuum gap: its mirror paths, [n_mirror][N_MIRROR] (walk.md §8.5) */
+#endif
+    /* the mirror paths of a slab over a vacuum gap or of a stack, [n_mirror][N_MIRROR]
+     * (walk.md §8.5) */
     __global const REAL *mirror;
     int n_mirror;
-#endif
     /* the gap's row: a floor reflection below a Fresnel bottom (walk.md §8) */
     REAL vg_mu, vg_tau, vg_path, vg_factor;
     /* analog: scores below s_min play a roulette (walk.md §8.3); inv_omega_words and
@@ -1083,6 +1084,30 @@ WALK_STEP VREAL nadir_roulette(VREAL s, VREAL v, const scene_t *sc)
 #endif
 }
 
+#ifdef WARPE_TEXTURE_LAYERS
+/* The mirror rows of a stack (mirror_table, walk.md §8.5) for the lanes in m, each from its
+ * own layer: an up row multiplies s, the straight score, and arrives its row path after the
+ * straight path `up`; a down row multiplies sd, the score of the path down along the view's
+ * mirror image to the bottom of the layer (path `down`), and arrives its row path after it.
+ * Each plays the roulette with the event's uniform v. */
+WALK_STEP void mirror_scores(VMASK m, VREAL s, VREAL up, VREAL sd, VREAL down, VREAL v,
+                             VMASK first, const scene_t *sc, rays_t *r, const tallies_t *tally)
+{
+    for (int i = 0; i < sc->n_mirror; ++i) {
+        __global const REAL *row = sc->mirror + N_MIRROR * i;
+        const int kind = (int)row[MIRROR_KIND];
+        const VMASK in = m & (r->layer == (VMASK)(int)row[MIRROR_LAYER]);
+        if (kind == MIRROR_GAP || !ANY(in))
+            continue;                        /* the gap's rows: nadir_gap */
+        const VREAL si = (kind == MIRROR_UP ? s : sd) * row[MIRROR_FACTOR];
+        const VREAL tvi = (r->Ls + ((kind == MIRROR_UP ? up : down) + row[MIRROR_PATH]))
+                        * tally->ns_per_m;
+        nadir_add(in, nadir_roulette(si, v, sc), tvi,
+                  nadir_row(r->n_lamb > (VMASK)0, tvi, tally), first, r, tally);
+    }
+}
+#endif
+
 /* A scattering of the lanes in m, with their direction before it (walk.md §8): q = p(Theta),
  * the HG phase function normalised to 1 over the sphere,
  *   p = (1 - g^2) / (4 pi (1 + g^2 - 2 g cos Theta)^(3/2)),
@@ -1117,7 +1142,19 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     const VREAL tv = (r->Ls + path) * tally->ns_per_m;
     nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
               first, r, tally);
-#if defined(WARPE_INTERFACES) && !defined(WARPE_TEXTURE_LAYERS)
+#if defined(WARPE_TEXTURE_LAYERS)
+    if (sc->n_mirror > 0) {
+        /* a stack: the mirror paths of the lanes' layers (mirror_table, walk.md §8.5); down:
+         * along the mirror image (sin_l, 0, +mu_l) to the bottom of the layer, then the row */
+        const VREAL below = r->z_bottom - r->z;
+        const VREAL xd = ((REAL)1 + g * g) - (REAL)2 * g * (r->ux * sin_v + r->uz * mu_v);
+        VREAL sd = k * pow_m3_2(xd) * exp_neg(r->v_tau_per_m * below);
+#ifdef WARPE_WEIGHTED
+        sd *= r->w;
+#endif
+        mirror_scores(m, s, path, sd, r->v_path_per_m * below, v, first, sc, r, tally);
+    }
+#elif defined(WARPE_INTERFACES)
     /* a slab over a vacuum gap: the mirror paths of mirror_table (walk.md §8.5), each played
      * the roulette with the event's uniform (each stays unbiased) */
     for (int i = 0; i < sc->n_mirror; ++i) {
@@ -1164,12 +1201,20 @@ WALK_STEP void nadir_contact(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     VREAL s = k * exp_neg(tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
+    const VREAL v = (VREAL)0;    /* no roulette */
 #else
-    s = nadir_roulette(s, (CONVERT_VREAL(x1) + (REAL)0.5) * sc->inv_albedo_words, sc);
+    const VREAL v = (CONVERT_VREAL(x1) + (REAL)0.5) * sc->inv_albedo_words;
 #endif
     const VREAL tv = (r->Ls + path) * tally->ns_per_m;
-    nadir_add(m, s, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
-              (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1), r, tally);
+    const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1);
+    nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+              first, r, tally);
+#ifdef WARPE_TEXTURE_LAYERS
+    /* a stack: the up rows of the last layer, whose bottom the floor is (walk.md §8.5); no
+     * down rows (nothing but the floor lies below) */
+    if (sc->n_mirror > 0)
+        mirror_scores(m, s, path, (VREAL)0, (VREAL)0, v, first, sc, r, tally);
+#endif
 }
 
 #ifdef WARPE_INTERFACES
@@ -1189,8 +1234,8 @@ WALK_STEP void nadir_gap(VMASK m, VUINT x0, const scene_t *sc, rays_t *r,
     const VREAL tv = (r->Ls + sc->vg_path) * tally->ns_per_m;
     nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
               first, r, tally);
-#ifndef WARPE_TEXTURE_LAYERS
-    /* a slab over the gap: k round trips between its faces after the crossing (walk.md §8.5) */
+    /* the paths that the faces above reflect back down and up again (walk.md §8.5): in a slab
+     * over the gap, k round trips between its faces after the crossing */
     for (int i = 0; i < sc->n_mirror; ++i) {
         __global const REAL *row = sc->mirror + N_MIRROR * i;
         if ((int)row[MIRROR_KIND] != MIRROR_GAP)
@@ -1199,7 +1244,6 @@ WALK_STEP void nadir_gap(VMASK m, VUINT x0, const scene_t *sc, rays_t *r,
         nadir_add(m, nadir_roulette(s * row[MIRROR_FACTOR], v, sc), tvi,
                   nadir_row(r->n_lamb > (VMASK)0, tvi, tally), first, r, tally);
     }
-#endif
 }
 #endif
 #endif
@@ -1410,7 +1454,7 @@ __kernel void walk(const uint seed, const ulong scenario,
 #ifdef WARPE_NADIR             /* the next-event estimate (walk.md §8) */
                    , __global const REAL *view   /* [n_layers + 1][N_VIEW] */
                    , __global const REAL *mirror /* [max(n_mirror, 1)][N_MIRROR] */
-                   , const int n_mirror          /* its rows: 0 but for a slab over a gap */
+                   , const int n_mirror          /* its rows: 0 without a Fresnel face below */
                    , const REAL nadir_min        /* s_min of the score roulette (walk.md §8.3) */
                    , const int bin_log, const REAL bin_a, const REAL bin_b  /* bin guess */
                    , const uint nadir_slices     /* work-item i writes slice i mod nadir_slices */
@@ -1447,9 +1491,9 @@ __kernel void walk(const uint seed, const ulong scenario,
                         .v_tau_per_m = view[VIEW_TAU_PER_M],
                         .v_path_per_m = view[VIEW_PATH_PER_M], .v_factor = view[VIEW_FACTOR],
                         .phase_k = ((REAL)1 - g * g) * (REAL)(0.25 / WARPE_PI),
-                        .mirror = mirror, .n_mirror = n_mirror,
 #define GAP_ROW N_VIEW
 #endif
+                        .mirror = mirror, .n_mirror = n_mirror,
                         .vg_mu = view[GAP_ROW + VIEW_MU], .vg_tau = view[GAP_ROW + VIEW_TAU_ABOVE],
                         .vg_path = view[GAP_ROW + VIEW_PATH_ABOVE],
                         .vg_factor = view[GAP_ROW + VIEW_FACTOR],

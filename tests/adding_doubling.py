@@ -103,14 +103,21 @@ def _redistribution(g: float, n: float, quad_pts: int) -> tuple:
 
 
 def _sample(a: float, b: float, g: float, n: float, quad_pts: int, redistribution=True,
-            n_below: float = 1.0):
+            n_below: float = 1.0, slides: tuple | None = None):
     """An ``iadpython.Sample`` with the accurate quadrature: no slide above, and below none
     (``n_below`` 1: a slab in vacuum) or a black slide of index ``n_below`` (an index-matched
-    black substrate)."""
+    black substrate); or, given ``slides`` = ((n_above, b_above), (n_below, b_below)), those
+    clear slides (index, absorption optical thickness along the normal) above and below."""
     import iadpython
-    sample = iadpython.Sample(a=a, b=b, g=g, n=n, n_above=1.0, n_below=n_below,
-                              quad_pts=quad_pts)
-    if n_below != 1.0:
+    if slides is not None:
+        (n_top, b_top), (n_bottom, b_bottom) = slides
+        sample = iadpython.Sample(a=a, b=b, g=g, n=n, n_above=n_top, n_below=n_bottom,
+                                  quad_pts=quad_pts)
+        sample.b_above, sample.b_below = b_top, b_bottom
+    else:
+        sample = iadpython.Sample(a=a, b=b, g=g, n=n, n_above=1.0, n_below=n_below,
+                                  quad_pts=quad_pts)
+    if slides is None and n_below != 1.0:
         # iadpython's medium below is a slide and then air: a black substrate of the slab's
         # index is a slide of that index that absorbs everything (absorbance 1e3 along the
         # normal: exp(-1e3) comes back)
@@ -121,15 +128,17 @@ def _sample(a: float, b: float, g: float, n: float, quad_pts: int, redistributio
     return sample
 
 
-def _r11(a: float, b: float, g: float, n: float, quad_pts: int, n_below: float = 1.0) -> float:
+def _r11(a: float, b: float, g: float, n: float, quad_pts: int, n_below: float = 1.0,
+         slides: tuple | None = None) -> float:
     """Element R[-1, -1] (nu = 1 in, nu = 1 out) of iadpython's reflection matrix R03 of the
     whole slab (boundaries included), for light incident from above."""
-    R03, _, _, _ = _sample(a, b, g, n, quad_pts, n_below=n_below).rt_matrices()
+    R03, _, _, _ = _sample(a, b, g, n, quad_pts, n_below=n_below, slides=slides).rt_matrices()
     return float(R03[-1, -1])
 
 
 def nadir_brdf(omega: float, tau0: float, g: float, n: float = 1.0,
-               quad_pts: int = DEFAULT_QUAD_PTS, matched_below: bool = False) -> float:
+               quad_pts: int = DEFAULT_QUAD_PTS, matched_below: bool = False,
+               slides: tuple | None = None) -> float:
     """Diffuse bidirectional reflectance at nadir of a slab in vacuum, by adding-doubling.
 
     Convention (that of the Monte Carlo next-event estimator at nadir):
@@ -190,6 +199,14 @@ def nadir_brdf(omega: float, tau0: float, g: float, n: float = 1.0,
         False: a slab in vacuum (a Fresnel bottom face); True: the slab on a black medium of
         its own index (no bottom face: warpe-cl's slab with ``bottom_interface: none`` over a
         black floor).
+    slides : ((n_above, b_above), (n_below, b_below)), optional
+        Clear slides in optical contact above and below the slab, in vacuum: real index and
+        absorption optical thickness along the normal (iadpython's ``n_above``, ``b_above``,
+        ``n_below``, ``b_below``; its boundary matrices take every reflection inside a slide,
+        :func:`iadpython.absorbing_glass_RT`). A stack of warpe-cl: a non-scattering slab
+        above the scattering one and one below, over a vacuum gap and a black floor. The
+        radiance leaves the slab's index for vacuum through the slides, whose n^2 cancel:
+        f is still R / (pi n^2). Overrides ``matched_below``.
 
     Returns
     -------
@@ -210,9 +227,9 @@ def nadir_brdf(omega: float, tau0: float, g: float, n: float = 1.0,
     if omega == 0.0 or tau0 == 0.0:
         return 0.0
     below = n if matched_below else 1.0
-    r_all = _r11(omega, tau0, g, n, quad_pts, below)
+    r_all = _r11(omega, tau0, g, n, quad_pts, below, slides)
     scaled_tau0 = (1.0 - omega * g**quad_pts) * tau0      # Sample.b_delta_M()
-    r_unscattered = _r11(0.0, scaled_tau0, 0.0, n, quad_pts, below)
+    r_unscattered = _r11(0.0, scaled_tau0, 0.0, n, quad_pts, below, slides)
     return (r_all - r_unscattered) / (math.pi * n * n)
 
 

@@ -110,6 +110,12 @@ def _cases():
                                     view_zenith=30.0, nadir_roulette=0.05)
     out["stack_substrate"] = stack_params(STACK, substrate=(1.6, 0.01), albedo=0.6,
                                           time_edges=EDGES, nadir=True, view_zenith=10.0)
+    # a clear slab on a scattering one, on a floor in contact: the floor's scores follow the
+    # paths the two upper faces reflect (mirror_table's up rows of the last layer)
+    out["stack_contact"] = stack_params(
+        (Layer("slab", 0.002, 20.0, 0.0, 0.0, 1.5), STACK[1]), albedo=0.6,
+        bottom_interface="none", time_edges=EDGES, nadir=True, view_zenith=15.0,
+        nadir_roulette=0.05)
     return out
 
 

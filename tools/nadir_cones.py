@@ -31,10 +31,10 @@ against the FOV one under each rule):
     (errors of FOV and nadir combined in quadrature), its chi^2 / dof against the flat-BRDF
     expectation and the ratio of the sums over those bins.
 
-A slab over its vacuum gap (the paper's presets) is estimated with the mirror paths of its
-lower face (docs/walk.md §8.5). warpe-cl makes no nadir estimate for a stack with a Fresnel
-contact below its top (warpe_cl/nadir.py, ``mirror_below``): the tool stops there with the
-reason.
+A slab over its vacuum gap (the paper's presets) and a stack are estimated with the mirror
+paths of their Fresnel faces (docs/walk.md §8.5). warpe-cl makes no nadir estimate where the
+faces reflect more paths than the estimator follows (warpe_cl/nadir.py, ``mirror_below``):
+the tool stops there with the reason.
 
 With ``cone`` normalisation a reflectance flat in angle reads (1 + cos theta) / 2 of the BRDF
 in the cone (counts / N = f pi sin^2 theta); the tables print that expectation (``flat``) next
@@ -112,9 +112,9 @@ def machine_line(device=None) -> str:
 
 
 def nadir_refusal(preset, overrides: dict) -> str | None:
-    """Why warpe-cl declines the nadir estimate for ``preset`` with ``overrides`` (a Fresnel
-    mirror below a scattering layer, whose mirror paths the estimator does not follow: what
-    the result's ``nadir_estimator`` attribute says), or None where it makes it."""
+    """Why warpe-cl declines the nadir estimate for ``preset`` with ``overrides`` (Fresnel
+    faces that reflect more mirror paths than the estimator follows: what the result's
+    ``nadir_estimator`` attribute says), or None where it makes it."""
     cfg = warpe_cl.load_preset(preset, overrides={**overrides, "simulation.nadir": True})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")      # doubtful-input warnings: not the question here

@@ -122,8 +122,9 @@ def walk_params(cfg: Config, scenario: int = 0) -> tuple:
             k=derived["k_eff"],
             **common,
         )
-    # no estimate where a stack has a Fresnel contact below its top (docs/walk.md §8.5):
-    # the result says so in its nadir_estimator attribute, the FOV reflectance is as always
+    # no estimate where the faces reflect more mirror paths than the estimator follows
+    # (docs/walk.md §8.5): the result says so in its nadir_estimator attribute, the FOV
+    # reflectance is as always
     if params.nadir and mirror_below(params) is not None:
         params = dataclasses.replace(params, nadir=False)
     return params, derived
@@ -220,8 +221,7 @@ def _nadir_attrs(cfg: Config, params: WalkParams) -> dict:
                                    "(docs/walk.md §8)"}
     if not cfg.get("simulation.nadir"):
         return {"nadir_estimator": "none: simulation.nadir is false"}
-    return {"nadir_estimator": f"none: {mirror_below(params)}; the estimator does not follow "
-                               "a stack's mirror paths (docs/walk.md §8.5)"}
+    return {"nadir_estimator": f"none: {mirror_below(params)} (docs/walk.md §8.5)"}
 
 
 def simulate_point(cfg: Config, point: dict | None = None, device=None, progress=None):

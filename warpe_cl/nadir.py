@@ -14,8 +14,9 @@ way, whose transmissions T_j = 1 - R_j(mu_j) multiply. Radiance across a refract
 keeps L / m^2 (the etendue m^2 mu dOmega is conserved), so a density q per steradian inside
 layer l becomes q T mu_v / (m_l^2 mu_l) per steradian of vacuum, and the bidirectional
 reflectance (per unit incident irradiance, i.e. divided by mu_v) is
-q T exp(-tau) / (m_l^2 mu_l): the ``factor`` column is T / (m_l^2 mu_l). In a slab over a
-vacuum gap the paths that its faces reflect score too (:func:`mirror_table`).
+q T exp(-tau) / (m_l^2 mu_l): the ``factor`` column is T / (m_l^2 mu_l). The paths that the
+Fresnel faces reflect on the way (a slab over a vacuum gap, the contacts of a stack) score
+too (:func:`mirror_table`).
 """
 from __future__ import annotations
 
@@ -30,72 +31,188 @@ from .radiative import fresnel_external, fresnel_internal
 __all__ = ["view_table", "mirror_table", "up_transmission", "reduce_nadir", "mirror_below"]
 
 #: The mirror table leaves out the virtual paths whose factor (the product of their
-#: reflections and of e^-tau of their whole crossings) is below this (docs/walk.md §8.5).
+#: reflections, transmissions and e^-tau of their whole crossings) is below this fraction of the
+#: straight path's from the same layer (docs/walk.md §8.5).
 MIRROR_CUT = 1e-9
+#: At most this many mirror rows (after merging the paths of equal delay): a stack whose faces
+#: reflect so strongly that more paths stay above MIRROR_CUT gets no nadir estimate.
+MAX_MIRROR_ROWS = 512
+#: The enumeration of the mirror paths gives up after this many partial paths.
+_MAX_PARTIAL_PATHS = 200_000
+
+
+class _TooManyMirrorPaths(Exception):
+    """The mirror paths above MIRROR_CUT exceed MAX_MIRROR_ROWS (or _MAX_PARTIAL_PATHS)."""
 
 
 def mirror_below(params: WalkParams) -> str | None:
     """Why the estimator would be incomplete for ``params``, or None where it is exact.
 
-    The estimator follows each virtual path up along the view direction and, in a single slab
-    over a vacuum gap, its mirror paths too (:func:`mirror_table`, docs/walk.md §8.5): a ray
-    scattered down along the view's mirror image reflects on the slab's lower face and leaves
-    toward the receiver, and every path bounces between the two faces. A stack with a Fresnel
-    contact below its top has mirrors between layers whose paths are not followed: no nadir
-    estimate there.
+    The estimator follows each virtual path up along the view direction and every path that
+    the Fresnel faces of the slab or stack reflect on the way (:func:`mirror_table`,
+    docs/walk.md §8.5), down to a fraction :data:`MIRROR_CUT` of the straight path. Only a
+    stack whose faces reflect so strongly that more than :data:`MAX_MIRROR_ROWS` paths stay
+    above it is refused.
     """
-    from .engine import layer_tables
-    if not params.layered:
-        return None
-    kinds = layer_tables(params, np.float64)["iface_kind"]
-    below = [j for j in range(1, len(kinds)) if kinds[j]]
-    if below:
-        return f"the stack's Fresnel contact {below[0]} (counted from the top, 0) is a mirror"
+    try:
+        mirror_table(params)
+    except _TooManyMirrorPaths as err:
+        return str(err)
     return None
 
 
+class _Geometry:
+    """The view direction through a stack (docs/walk.md §8.5): per layer l its cosine mu_l,
+    a_l = exp(-E_l h_l / mu_l) the transmission of one crossing and P_l = h_l (n_l / n_0) /
+    mu_l its path at layer 0's speed; per interface j = 0..N the Fresnel reflectances at the
+    view's angle, ``up[j]`` from below (layer j, the gap medium for j = N) and ``down[j]``
+    from above (layer j - 1), 0 at a transparent interface; ``gap_mu`` the cosine in the gap
+    medium (None where no real direction there leaves along the view)."""
+
+    def __init__(self, params: WalkParams):
+        faces, gap = _faces(params)
+        sin_v = math.sin(math.radians(float(params.view_zenith)))
+        n0 = float(params.stack[0].n)
+        self.n_layers = len(faces)
+        self.mu, self.a, self.P = [], [], []
+        for layer, face in zip(params.stack, faces):
+            mu = math.sqrt(max(0.0, 1.0 - (sin_v / face[0]) ** 2))
+            self.mu.append(mu)
+            self.a.append(math.exp(-float(layer.extinction) * float(layer.thickness) / mu))
+            self.P.append(float(layer.thickness) * (float(layer.n) / n0) / mu)
+        self.gap_mu = (math.sqrt(max(0.0, 1.0 - (sin_v / gap[0]) ** 2)) if gap[0] > sin_v
+                       else None)
+        sides = [(1.0, 0.0)] + list(faces) + [gap]       # the face above interface j: sides[j]
+        self.transparent = [sides[j] == sides[j + 1] for j in range(self.n_layers + 1)]
+        self.up, self.down = [], []
+        for j in range(self.n_layers + 1):
+            above, below = sides[j], sides[j + 1]
+            mu_below = self.mu[j] if j < self.n_layers else (self.gap_mu or 0.0)
+            self.up.append(1.0 - up_transmission(mu_below, below[0], above[0], above[1]))
+            self.down.append(0.0 if j == 0 else
+                             1.0 - up_transmission(self.mu[j - 1], above[0], below[0], below[1]))
+
+    def paths(self, state: tuple, limit: float) -> dict:
+        """Every specular path from ``state`` to the vacuum above the stack whose factor stays
+        at or above ``limit``: {crossings per layer: summed factor}. ``state`` is ("up", j), at
+        interface j from below, or ("down", j), at interface j from above. A path that meets
+        the floor (through the gap, or in contact) ends there: it is not specular.
+
+        Each step crosses one layer, so the partial paths are followed one crossing at a
+        time, those at the same interface, going the same way, with the same crossings per
+        layer (the same delay) merged: their number grows with the crossings, not with the
+        orderings of the reflections."""
+        n = self.n_layers
+        out: dict = {}
+        front = {(state, (0,) * n): 1.0}
+        seen = 0
+        while front:
+            seen += len(front)
+            if seen > _MAX_PARTIAL_PATHS:
+                raise _TooManyMirrorPaths(
+                    f"its faces reflect more than {_MAX_PARTIAL_PATHS} partial virtual paths "
+                    f"above {MIRROR_CUT:g} of the straight one")
+            after: dict = {}
+
+            def step(to, f, crossings, layer):
+                if f >= limit:
+                    key = (to, _plus(crossings, layer))
+                    after[key] = after.get(key, 0.0) + f * self.a[layer]
+
+            for ((way, j), crossings), f in front.items():
+                if way == "up":
+                    t = 1.0 - self.up[j]
+                    if j == 0:
+                        out[crossings] = out.get(crossings, 0.0) + f * t
+                    elif t > 0.0:
+                        step(("up", j - 1), f * t, crossings, j - 1)
+                    if self.up[j] > 0.0 and j < n:       # back down through layer j
+                        step(("down", j + 1), f * self.up[j], crossings, j)
+                else:
+                    if self.down[j] > 0.0:               # back up through layer j - 1
+                        step(("up", j - 1), f * self.down[j], crossings, j - 1)
+                    if j < n and self.down[j] < 1.0:     # on down through layer j
+                        step(("down", j + 1), f * (1.0 - self.down[j]), crossings, j)
+            front = {key: f for key, f in after.items() if f >= limit}
+        return {c: f for c, f in out.items() if f >= limit}
+
+    def path(self, crossings) -> float:
+        """The path (m, at layer 0's speed) of the given crossings per layer."""
+        return sum(c * p for c, p in zip(crossings, self.P))
+
+
+def _plus(crossings: tuple, i: int) -> tuple:
+    return crossings[:i] + (crossings[i] + 1,) + crossings[i + 1:]
+
+
 def mirror_table(params: WalkParams) -> np.ndarray:
-    """The mirror paths of a slab over a vacuum gap (docs/walk.md §8.5), shape (K, 3): one row
-    per virtual path besides the straight ones, columns :data:`~warpe_cl.params.MIRROR_COLUMNS`
-    (kind, factor, extra path in m at the slab's speed). With μ the view direction's cosine in
-    the slab, a = exp(−E h / μ) the transmission of one crossing, R_t and R_b the reflectances
-    of the upper and lower faces at μ, ρ = R_t R_b a² one round trip and P = h / μ its half:
+    """The mirror paths of a slab over a vacuum gap or of a stack (docs/walk.md §8.5), shape
+    (K, 4): one row per virtual path besides the straight ones, columns
+    :data:`~warpe_cl.params.MIRROR_COLUMNS` (kind, layer, factor, extra path in m at layer 0's
+    speed). The view direction's ray crosses each layer l at the fixed cosine mu_l, and every
+    Fresnel interface on its way either transmits it (1 - R) or reflects it (R); the straight
+    paths (every interface crossed once, upwards) are the view table's. For a scattering in
+    layer l (``layer`` = l):
 
-    - ``up`` (k ≥ 1): from a scattering, up along the view, k round trips: factor ρ^k, path
-      2 k P (the straight path, k = 0, is the view table's);
-    - ``down`` (k ≥ 0): from a scattering, down along the view's mirror image (its depth part
-      E (h − z) / μ and (h − z) / μ taken in the kernel), reflected by the lower face, one
-      crossing up and k round trips: factor R_b a ρ^k, path P + 2 k P;
-    - ``gap`` (k ≥ 1): from the floor below the gap, k round trips after the crossing the
-      view table's gap row holds: factor ρ^k, path 2 k P.
+    - ``up``: the paths that start up from it, other than the straight one: factor relative to
+      the straight path's (so the kernel multiplies the straight score), extra path beyond it;
+    - ``down``: the paths that start down along the view's mirror image, reflected by a face
+      below: factor relative to the transmissions of the straight path, T_l of the view table
+      (the kernel multiplies it by the phase function toward the mirror image and by
+      e^{-tau} of the crossing down to the bottom of layer l), whole path after that crossing;
 
-    Paths whose factor is below :data:`MIRROR_CUT` are left out (a bias below 1e-9 of the
-    straight score). Empty for every other configuration (no mirror below a scattering
-    layer, or a stack, whose mirrors :func:`mirror_below` refuses).
+    a reflection by a floor in contact with the last layer scores the ``up`` rows of that
+    layer too; one by the floor below the gap (``layer`` = N), the ``gap`` rows: relative to
+    the gap row's straight path. In a single slab over a vacuum gap, with a = exp(-E h / mu),
+    R_t and R_b the faces' reflectances and rho = R_t R_b a^2, these are ``up`` rho^k (k >= 1),
+    ``down`` R_b a rho^k (k >= 0) and ``gap`` rho^k (k >= 1), 2 k h / mu later.
+
+    Paths of equal crossings (the same delay) are merged into one row; paths whose factor is
+    below :data:`MIRROR_CUT` of the straight one are left out. Rows are sorted by kind, layer
+    and path. Empty where no Fresnel face lies below a scattering layer (a single layer on a
+    floor in contact, a granular layer).
+
+    Raises
+    ------
+    _TooManyMirrorPaths
+        More than :data:`MAX_MIRROR_ROWS` rows (:func:`mirror_below` turns it into a reason).
     """
-    if params.layered or params.texture != "slab" or params.bottom_interface != "fresnel":
-        return np.zeros((0, len(MIRROR_COLUMNS)))
-    faces, gap = _faces(params)
-    m = faces[0][0]
-    sin_v = math.sin(math.radians(float(params.view_zenith)))
-    mu = math.sqrt(max(0.0, 1.0 - (sin_v / m) ** 2))
-    h = float(params.stack[0].thickness)
-    a = math.exp(-float(params.stack[0].extinction) * h / mu)
-    r_top = 1.0 - up_transmission(mu, m, 1.0, 0.0)
-    r_bottom = 1.0 - up_transmission(mu, m, gap[0], gap[1])
-    rho = r_top * r_bottom * a * a
-    half = h / mu
+    empty = np.zeros((0, len(MIRROR_COLUMNS)))
+    if not params.layered and (params.texture != "slab" or params.bottom_interface != "fresnel"):
+        return empty
+    geo = _Geometry(params)
+    n = geo.n_layers
+    if all(geo.transparent[1:]):
+        return empty                       # no face below the top: nothing reflects back up
     kind = {k: float(i) for i, k in enumerate(MIRROR_KINDS)}
     rows = []
-    for name, first, factor, path in (("up", 1, rho, 2.0 * half),
-                                      ("down", 0, r_bottom * a, half),
-                                      ("gap", 1, rho, 2.0 * half)):
-        k = first
-        while factor >= MIRROR_CUT and k < 64:
-            rows.append([kind[name], factor, path])
-            factor *= rho
-            path += 2.0 * half
-            k += 1
+    for l in range(n + 1):
+        if l == n:                         # the floor below the gap: the gap rows
+            if geo.transparent[n] or geo.gap_mu is None:
+                continue
+            starts = (("gap", ("up", n)),)
+        else:
+            starts = (("up", ("up", l)), ("down", ("down", l + 1)))
+        straight = (1,) * l + (0,) * (n - l)
+        transmission = math.prod(1.0 - geo.up[j] for j in range(l + 1))
+        reference = transmission * math.prod(geo.a[:l])
+        if not reference > 0.0:
+            continue                       # nothing comes up from there
+        for name, state in starts:
+            found = geo.paths(state, MIRROR_CUT * reference)
+            if name != "down":
+                found.pop(straight, None)  # the view table's own path
+            for crossings, factor in found.items():
+                if name == "down":
+                    rows.append([kind[name], l, factor / transmission, geo.path(crossings)])
+                else:
+                    rows.append([kind[name], l, factor / reference,
+                                 geo.path(crossings) - geo.path(straight)])
+    if len(rows) > MAX_MIRROR_ROWS:
+        raise _TooManyMirrorPaths(
+            f"its faces reflect {len(rows)} virtual paths above {MIRROR_CUT:g} of the straight "
+            f"one, more than the {MAX_MIRROR_ROWS} the estimator follows")
+    rows.sort(key=lambda r: (r[0], r[1], r[3]))
     return np.asarray(rows, dtype=np.float64).reshape(-1, len(MIRROR_COLUMNS))
 
 

@@ -80,8 +80,9 @@ NADIR_BATCHES = 32
 #: turns a density per steradian inside l into the reflectance in vacuum.
 VIEW_COLUMNS = ("sin", "mu", "tau_per_m", "path_per_m", "tau_above", "path_above", "factor")
 #: Columns of the nadir estimator's mirror table (warpe_cl.nadir.mirror_table): the kind of
-#: virtual path (MIRROR_UP, MIRROR_DOWN, MIRROR_GAP), its factor and its extra path (m).
-MIRROR_COLUMNS = ("kind", "factor", "path")
+#: virtual path (MIRROR_UP, MIRROR_DOWN, MIRROR_GAP), the layer whose events it starts from (N:
+#: the floor below the gap), its factor and its extra path (m, at layer 0's speed).
+MIRROR_COLUMNS = ("kind", "layer", "factor", "path")
 MIRROR_KINDS = ("up", "down", "gap")
 #: The per-layer statistics of the layered walk (docs/walk.md §7.4), per work-item
 #: (``layer_stats[work-item][slot]``, uint64): rays absorbed in the medium of layer i, rays

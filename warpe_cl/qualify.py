@@ -98,7 +98,8 @@ def all_combos(fp64: bool) -> list:
 def _scenes(combo: Combo) -> dict:
     """The small media of the check: every path of the kernel that ``combo`` builds, with the
     nadir estimate (docs/walk.md §8), which every run makes by default (its build holds the
-    whole walk and the estimator: the slab over a gap its mirror paths too)."""
+    whole walk and the estimator, with the mirror paths of a slab over a gap and of a stack's
+    Fresnel contacts)."""
     from .params import Layer, WalkParams, stack_params
     edges = 1e-6 * 10 ** (np.arange(0, 221) / 20)          # 1e-6 .. 1e5 ns
     base = dict(thickness=0.01, time_edges=edges, seed=7, bottom_interface="fresnel",

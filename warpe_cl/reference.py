@@ -256,9 +256,10 @@ class NadirScorer:
                       else float(params.nadir_roulette) * top)
         self.sums = [[[0] * self.cols for _ in NADIR_ROWS] for _ in range(NADIR_BATCHES)]
         self.visits = [[0] * self.cols for _ in NADIR_ROWS]
-        # a slab over a vacuum gap: its mirror paths, (kind, factor, extra path) (walk.md §8.5)
-        self.mirror = [(MIRROR_KINDS[int(k)], float(f), float(d))
-                       for k, f, d in mirror_table(params)]
+        # the mirror paths of a slab over a vacuum gap or of a stack, (kind, layer, factor,
+        # extra path) (walk.md §8.5)
+        self.mirror = [(MIRROR_KINDS[int(k)], int(layer), float(f), float(d))
+                       for k, layer, f, d in mirror_table(params)]
 
     def _transmission(self, j: int, mu: float) -> float:
         """1 − R of interface j crossed upwards at incidence μ (walk.md §7.1)."""
@@ -345,16 +346,18 @@ class NadirScorer:
         t = (path + up_path) * self.ns_per_metre
         order_1 = n_scat == 0 and n_lamb == 0
         self._add(score, t, n_lamb > 0, order_1, word, self.omega_words[layer])
-        for kind, factor, extra in self.mirror:      # a single slab: layer 0
-            if kind == "up":                         # up, then round trips
+        for kind, row_layer, factor, extra in self.mirror:
+            if row_layer != layer:
+                continue
+            if kind == "up":                         # up, reflected on the way
                 self._add(score * factor, (path + (up_path + extra)) * self.ns_per_metre,
                           n_lamb > 0, order_1, word, self.omega_words[layer])
-            elif kind == "down":                     # down, reflected by the lower face
-                _, _, n_i, extinction, thickness, _ = self.layers[0]
-                below = thickness - z
+            elif kind == "down":                     # down, reflected by a face below
+                _, _, n_i, extinction, thickness, _ = self.layers[layer]
+                below = z_top + thickness - z
                 down = ux * s_in + uz * mu           # toward (sin, 0, +μ)
                 mirrored = (henyey_greenstein_phase(g, down) * factor
-                            * math.exp(-extinction * below / mu) * self._transmission(0, mu)
+                            * math.exp(-extinction * below / mu) * trans
                             / (face[0] * face[0] * mu) * weight)
                 t_down = (path + (below * (n_i / self.n0) / mu + extra)) * self.ns_per_metre
                 self._add(mirrored, t_down, n_lamb > 0, order_1, word, self.omega_words[layer])
@@ -368,6 +371,10 @@ class NadirScorer:
         score = (mu / math.pi) * trans * math.exp(-tau) / (face[0] * face[0] * mu) * weight
         t = (path + up_path) * self.ns_per_metre
         self._add(score, t, True, n_scat == 0 and n_lamb == 1, word, self.albedo_words)
+        for kind, row_layer, factor, extra in self.mirror:   # a stack: up, reflected above
+            if kind == "up" and row_layer == layer:
+                self._add(score * factor, (path + (up_path + extra)) * self.ns_per_metre,
+                          True, n_scat == 0 and n_lamb == 1, word, self.albedo_words)
 
     def gap(self, path, n_scat, n_lamb, weight, word):
         """A reflection by the floor below the gap medium; n_lamb counts it."""
@@ -381,7 +388,7 @@ class NadirScorer:
         score = (mu / math.pi) * trans * math.exp(-tau) / (m * m * mu) * weight
         t = (path + up_path) * self.ns_per_metre
         self._add(score, t, True, n_scat == 0 and n_lamb == 1, word, self.albedo_words)
-        for kind, factor, extra in self.mirror:      # round trips in the slab above the gap
+        for kind, _, factor, extra in self.mirror:   # reflected by the faces above
             if kind == "gap":
                 self._add(score * factor, (path + (up_path + extra)) * self.ns_per_metre,
                           True, n_scat == 0 and n_lamb == 1, word, self.albedo_words)
