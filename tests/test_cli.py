@@ -411,3 +411,14 @@ def test_plot_metrics_bad_input_exits_2_with_one_line(tmp_path, capsys, extra, m
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and message in err, err
     assert not (tmp_path / "x.png").exists()
+
+
+def test_import_leaves_the_inversion_for_later():
+    """``import warpe_cl`` (every command's start) does not import the inversion, whose
+    scipy.signal and scipy.stats take 0.65 s; ``warpe_cl.invert`` loads it on first use."""
+    code = ("import sys, warpe_cl\n"
+            "assert 'warpe_cl.inversion' not in sys.modules, 'inversion imported'\n"
+            "assert 'scipy.signal' not in sys.modules, 'scipy.signal imported'\n"
+            "assert warpe_cl.invert.__module__ == 'warpe_cl.inversion.invert'\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr

@@ -23,8 +23,16 @@ from .api import simulate
 from .io import package_version, as_grid
 from .database import open_database
 from .metrics import metrics
-from .inversion.invert import invert
 
 __version__ = package_version()
 __all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "as_grid", "metrics",
            "invert", "__version__"]
+
+
+def __getattr__(name: str):
+    """``warpe_cl.invert`` on first use: the inversion pulls in scipy.signal and scipy.stats
+    (0.65 s of imports), which a walk never needs."""
+    if name == "invert":
+        from .inversion.invert import invert
+        return invert
+    raise AttributeError(f"module 'warpe_cl' has no attribute {name!r}")
