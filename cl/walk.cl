@@ -1678,3 +1678,40 @@ __kernel void walk(const uint seed, const ulong scenario,
     write_layer_stats(layer_stats + N_LAYER_STATS * get_global_id(0), &st);
 #endif
 }
+
+#ifdef WARPE_NADIR
+/* The nadir sums of slices 1 .. slices-1 added into slice 0, exactly (walk.md §8.2), on the
+ * device: one work-item per cell of a slice (cells of FIXED_WORDS words, low word first, with
+ * the carries between words; visits: one word each). The host then reads one slice, not one
+ * per work-item of the walk. */
+__kernel void nadir_fold(__global ulong *nadir_sum, __global ulong *nadir_visits,
+                         const uint slices, const uint cells, const uint visit_cells)
+{
+    const size_t c = get_global_id(0);
+    if (c < cells) {
+        __global ulong *acc = nadir_sum + FIXED_WORDS * c;
+        ulong lo = acc[0], mid = acc[1], hi = acc[2];
+        for (uint s = 1; s < slices; ++s) {
+            __global const ulong *b = nadir_sum + FIXED_WORDS * ((size_t)s * cells + c);
+            const ulong a0 = lo + b[0];
+            const ulong c0 = a0 < lo ? 1ul : 0ul;
+            const ulong a1 = mid + b[1];
+            const ulong c1 = a1 < mid ? 1ul : 0ul;
+            const ulong a2 = a1 + c0;
+            const ulong c2 = a2 < c0 ? 1ul : 0ul;
+            lo = a0;
+            mid = a2;
+            hi += b[2] + c1 + c2;
+        }
+        acc[0] = lo;
+        acc[1] = mid;
+        acc[2] = hi;
+    }
+    if (c < visit_cells) {
+        ulong v = nadir_visits[c];
+        for (uint s = 1; s < slices; ++s)
+            v += nadir_visits[(size_t)s * visit_cells + c];
+        nadir_visits[c] = v;
+    }
+}
+#endif

@@ -168,6 +168,31 @@ def test_sums_do_not_depend_on_launches_or_work_items(engine):
             assert np.array_equal(c.nadir_batch_photons, whole.nadir_batch_photons), name
 
 
+def test_fold_adds_the_slices_exactly(engine):
+    """The device's fold of the per-work-item slices (cl/walk.cl nadir_fold) is the exact sum
+    of the 192-bit words, with the carries from word to word, and of the visits: against
+    Python's integers, on words near 2^64 that carry in every add."""
+    import pyopencl as cl
+    from warpe_cl.engine import _exact_sums, fold_nadir_slices
+    from warpe_cl.params import FIXED_WORDS
+    engine.kernel("slab", "single", False, 1, False, True)
+    fold = engine._folds[("slab", "single", False, 1, False, True)]
+    rng = np.random.default_rng(3)
+    shape = (7, 2, 3, 5)
+    words = rng.integers(0, 2**64, size=(*shape, FIXED_WORDS), dtype=np.uint64)
+    words[..., 0] |= np.uint64(0xFFFF_FFFF_0000_0000)          # carries into the middle word
+    words[0, 0, 0, 0] = [2**64 - 1, 2**64 - 1, 5]              # a carry through both words
+    words[1, 0, 0, 0] = [1, 0, 0]
+    words[..., 2] >>= np.uint64(8)                             # no overflow of the sum
+    visits = rng.integers(0, 2**40, size=(shape[0], *shape[2:]), dtype=np.uint64)
+    mf = cl.mem_flags
+    sums_buf = cl.Buffer(engine.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=words)
+    visits_buf = cl.Buffer(engine.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=visits)
+    got, got_visits = fold_nadir_slices(engine.queue, fold, sums_buf, visits_buf, shape)
+    assert np.array_equal(_exact_sums(got), _exact_sums(words).sum(axis=0))
+    assert np.array_equal(got_visits, visits.sum(axis=0))
+
+
 def test_lane_widths_agree_to_rounding(engine):
     """In single precision the walk's native_log and native_sin/cos (cl/real.h) differ in their
     last bits between the vector and scalar forms, so a ray's depth and path do too (its

@@ -311,6 +311,7 @@ class Engine:
         #: seconds the last :meth:`run` spent walking (its launches), what the speeds count
         self.last_walk_s = None
         self._kernels = {}
+        self._folds = {}      # the nadir_fold kernel of each nadir build (same keys)
         self._warmed = set()
         self.qualifier = None
         if qualify:
@@ -398,6 +399,8 @@ class Engine:
         if key not in self._kernels:
             import pyopencl as cl
             self._kernels[key] = cl.Kernel(program, "walk")
+            if nadir:
+                self._folds[key] = cl.Kernel(program, "nadir_fold")
         return self._kernels[key]
 
     def run(self, params: WalkParams, photons: int, precision: str = "single",
@@ -622,13 +625,11 @@ class Engine:
         if lost_weights:
             raise WeightError(lost_weights)
         if nadir:
-            words = np.empty((*nadir_shape, FIXED_WORDS), dtype=np.uint64)
-            cl.enqueue_copy(queue, words, buffers["nadir_sum"])
-            visits = np.empty((slices, *nadir_shape[2:]), dtype=np.uint64)
-            cl.enqueue_copy(queue, visits, buffers["nadir_visits"])
-            queue.finish()
-            total.nadir_sum = _exact_slice_sums(words)
-            total.nadir_visits[...] = visits.sum(axis=0).astype(np.int64)
+            fold = self._folds[(params.texture, precision, records, lanes, weighted, nadir)]
+            words, visits = fold_nadir_slices(queue, fold, buffers["nadir_sum"],
+                                              buffers["nadir_visits"], nadir_shape)
+            total.nadir_sum = _exact_sums(words)
+            total.nadir_visits[...] = visits.astype(np.int64)
             total.nadir_batch_photons[...] = batch_photons(first_photon, photons)
         if records:
             total.records = _read_records(queue, records_of_walk, photons, real)
@@ -661,13 +662,39 @@ def _exact_sums(words: np.ndarray) -> np.ndarray:
     return sum(words[..., i].astype(object) << (64 * i) for i in range(FIXED_WORDS))
 
 
-def _exact_slice_sums(words: np.ndarray) -> np.ndarray:
-    """The exact sums over the first axis (slices) of fixed-point words (last axis, low word
-    first), as Python ints: each word is split into 32-bit limbs, which add up in uint64
-    without overflow for fewer than 2^32 slices."""
-    limbs = np.concatenate([words & np.uint64(0xFFFFFFFF), words >> np.uint64(32)], axis=-1)
-    limbs = limbs[..., [0, 3, 1, 4, 2, 5]].sum(axis=0, dtype=np.uint64)   # low limb first
-    return sum(limbs[..., i].astype(object) << (32 * i) for i in range(limbs.shape[-1]))
+def fold_nadir_slices(queue, fold, sums, visits, shape: tuple) -> tuple:
+    """The nadir sums and visits of every slice added into the first on the device
+    (cl/walk.cl ``nadir_fold``, exact), and that slice read back.
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+    fold : pyopencl.Kernel
+        ``nadir_fold`` of the walk's program.
+    sums, visits : pyopencl.Buffer
+        ``nadir_sum`` (shape + (FIXED_WORDS,) uint64 words) and ``nadir_visits``
+        (shape without its batch axis, uint64).
+    shape : tuple
+        (slices, NADIR_BATCHES, rows, columns).
+
+    Returns
+    -------
+    (words, visits) : numpy.ndarray
+        shape[1:] + (FIXED_WORDS,) and shape[2:], uint64: the sums of all slices.
+    """
+    import pyopencl as cl
+    slices = int(shape[0])
+    cells = int(np.prod(shape[1:]))
+    visit_cells = int(np.prod(shape[2:]))
+    if slices > 1:
+        fold(queue, (max(cells, visit_cells),), None, sums, visits, np.uint32(slices),
+             np.uint32(cells), np.uint32(visit_cells))
+    words = np.empty((*shape[1:], FIXED_WORDS), dtype=np.uint64)
+    counts = np.empty(shape[2:], dtype=np.uint64)
+    cl.enqueue_copy(queue, words, sums)         # the first slice: words.nbytes from the start
+    cl.enqueue_copy(queue, counts, visits)
+    queue.finish()
+    return words, counts
 
 
 def _read_records(queue, buffers: dict, photons: int, real) -> dict:
