@@ -41,7 +41,7 @@ MAX_MIRROR_ROWS = 512
 _MAX_PARTIAL_PATHS = 200_000
 
 
-class _TooManyMirrorPaths(Exception):
+class _TooManyMirrorPaths(ValueError):
     """The mirror paths above MIRROR_CUT exceed MAX_MIRROR_ROWS (or _MAX_PARTIAL_PATHS)."""
 
 
