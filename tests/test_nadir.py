@@ -14,7 +14,7 @@ import pytest
 
 from warpe_cl.params import (C_M_PER_NS, NADIR_BATCHES, NADIR_ROWS, Layer, WalkParams,
                              batch_photons, fixed_to_float, stack_params)
-from warpe_cl.nadir import _batch_error, reduce_nadir, view_table
+from warpe_cl.nadir import _batch_error, view_table
 from warpe_cl.radiative import fresnel_internal
 from warpe_cl.reference import henyey_greenstein_phase, simulate_reference
 

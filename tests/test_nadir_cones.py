@@ -63,7 +63,6 @@ def angular_fit(run) -> tuple:
     b (so that any linear combination's variance follows from the rings' Poisson variances)."""
     rays = run["rays"][:FIT_DEG]
     norm = run["n"] * run["proj"][:FIT_DEG]             # ring value y = rays / norm
-    y = rays / norm
     var_y = np.maximum(rays, 1.0) / norm ** 2
     x = np.sin(np.radians(np.arange(FIT_DEG) + 0.5)) ** 2
     design = np.stack([np.ones_like(x), x], axis=1)
