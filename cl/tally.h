@@ -118,6 +118,21 @@ inline void fixed_add(__global ulong *acc, REAL w)
 #endif
 
 #ifdef WARPE_NADIR
+/* (*lo, *mid, *hi) += (b0, b1, b2): a 192-bit addition of words (low first), with the carries
+ * from word to word, in private memory. */
+inline void words_add(ulong *lo, ulong *mid, ulong *hi, ulong b0, ulong b1, ulong b2)
+{
+    const ulong a0 = *lo + b0;
+    const ulong c0 = a0 < b0 ? 1ul : 0ul;
+    const ulong a1 = *mid + b1;
+    const ulong c1 = a1 < b1 ? 1ul : 0ul;
+    const ulong a2 = a1 + c0;
+    const ulong c2 = a2 < c0 ? 1ul : 0ul;
+    *lo = a0;
+    *mid = a2;
+    *hi += b2 + c1 + c2;
+}
+
 /* fixed_add into sums that only this work-item writes (the nadir sums of a CPU work-item's own
  * slice, walk.md §8): the same 192-bit addition with plain loads and stores, no atomics. */
 inline void fixed_add_own(__global ulong *acc, REAL w)
@@ -126,15 +141,11 @@ inline void fixed_add_own(__global ulong *acc, REAL w)
         return;
     ulong lo, mid, hi;
     fixed_words(w, &lo, &mid, &hi);
-    const ulong a0 = acc[0] + lo;
-    const ulong c0 = a0 < lo ? 1ul : 0ul;
-    const ulong a1 = acc[1] + mid;
-    const ulong c1 = a1 < mid ? 1ul : 0ul;
-    const ulong a2 = a1 + c0;
-    const ulong c2 = a2 < c0 ? 1ul : 0ul;
+    ulong a0 = acc[0], a1 = acc[1], a2 = acc[2];
+    words_add(&a0, &a1, &a2, lo, mid, hi);
     acc[0] = a0;
-    acc[1] = a2;
-    acc[2] += hi + c1 + c2;
+    acc[1] = a1;
+    acc[2] = a2;
 }
 #endif
 

@@ -948,9 +948,9 @@ WALK_STEP int exit_component(int fate, uint n_s, uint n_l, REAL t, const tallies
  * along it, the Fresnel transmissions T of its interfaces and the etendue 1 / (m^2 mu). The
  * score arrives at t = (L + path) n_0 / c and goes to the row of its component (by the
  * component rule, with the virtual path's history) and, for the first scattering or floor
- * reflection of the ray, to the order-1 row too. In a slab over a vacuum gap the virtual paths
- * that the slab's faces reflect score too, each at its own time (the mirror table, walk.md
- * §8.5). */
+ * reflection of the ray, to the order-1 row too. In a slab over a vacuum gap and in a stack the
+ * virtual paths that the Fresnel faces reflect score too, each at its own time (the mirror
+ * table, walk.md §8.5). */
 
 /* A time's column of the nadir rows: 0 before the first edge, 1 + its bin, n_edges at or after
  * the last edge; and that column's time range [lo, hi) (time_bin's comparisons). */
@@ -1084,20 +1084,23 @@ WALK_STEP VREAL nadir_roulette(VREAL s, VREAL v, const scene_t *sc)
 #endif
 }
 
-#ifdef WARPE_TEXTURE_LAYERS
-/* The mirror rows of a stack (mirror_table, walk.md §8.5) for the lanes in m, each from its
- * own layer: an up row multiplies s, the straight score, and arrives its row path after the
- * straight path `up`; a down row multiplies sd, the score of the path down along the view's
- * mirror image to the bottom of the layer (path `down`), and arrives its row path after it.
- * Each plays the roulette with the event's uniform v. */
+/* The mirror rows (mirror_table, walk.md §8.5) of a slab over a vacuum gap or of a stack for
+ * the lanes in m, each from its own layer: an up row multiplies s, the straight score, and
+ * arrives its row path after the straight path `up`; a down row multiplies sd, the score of
+ * the path down along the view's mirror image to the bottom of the layer (path `down`), and
+ * arrives its row path after it. Each plays the roulette with the event's uniform v. */
 WALK_STEP void mirror_scores(VMASK m, VREAL s, VREAL up, VREAL sd, VREAL down, VREAL v,
                              VMASK first, const scene_t *sc, rays_t *r, const tallies_t *tally)
 {
     for (int i = 0; i < sc->n_mirror; ++i) {
         __global const REAL *row = sc->mirror + N_MIRROR * i;
         const int kind = (int)row[MIRROR_KIND];
+#ifdef WARPE_TEXTURE_LAYERS
         const VMASK in = m & (r->layer == (VMASK)(int)row[MIRROR_LAYER]);
-        if (kind == MIRROR_GAP || !ANY(in))
+#else
+        const VMASK in = m;                  /* one layer: every up and down row is its own */
+#endif
+        if ((kind != MIRROR_UP && kind != MIRROR_DOWN) || !ANY(in))
             continue;                        /* the gap's rows: nadir_gap */
         const VREAL si = (kind == MIRROR_UP ? s : sd) * row[MIRROR_FACTOR];
         const VREAL tvi = (r->Ls + ((kind == MIRROR_UP ? up : down) + row[MIRROR_PATH]))
@@ -1106,7 +1109,6 @@ WALK_STEP void mirror_scores(VMASK m, VREAL s, VREAL up, VREAL sd, VREAL down, V
                   nadir_row(r->n_lamb > (VMASK)0, tvi, tally), first, r, tally);
     }
 }
-#endif
 
 /* A scattering of the lanes in m, with their direction before it (walk.md §8): q = p(Theta),
  * the HG phase function normalised to 1 over the sphere,
@@ -1142,44 +1144,24 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     const VREAL tv = (r->Ls + path) * tally->ns_per_m;
     nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
               first, r, tally);
-#if defined(WARPE_TEXTURE_LAYERS)
     if (sc->n_mirror > 0) {
-        /* a stack: the mirror paths of the lanes' layers (mirror_table, walk.md §8.5); down:
-         * along the mirror image (sin_l, 0, +mu_l) to the bottom of the layer, then the row */
+        /* the mirror paths of a slab over a gap or of the lanes' layers of a stack
+         * (mirror_table, walk.md §8.5); down: along the mirror image (sin_l, 0, +mu_l) to the
+         * bottom of the layer, then the row */
+#ifdef WARPE_TEXTURE_LAYERS
         const VREAL below = r->z_bottom - r->z;
+        const VREAL tau_down = r->v_tau_per_m * below, path_down = r->v_path_per_m * below;
+#else
+        const VREAL below = (REAL)sc->h - r->z;
+        const VREAL tau_down = sc->v_tau_per_m * below, path_down = sc->v_path_per_m * below;
+#endif
         const VREAL xd = ((REAL)1 + g * g) - (REAL)2 * g * (r->ux * sin_v + r->uz * mu_v);
-        VREAL sd = k * pow_m3_2(xd) * exp_neg(r->v_tau_per_m * below);
+        VREAL sd = k * pow_m3_2(xd) * exp_neg(tau_down);
 #ifdef WARPE_WEIGHTED
         sd *= r->w;
 #endif
-        mirror_scores(m, s, path, sd, r->v_path_per_m * below, v, first, sc, r, tally);
+        mirror_scores(m, s, path, sd, path_down, v, first, sc, r, tally);
     }
-#elif defined(WARPE_INTERFACES)
-    /* a slab over a vacuum gap: the mirror paths of mirror_table (walk.md §8.5), each played
-     * the roulette with the event's uniform (each stays unbiased) */
-    for (int i = 0; i < sc->n_mirror; ++i) {
-        __global const REAL *row = sc->mirror + N_MIRROR * i;
-        const int kind = (int)row[MIRROR_KIND];
-        VREAL si, ti;
-        if (kind == MIRROR_UP) {             /* up, then k round trips */
-            si = s * row[MIRROR_FACTOR];
-            ti = path + row[MIRROR_PATH];
-        } else if (kind == MIRROR_DOWN) {    /* down along the mirror image, reflected below */
-            const VREAL below = (REAL)sc->h - r->z;
-            const VREAL xd = ((REAL)1 + g * g) - (REAL)2 * g * (r->ux * sin_v + r->uz * mu_v);
-            si = k * row[MIRROR_FACTOR] * pow_m3_2(xd) * exp_neg(sc->v_tau_per_m * below);
-#ifdef WARPE_WEIGHTED
-            si *= r->w;
-#endif
-            ti = sc->v_path_per_m * below + row[MIRROR_PATH];
-        } else {
-            continue;                        /* the gap's paths: nadir_gap */
-        }
-        const VREAL tvi = (r->Ls + ti) * tally->ns_per_m;
-        nadir_add(m, nadir_roulette(si, v, sc), tvi,
-                  nadir_row(r->n_lamb > (VMASK)0, tvi, tally), first, r, tally);
-    }
-#endif
 }
 
 /* A reflection of the lanes in m by a floor in contact with the last layer, at its bottom
@@ -1209,12 +1191,10 @@ WALK_STEP void nadir_contact(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1);
     nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
               first, r, tally);
-#ifdef WARPE_TEXTURE_LAYERS
     /* a stack: the up rows of the last layer, whose bottom the floor is (walk.md §8.5); no
-     * down rows (nothing but the floor lies below) */
+     * down rows (nothing but the floor lies below; a single layer on a floor has no rows) */
     if (sc->n_mirror > 0)
         mirror_scores(m, s, path, (VREAL)0, (VREAL)0, v, first, sc, r, tally);
-#endif
 }
 
 #ifdef WARPE_INTERFACES
@@ -1693,15 +1673,7 @@ __kernel void nadir_fold(__global ulong *nadir_sum, __global ulong *nadir_visits
         ulong lo = acc[0], mid = acc[1], hi = acc[2];
         for (uint s = 1; s < slices; ++s) {
             __global const ulong *b = nadir_sum + FIXED_WORDS * ((size_t)s * cells + c);
-            const ulong a0 = lo + b[0];
-            const ulong c0 = a0 < lo ? 1ul : 0ul;
-            const ulong a1 = mid + b[1];
-            const ulong c1 = a1 < mid ? 1ul : 0ul;
-            const ulong a2 = a1 + c0;
-            const ulong c2 = a2 < c0 ? 1ul : 0ul;
-            lo = a0;
-            mid = a2;
-            hi += b[2] + c1 + c2;
+            words_add(&lo, &mid, &hi, b[0], b[1], b[2]);     /* cl/tally.h */
         }
         acc[0] = lo;
         acc[1] = mid;
