@@ -126,7 +126,8 @@ def nadir_refusal(preset, overrides: dict) -> str | None:
 
 def check_estimator(preset, overrides: dict) -> None:
     """SystemExit with the reason where warpe-cl makes no nadir estimate for ``preset`` with
-    ``overrides`` (a stack's Fresnel contact below its top, docs/walk.md §8.5)."""
+    ``overrides`` (faces that reflect more mirror paths than the estimator follows,
+    docs/walk.md §8.5)."""
     reason = nadir_refusal(preset, overrides)
     if reason is not None:
         raise SystemExit(f"no nadir estimate for {preset}: {reason}")

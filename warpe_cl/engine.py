@@ -129,7 +129,6 @@ def bin_guess(edges) -> tuple:
     return 0, float(e[0]), float(1.0 / (e[1] - e[0]))
 
 
-
 #: The walk kernel's parameters, in order: the one table that :meth:`Engine.run` fills and
 #: tests/test_layout.py checks against the kernel's source.
 WALK_ARGS = (

@@ -73,8 +73,9 @@ def diffuse_estimates(ds) -> list:
     """Which diffuse reflectance the instrument uses, per scenario (one item without a sweep):
     ``"nadir"`` (``nadir_reflectance``, the next-event estimate in the view direction) where the
     scenario has it, else ``"fov"`` (``reflectance``, counted in the numerical fields of view).
-    In a sweep a scenario lacks it (NaN) where the estimate is not exact, e.g. a slab over a
-    Fresnel mirror next to a granular layer (docs/walk.md §8.5)."""
+    In a sweep a scenario lacks it (NaN) where it was not made: ``simulation.nadir: false``
+    for that scenario, or a stack whose faces reflect more paths than the estimator follows
+    (docs/walk.md §8.5)."""
     n = ds.sizes["scenario"] if "scenario" in ds.dims else None
     if "nadir_reflectance" not in ds.variables:
         return ["fov"] * (n or 1)
