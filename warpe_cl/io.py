@@ -343,8 +343,9 @@ VARYING_TEXT = {
 
 
 def _fill_missing(datasets: list) -> list:
-    """Scenarios that lack a variable others have (the nadir estimate, made only where it is
-    exact: docs/walk.md §8.5) get it filled with NaN, so that the sweep stacks."""
+    """Scenarios that lack a variable others have (the nadir estimate, where a scenario has
+    ``simulation.nadir: false`` or its faces reflect more paths than the estimator follows:
+    docs/walk.md §8.5) get it filled with NaN, so that the sweep stacks."""
     import xarray as xr
     template = {}
     for ds in datasets:
