@@ -267,6 +267,23 @@ def test_no_curve_or_marker_under_the_legend(single, many):
     _nothing_under_legends(waveform_figure(many.isel(scenario=[0, 1, 2])))
 
 
+def test_waveform_figure_is_laid_out_when_returned(single, many, tmp_path):
+    """plot_waveform saves without laying the figure out again (save_figure(laid_out=True)):
+    the figure waveform_figure returns already sits where a new layout puts it, to within a
+    pixel (constrained layout moves by fractions of a pixel from one pass to the next), and the
+    save moves nothing."""
+    from warpe_cl.plot import save_figure
+    for ds in (single, many.isel(scenario=[0, 1, 2])):
+        fig = waveform_figure(ds)
+        returned = np.array([ax.get_position().bounds for ax in fig.axes])
+        pixel = 1.0 / (fig.get_size_inches() * fig.dpi).min()
+        fig.draw_without_rendering()              # a new layout pass
+        again = np.array([ax.get_position().bounds for ax in fig.axes])
+        assert np.abs(again - returned).max() < pixel
+        save_figure(fig, tmp_path / "w.png", laid_out=True)
+        assert np.array_equal([ax.get_position().bounds for ax in fig.axes], again)
+
+
 @pytest.mark.slow
 def test_instrument_figure_one_curve_per_surface_result(single):
     """Cases that differ only in the instrument (a flat and a rough slab: roughness acts only

@@ -234,8 +234,15 @@ def _pyplot():
     return plt
 
 
-def save_figure(fig, path):
-    """Save ``fig`` to ``path`` (PNG, 120 dpi), close it, and return ``path``."""
+def save_figure(fig, path, laid_out: bool = False):
+    """Save ``fig`` to ``path`` (PNG, 120 dpi), close it, and return ``path``.
+
+    ``laid_out``: the figure's layout is final (``clear_of_legend`` laid it out and nothing
+    changed since): saved without another layout pass (about 0.1 s less per waveform figure;
+    the axes stay within a pixel of where another pass would put them).
+    """
+    if laid_out:
+        fig.set_layout_engine("none")      # keeps the axes where the last layout put them
     fig.savefig(path, dpi=120)
     _pyplot().close(fig)
     return path
@@ -272,9 +279,11 @@ def clear_of_legend(legend, axes, margin: float = 0.03):
     """Raise the upper limit of each log-y axis of ``axes`` until none of the points of its
     data lines lies under ``legend`` (the legend, drawn in front with little transparency,
     would hide them: a slab's BF-direct peak at 0.03 of the rays sat under the waveform
-    figure's legend). ``margin``: the gap kept below the legend, in axes height."""
+    figure's legend). ``margin``: the gap kept below the legend, in axes height. The figure
+    is laid out for its final limits on return (``save_figure(..., laid_out=True)``)."""
     fig = legend.figure
     fig.draw_without_rendering()   # the final layout and legend size
+    raised = False
     for ax in axes:
         to_axes = ax.transAxes.inverted()
         box = legend.get_window_extent().transformed(to_axes)
@@ -297,6 +306,10 @@ def clear_of_legend(legend, axes, margin: float = 0.03):
         if np.isfinite(highest):
             lo, hi = np.log10(ax.get_ylim())
             ax.set_ylim(10 ** lo, 10 ** max(hi, lo + (highest - lo) / bottom))
+            raised = True
+    engine = fig.get_layout_engine()
+    if raised and engine is not None:
+        engine.execute(fig)        # the new limits' tick labels
     return legend
 
 
@@ -457,7 +470,7 @@ def plot_waveform(ds, path, title: str | None = None):
 
     See ``waveform_figure`` for what is drawn. Returns ``path``.
     """
-    return save_figure(waveform_figure(ds, title), path)
+    return save_figure(waveform_figure(ds, title), path, laid_out=True)
 
 
 def plot_angular(ds, path, title: str | None = None):
