@@ -340,3 +340,51 @@ def test_reproduce_paper_bela_figure_runs(tmp_path):
         assert ds.attrs["instrument_diffuse_estimate"] == "nadir"
         assert list(ds["diffuse_estimate"].values) == ["nadir", "nadir"]
         assert np.isfinite(ds["expected_mv"].values).all()
+
+
+def test_reproduce_paper_second_process_writes_the_same(tmp_path):
+    """tools/reproduce_paper.py makes each preset's files and figures in a second process
+    while the next preset walks: the same NetCDF results and metrics.csv as --serial (each in
+    this process, after its walk), every preset reported in order."""
+    import contextlib
+    import io
+    import sys
+
+    import xarray as xr
+    from conftest import TOOLS
+    sys.path.insert(0, str(TOOLS))
+    import reproduce_paper as rp
+    names = ["fov_numerical", "slab_co2_thickness"]
+    printed = {}
+    for mode in ("serial", "second"):
+        out, data = tmp_path / mode / "fig", tmp_path / mode / "data"
+        args = ["--photons", "300", "--only", *names, "--out", str(out), "--data", str(data)]
+        text = io.StringIO()
+        with contextlib.redirect_stdout(text):
+            assert rp.main(args + (["--serial"] if mode == "serial" else [])) == 0
+        printed[mode] = [line.split()[0] for line in text.getvalue().splitlines()
+                         if line.split() and line.split()[0] in names]
+        assert all((out / f"{n}.png").is_file() for n in names)
+    assert printed["serial"] == printed["second"] == names
+    for n in names:
+        with xr.open_dataset(tmp_path / "serial" / "data" / f"{n}.nc") as a, \
+                xr.open_dataset(tmp_path / "second" / "data" / f"{n}.nc") as b:
+            assert a["reflectance"].equals(b["reflectance"])
+            assert a["nadir_reflectance"].equals(b["nadir_reflectance"])
+    assert ((tmp_path / "serial" / "fig" / "metrics.csv").read_text()
+            == (tmp_path / "second" / "fig" / "metrics.csv").read_text())
+
+
+def test_reproduce_paper_without_the_nadir_estimate(tmp_path):
+    """--no-nadir walks as the paper did (simulation.nadir: false): no nadir_reflectance."""
+    import sys
+
+    import xarray as xr
+    from conftest import TOOLS
+    sys.path.insert(0, str(TOOLS))
+    import reproduce_paper as rp
+    data = tmp_path / "data"
+    assert rp.main(["--photons", "300", "--only", "fov_numerical", "--no-nadir", "--out",
+                    str(tmp_path / "fig"), "--data", str(data)]) == 0
+    with xr.open_dataset(data / "fov_numerical.nc") as ds:
+        assert "reflectance" in ds and "nadir_reflectance" not in ds

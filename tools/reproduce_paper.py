@@ -6,8 +6,12 @@
 Writes ``NAME.nc`` (in --data, default a temporary folder) and ``NAME.png`` for each preset of
 ``presets/paper/`` (plus ``fov_numerical_angular.png``, the FOV figure, and
 ``bela_cases_instrument.png``, the paper's three-panel BELA figure, whose claims it checks and
-prints), and prints the time each took. ``--photons`` overrides every preset's ray count per scenario (the presets' own
-counts are used otherwise).
+prints), and prints the time each took: its simulation, and its files and figures. ``--photons``
+overrides every preset's ray count per scenario (the presets' own counts are used otherwise).
+
+The files and figures (single-threaded Python: h5netcdf, matplotlib, the BELA instrument chain)
+are made in a second process while the next preset walks, so that they use the core the walk
+leaves; ``--serial`` makes each in this process before the next walk starts (the same files).
 
 It also writes ``metrics.csv`` next to the figures: the waveform metrics of every result
 (``warpe_cl.metrics``: mean delay and RMS width in ns, each with its standard error), one row
@@ -22,10 +26,12 @@ from __future__ import annotations
 
 import argparse
 import csv
+import multiprocessing
 import sys
 import tempfile
 import time
 import warnings
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
 import warpe_cl
@@ -199,6 +205,25 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
     return facts
 
 
+def finish(name: str, ds, out: Path, data: Path) -> tuple:
+    """Everything of preset ``name`` after its walk: its NetCDF file, its figures (and, for
+    ``bela_cases``, the BELA instrument figure and its facts) and its metrics rows. Returns
+    (rows, what it printed, seconds it took)."""
+    import contextlib
+    import io as text_io
+    t0 = time.perf_counter()
+    printed = text_io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        io.write_netcdf(ds, data / f"{name}.nc")
+        plot_waveform(ds, out / f"{name}.png")
+        if name == "fov_numerical":
+            plot_angular(ds, out / "fov_numerical_angular.png")
+        if name == "bela_cases":
+            bela_instrument(ds, out, data)
+        rows = metrics_rows(name, ds)
+    return rows, printed.getvalue(), time.perf_counter() - t0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--photons", type=float, default=None, help="rays per scenario")
@@ -206,36 +231,67 @@ def main(argv=None) -> int:
     p.add_argument("--data", default=None, help="folder for the NetCDF results")
     p.add_argument("--only", nargs="*", default=None, help="preset names to run")
     p.add_argument("--device", default=None)
+    p.add_argument("--no-nadir", action="store_true",
+                   help="walk without the nadir estimate (simulation.nadir: false), as the paper "
+                        "did: the same waveform figures; the BELA chain then uses the FOV "
+                        "reflectance")
+    p.add_argument("--serial", action="store_true",
+                   help="write each preset's files and figures before the next walk starts, "
+                        "in this process (default: in a second process, while the next walks)")
     args = p.parse_args(argv)
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     data = Path(args.data or tempfile.mkdtemp(prefix="warpe-paper-"))
     data.mkdir(parents=True, exist_ok=True)
-    overrides = {"simulation.photons": args.photons} if args.photons else None
+    overrides = {"simulation.photons": args.photons} if args.photons else {}
+    if args.no_nadir:
+        overrides["simulation.nadir"] = False
+    presets = [p for p in sorted((presets_dir() / "paper").glob("*.yaml"))
+               if not args.only or p.stem in args.only]
     total = time.perf_counter()
     rows = []
-    # a scenario two presets share is walked once: bela_cases' granular case is
-    # gran_co2_thickness' 1000 mm curve (the same scenario key and photons, the same bits)
-    with reusing_walks():
-        for preset in sorted((presets_dir() / "paper").glob("*.yaml")):
-            if args.only and preset.stem not in args.only:
-                continue
-            t0 = time.perf_counter()
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                ds = warpe_cl.simulate(warpe_cl.load_preset(preset, overrides=overrides),
-                                       device=args.device, progress=False)
-            io.write_netcdf(ds, data / f"{preset.stem}.nc")
-            plot_waveform(ds, out / f"{preset.stem}.png")
-            if preset.stem == "fov_numerical":
-                plot_angular(ds, out / "fov_numerical_angular.png")
-            if preset.stem == "bela_cases":
-                bela_instrument(ds, out, data)
-            rows += metrics_rows(preset.stem, ds)
-            photons = int(ds["photons"].sum()) if "scenario" in ds.dims else int(ds["photons"])
-            print(f"{preset.stem:26s} {photons:>11,d} rays  {time.perf_counter() - t0:7.1f} s"
-                  + "".join(f"\n    warning: {w.message}" for w in caught), flush=True)
+    done = []          # (name, photons, simulation s, warnings, Future) in preset order
+
+    def report(block: bool) -> None:
+        """Print the presets whose files and figures are written, in order."""
+        nonlocal rows
+        while done and (block or done[0][4].done()):
+            name, photons, walk_s, caught, job = done.pop(0)
+            got, printed, post_s = job.result()
+            rows += got
+            print(f"{printed}{name:26s} {photons:>11,d} rays  simulation {walk_s:6.1f} s, files "
+                  f"and figures {post_s:5.1f} s" + "".join(f"\n    warning: {w}" for w in caught),
+                  flush=True)
+
+    # the files and figures of one preset (single-threaded Python: matplotlib, h5netcdf, the
+    # BELA chain) are made in a second process while the next preset walks on the device
+    pool = None
+    if not args.serial and len(presets) > 1:
+        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        # a scenario two presets share is walked once: bela_cases' granular case is
+        # gran_co2_thickness' 1000 mm curve (the same scenario key and photons, the same bits)
+        with reusing_walks():
+            for preset in presets:
+                t0 = time.perf_counter()
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    config = warpe_cl.load_preset(preset, overrides=overrides or None)
+                    ds = warpe_cl.simulate(config, device=args.device, progress=False)
+                walk_s = time.perf_counter() - t0
+                photons = int(ds["photons"].sum() if "scenario" in ds.dims else ds["photons"])
+                if pool is not None:
+                    job = pool.submit(finish, preset.stem, ds, out, data)
+                else:
+                    job = Future()
+                    job.set_result(finish(preset.stem, ds, out, data))
+                done.append((preset.stem, photons, walk_s, [str(w.message) for w in caught], job))
+                report(block=False)
+        report(block=True)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     if rows:
         print(f"waveform metrics: {write_metrics(rows, out / 'metrics.csv')}")
     print(f"all presets: {time.perf_counter() - total:.1f} s; results in {data}")
