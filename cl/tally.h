@@ -68,17 +68,22 @@ inline int weight_lost(REAL w)
 }
 #endif
 
-/* floor(w 2^FIXED_SHIFT) for w > 0 as its low, middle and high 64-bit words. */
+/* floor(w 2^FIXED_SHIFT) for w > 0 as its low, middle and high 64-bit words. w = m 2^(s -
+ * FIXED_SHIFT) exactly, with m the significand as an integer (the implicit bit set for a
+ * normal w) and s from the biased exponent, both read from w's bits with integer operations
+ * (IEEE 754 binary32/binary64; subnormals have the exponent of the smallest normal). */
 inline void fixed_words(REAL w, ulong *lo, ulong *mid, ulong *hi)
 {
-    int e;
-    REAL f = frexp(w, &e);                 /* w = f 2^e, f in [1/2, 1) */
 #ifdef WARPE_DOUBLE
-    ulong m = (ulong)(f * 0x1p53);         /* exact: 53-bit integer, w 2^150 = m 2^s */
-    int s = e - 53 + FIXED_SHIFT;
+    const ulong bits = as_ulong(w);
+    const int biased = (int)(bits >> 52) & 0x7ff;
+    const ulong m = (bits & 0xffffffffffffful) | (biased ? 0x10000000000000ul : 0ul);
+    const int s = (biased ? biased : 1) - 1075 + FIXED_SHIFT;      /* w = m 2^(biased - 1075) */
 #else
-    ulong m = (ulong)(f * 0x1p24f);
-    int s = e - 24 + FIXED_SHIFT;
+    const uint bits = as_uint(w);
+    const int biased = (int)(bits >> 23) & 0xff;
+    const ulong m = (ulong)((bits & 0x7fffffu) | (biased ? 0x800000u : 0u));
+    const int s = (biased ? biased : 1) - 150 + FIXED_SHIFT;       /* w = m 2^(biased - 150) */
 #endif
     *lo = 0;
     *mid = 0;

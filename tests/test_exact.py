@@ -324,3 +324,56 @@ def test_lost_weights_exit_1_from_the_cli(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "3 exiting ray(s)" in err[0]
     assert not (tmp_path / "o.nc").exists()
+
+
+# ----------------------------------------------------------------- 6. fixed-point words
+
+FIXED_WORDS_KERNEL = """
+__kernel void fixed_words_of(__global const REAL *w, __global ulong *out)
+{
+    const size_t i = get_global_id(0);
+    ulong lo, mid, hi;
+    fixed_words(w[i], &lo, &mid, &hi);
+    out[3 * i] = lo;
+    out[3 * i + 1] = mid;
+    out[3 * i + 2] = hi;
+}
+"""
+
+
+@pytest.mark.parametrize("precision", ["single", "double"])
+def test_fixed_words_are_the_exact_floor(engine, precision):
+    """tally.h fixed_words (the exact sums of the weighted mode and of the nadir estimate,
+    docs/walk.md §6, §8.2) gives floor(w 2^FIXED_SHIFT) as three 64-bit words, exactly, for
+    weights that use every branch of its shifts: subnormal, the smallest and largest normal
+    numbers, weights that land below 2^-FIXED_SHIFT (0), straddle a word boundary or lie next
+    to MAX_WEIGHT; compared with Python integers."""
+    from warpe_cl.device import assemble_source
+    from warpe_cl.engine import layout_options
+    from warpe_cl.params import FIXED_SHIFT, MAX_WEIGHT
+    if precision == "double" and not engine.info.fp64:
+        pytest.skip("device has no fp64")  # pragma: no cover - PoCL and NVIDIA have fp64
+    real = np.float64 if precision == "double" else np.float32
+    info = np.finfo(real)
+    w = [info.smallest_subnormal, 3 * info.smallest_subnormal, info.smallest_normal,
+         np.nextafter(info.smallest_normal, real(0)), 2.0 ** -151, 2.0 ** -150, 2.0 ** -149.5,
+         2.0 ** -86, 2.0 ** -87.3, 2.0 ** -22, 2.0 ** -23.7, 1e-20, 1e-3, 0.1, 1.0 / 3, 1.0,
+         2.0 ** 14 * 1.7, np.nextafter(real(MAX_WEIGHT), real(0))]
+    w += list(np.random.default_rng(6).lognormal(-20.0, 12.0, 300))
+    w = np.array([x for x in w if 0 < x < MAX_WEIGHT], dtype=real)
+    options = list(layout_options()) + ["-DWARPE_NADIR", "-DWARPE_LANES=1"]
+    if precision == "double":
+        options.append("-DWARPE_DOUBLE")
+    source = assemble_source(("real.h", "lanes.h", "tally.h")) + FIXED_WORDS_KERNEL
+    prog = cl.Program(engine.context, source).build(options=options)
+    out = np.zeros((len(w), 3), dtype=np.uint64)
+    mf = cl.mem_flags
+    d_w = cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=w)
+    d_out = cl.Buffer(engine.context, mf.WRITE_ONLY, out.nbytes)
+    prog.fixed_words_of(engine.queue, (len(w),), None, d_w, d_out)
+    cl.enqueue_copy(engine.queue, out, d_out)
+    from fractions import Fraction
+    for x, words in zip(w, out):
+        expected = math.floor(Fraction(float(x)) * 2 ** FIXED_SHIFT)
+        got = int(words[0]) + (int(words[1]) << 64) + (int(words[2]) << 128)
+        assert got == expected, (float(x), got, expected)
