@@ -247,19 +247,18 @@ def main(argv=None) -> int:
     overrides = {"simulation.photons": args.photons} if args.photons else {}
     if args.no_nadir:
         overrides["simulation.nadir"] = False
-    presets = [p for p in sorted((presets_dir() / "paper").glob("*.yaml"))
-               if not args.only or p.stem in args.only]
+    presets = [path for path in sorted((presets_dir() / "paper").glob("*.yaml"))
+               if not args.only or path.stem in args.only]
     total = time.perf_counter()
     rows = []
     done = []          # (name, photons, simulation s, warnings, Future) in preset order
 
     def report(block: bool) -> None:
         """Print the presets whose files and figures are written, in order."""
-        nonlocal rows
         while done and (block or done[0][4].done()):
             name, photons, walk_s, caught, job = done.pop(0)
             got, printed, post_s = job.result()
-            rows += got
+            rows.extend(got)
             print(f"{printed}{name:26s} {photons:>11,d} rays  simulation {walk_s:6.1f} s, files "
                   f"and figures {post_s:5.1f} s" + "".join(f"\n    warning: {w}" for w in caught),
                   flush=True)
