@@ -22,18 +22,15 @@ typedef float REAL;
 
 #define WARPE_PI 3.14159265358979323846
 
-/* The walk's transcendental functions. In single precision the device's native_ versions
- * (measured 10 % faster on the whole walk on PoCL/AVX-512, and within the accuracy the parity
- * and physics tests demand: docs/performance.md); in double precision the correctly specified
- * ones, so that the double kernel follows the reference ray for ray. */
+/* The walk's one native function: in single precision, the first guess of a time bin, which
+ * the edges then decide (walk.cl nadir_column). The walk's elementary functions whose
+ * accuracy the result depends on, -ln U and the azimuth's sine and cosine, are scatter.h's
+ * optical_step and azimuth: correctly rounded operations only, the same bits on every device.
+ * In double precision the correctly specified log. */
 #ifdef WARPE_DOUBLE
 #define LOG(x) log(x)
-#define EXP(x) exp(x)
-#define SINCOS(x, s, c) ((s) = sincos((x), &(c)))
 #else
 #define LOG(x) native_log(x)
-#define EXP(x) native_exp(x)
-#define SINCOS(x, s, c) ((s) = native_sin(x), (c) = native_cos(x))
 #endif
 /* speed of light in vacuum, m/ns */
 #define WARPE_C_M_PER_NS 0.299792458

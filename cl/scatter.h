@@ -2,6 +2,77 @@
 #ifndef WARPE_SCATTER_H
 #define WARPE_SCATTER_H
 
+/* The optical depth to the next collision, l = -ln U (U in (0, 1]; docs/physics.md §5.3,
+ * paper eq. 3). Double precision: -log(U). Single precision: Cephes' logf (S. L. Moshier,
+ * Cephes Mathematical Library, 1984-1992) in fma steps: U = 2^e m with m in [sqrt(1/2),
+ * sqrt(2)) from the bits, f = m - 1 (exact), ln m = f - f^2/2 + f^3 P(f) with P of degree 8,
+ * and e ln 2 in two parts (0.693359375, exact in float, and -2.12194440e-4); within 1 ulp of
+ * the correctly rounded -ln U (tests/test_kernel_blocks.py). Only correctly rounded operations
+ * (products, sums, fma, bit operations): the same bits on every device and at every lane
+ * width. native_log, which this replaced, is each device's own:
+ * Intel's CPU runtime on AVX2 (Zen 3) was 1e-4 relative off, which moved exit times by up to
+ * 3e-4 (docs/performance.md). U >= 2^-33 in single precision (philox.h uniform): never
+ * subnormal. */
+inline VREAL optical_step(VREAL U)
+{
+#ifdef WARPE_DOUBLE
+    return -log(U);
+#else
+    const VMASK bits = AS_VMASK(U);
+    const VREAL m = AS_VREAL((bits & (VMASK)0x007fffff) | (VMASK)0x3f000000);   /* [1/2, 1) */
+    const VMASK low = m < (REAL)0.707106781186547524;
+    const VREAL e = CONVERT_VREAL((bits >> 23) - (VMASK)126 - ONE(low));
+    const VREAL f = SEL(m - (REAL)1, (m + m) - (REAL)1, low);        /* exact (Sterbenz) */
+    const VREAL z = f * f;
+    VREAL p = fma(f, (VREAL)7.0376836292e-2f, (VREAL)-1.1514610310e-1f);
+    p = fma(f, p, (VREAL)1.1676998740e-1f);
+    p = fma(f, p, (VREAL)-1.2420140846e-1f);
+    p = fma(f, p, (VREAL)1.4249322787e-1f);
+    p = fma(f, p, (VREAL)-1.6668057665e-1f);
+    p = fma(f, p, (VREAL)2.0000714765e-1f);
+    p = fma(f, p, (VREAL)-2.4999993993e-1f);
+    p = fma(f, p, (VREAL)3.3333331174e-1f);
+    VREAL y = p * f * z;
+    y = fma(e, (VREAL)-2.12194440e-4f, y);
+    y = fma((VREAL)-0.5f, z, y);
+    return -fma(e, (VREAL)0.693359375f, f + y);
+#endif
+}
+
+/* The azimuth psi = 2 pi U (U in (0, 1]; docs/physics.md §5.4) as (sin psi, cos psi).
+ * Double precision: sincos(2 pi U), as the reference computes it. Single precision: the
+ * quadrant from U itself, q = rint(4U) and r = U - q/4 in [-1/8, 1/8] (exact: Sterbenz), so
+ * that no angle is reduced; x = 2 pi r in [-pi/4, pi/4]; Cephes' sinf and cosf polynomials
+ * (S. L. Moshier, Cephes Mathematical Library) in fma steps; then the quadrant's turn by
+ * q pi/2. Within 2e-7 of sin and cos of 2 pi U (1.0e-7 measured; tests/test_kernel_blocks.py).
+ * Only correctly rounded operations, like optical_step: the same bits on every device, where
+ * native_sin and native_cos are each device's own. */
+inline void azimuth(VREAL U, VREAL *sin_psi, VREAL *cos_psi)
+{
+#ifdef WARPE_DOUBLE
+    VREAL c;
+    *sin_psi = sincos((REAL)(2.0 * WARPE_PI) * U, &c);
+    *cos_psi = c;
+#else
+    const VREAL q = rint((REAL)4 * U);
+    const VREAL x = (U - (REAL)0.25 * q) * (REAL)(2.0 * WARPE_PI);
+    const VREAL z = x * x;
+    VREAL s = fma(z, (VREAL)-1.9515295891e-4f, (VREAL)8.3321608736e-3f);
+    s = fma(z, s, (VREAL)-1.6666654611e-1f);
+    s = fma(z * x, s, x);
+    VREAL c = fma(z, (VREAL)2.443315711809948e-5f, (VREAL)-1.388731625493765e-3f);
+    c = fma(z, c, (VREAL)4.166664568298827e-2f);
+    c = fma(z * z, c, fma((VREAL)-0.5f, z, (VREAL)1.0f));
+    /* psi = q pi/2 + x: quadrant 1 (sin, cos) = (cos x, -sin x), 2: (-sin x, -cos x),
+     * 3: (-cos x, sin x); q = 4 is quadrant 0 */
+    const VMASK k = CONVERT_VMASK(q) & (VMASK)3;
+    const VMASK odd = (k & (VMASK)1) != (VMASK)0;
+    const VREAL sn = SEL(s, c, odd), cs = SEL(c, s, odd);
+    *sin_psi = SEL(sn, -sn, (k & (VMASK)2) != (VMASK)0);
+    *cos_psi = SEL(cs, -cs, ((k + (VMASK)1) & (VMASK)2) != (VMASK)0);
+#endif
+}
+
 /* Henyey-Greenstein deflection cosine from one uniform U (docs/physics.md §5.4, docs/walk.md §3),
  * in the form that has no cancellation for small |g|: with s = 2U - 1, 1 - s^2 = 4U(1 - U)
  * and d = 1 + g s = (1 - g) + 2gU,

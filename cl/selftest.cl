@@ -28,7 +28,8 @@ __kernel void sample_directions(const uint seed, const REAL g, __global REAL *hg
     rng_init(&r, seed, 0u, (ulong)i);
     hg_cos[i] = hg_cos_theta(g, uniform(&r));
     REAL mu = sqrt(uniform(&r));
-    REAL c, s = sincos((REAL)(2.0 * WARPE_PI) * uniform(&r), &c);
+    REAL c, s;
+    azimuth(uniform(&r), &s, &c);
     REAL ux, uy, uz;
     lambert_direction(mu, c, s, &ux, &uy, &uz);
     lambert_mu[i] = -uz;
@@ -45,14 +46,14 @@ __kernel void fresnel_grid(__global const REAL *mu, const REAL n, const REAL k,
                   ? (REAL)1 : fresnel_internal(m, n);
 }
 
-/* The walk's LOG and SINCOS (real.h: native_ functions in single precision) on a grid of
- * uniforms, for the accuracy test: out = (-LOG(u), sin 2 pi u, cos 2 pi u). */
+/* The walk's optical step and azimuth (scatter.h optical_step, azimuth) on a grid of uniforms,
+ * for the accuracy test: out = (-ln u, sin 2 pi u, cos 2 pi u). */
 __kernel void walk_math(__global const REAL *u, __global REAL *out)
 {
     size_t i = get_global_id(0);
     REAL s, c;
-    SINCOS((REAL)(2.0 * WARPE_PI) * u[i], s, c);
-    out[3 * i] = -LOG(u[i]);
+    azimuth(u[i], &s, &c);
+    out[3 * i] = optical_step(u[i]);
     out[3 * i + 1] = s;
     out[3 * i + 2] = c;
 }

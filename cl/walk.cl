@@ -714,7 +714,7 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
     fl &= !e->done;
     r->flights += ONE(fl);
 #ifdef WARPE_TEXTURE_LAYERS
-    const VREAL s = SEL((VREAL)INFINITY, -LOG(u0) / r->E, r->E > (REAL)0);
+    const VREAL s = SEL((VREAL)INFINITY, optical_step(u0) / r->E, r->E > (REAL)0);
     /* the way to the layer's face ahead (walk.md §7.2) */
     const VREAL s_b = SEL((VREAL)INFINITY,
                           SEL(r->z_top - r->z, r->z_bottom - r->z, r->uz > (REAL)0) / r->uz,
@@ -725,7 +725,7 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
     const VREAL len = SEL(s_b, s, c) * r->time_scale;
     r->z = SEL(r->z, SEL(SEL(r->z_top, r->z_bottom, r->uz > (REAL)0), r->z + s * r->uz, c), fl);
 #else
-    const VREAL s = SEL((VREAL)INFINITY, -LOG(u0) / sc->E, (VMASK)(sc->E > (REAL)0 ? -1 : 0));
+    const VREAL s = SEL((VREAL)INFINITY, optical_step(u0) / sc->E, (VMASK)(sc->E > (REAL)0 ? -1 : 0));
     /* the way to the boundary ahead: (h - z)/uz down, -z/uz up, none level (one division) */
     const VREAL s_b = SEL((VREAL)INFINITY, SEL(-r->z, sc->h - r->z, r->uz > (REAL)0) / r->uz,
                           (r->uz < (REAL)0) | (r->uz > (REAL)0));
@@ -898,12 +898,11 @@ WALK_STEP void cross_interface(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL co
 WALK_STEP void gap_event(VMASK gap, VREAL u0, VUINT x0, VREAL u1, VREAL u2, VREAL u3,
                       const scene_t *sc, rays_t *r, ends_t *e, stats_t *st)
 {
-    const REAL two_pi = (REAL)(2.0 * WARPE_PI);
     gap = floor_toll(gap, u0, x0, sc, r, e);
     r->n_lamb += ONE(gap);
     const VREAL mu_v = sqrt(u1);
     VREAL c2, s2;
-    SINCOS(two_pi * u2, s2, c2);
+    azimuth(u2, &s2, &c2);
 #ifdef WARPE_TEXTURE_LAYERS
     const REAL n_g = sc->gap_near, n2 = sc->gap_far_n, k2 = sc->gap_far_k;
     const VREAL sin_g = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0));
@@ -1510,7 +1509,6 @@ __kernel void walk(const uint seed, const ulong scenario,
     const uint base_lo = (uint)first_photon, base_hi = (uint)(first_photon >> 32);
     /* the 64-bit scenario key: its low word keys Philox, its high word is counter word 3 */
     const uint key_lo = (uint)scenario, key_hi = (uint)(scenario >> 32);
-    const REAL two_pi = (REAL)(2.0 * WARPE_PI);
 #if defined(WARPE_TEXTURE_SLAB)
     /* the specular reflectance at normal incidence (docs/physics.md §5.2) */
     const VREAL R0 = fresnel_external((VREAL)1, (VREAL)n, (VREAL)k);
@@ -1599,7 +1597,7 @@ __kernel void walk(const uint seed, const ulong scenario,
 #endif
         /* the azimuth of a scattering or of a floor reflection: psi = 2 pi u3 */
         VREAL cos_psi, sin_psi;
-        SINCOS(two_pi * u3, sin_psi, cos_psi);
+        azimuth(u3, &sin_psi, &cos_psi);
 
         /* collision (walk.md §3 step 3.4, docs/physics.md §5.4): the medium's toll, then the HG
          * deflection (u2) and the azimuth (u3) */
