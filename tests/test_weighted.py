@@ -38,7 +38,8 @@ def test_double_kernel_follows_reference_per_photon(engine, kw, lanes):
     params = medium(mode="weighted", roulette_weight=0.05, albedo=0.3, **kw)
     n = 3000
     ref = simulate_reference(params, n, first_photon=5, records=True)
-    ker = engine.run(params, n, precision="double", first_photon=5, records=True, lanes=lanes)
+    ker = engine.run(params, n, precision="double", first_photon=5, records=True, lanes=lanes,
+                     qualified=True)
     for field in EXACT_FIELDS:
         np.testing.assert_array_equal(ker.records[field], ref.records[field], err_msg=field)
     np.testing.assert_allclose(ker.records["weight"], ref.records["weight"], rtol=1e-12)
@@ -71,9 +72,9 @@ def test_weighted_sums_across_lane_widths(engine, precision, rtol):
     equal to the precision's rounding (measured: 2e-14 in double, 2e-5 in single)."""
     p = medium(**SCATTERING, mode="weighted")
     n = 20_000
-    base = engine.run(p, n, precision=precision, lanes=1)
+    base = engine.run(p, n, precision=precision, lanes=1, qualified=True)
     for lanes in (4, 16 if precision == "single" else 8):
-        other = engine.run(p, n, precision=precision, lanes=lanes)
+        other = engine.run(p, n, precision=precision, lanes=lanes, qualified=True)
         assert other.fates.tolist() == base.fates.tolist()
         assert np.array_equal(other.time_any, base.time_any)
         for name in ("w_total", "w_time_any", "w2_total"):
