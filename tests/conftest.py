@@ -3,11 +3,11 @@ defaults, the repository's folders and the binomial standard error the Monte Car
 are written in.
 
 A test that walks a lane width of its own choosing and checks that walk against the reference
-ray by ray, or against another lane width bit for bit, passes ``qualified=True``: its own
-check is the qualification's (docs/devices.md), ray for ray, and a qualification costs two
-builds of the nadir kernel in a child process (8-20 s each with Intel's compiler on 2 cores:
-about a third of the suite's time on a fresh machine, measured 2026-11-23). Every other test
-walks the widths a user gets, qualified as a user's run is."""
+ray by ray, or against another lane width that is checked so, passes ``qualified=True``: its
+own check is the qualification's (docs/devices.md), and a qualification costs two builds of
+the nadir kernel in a child process (8-20 s each with Intel's compiler on 2 cores: about a
+third of the suite's time on a fresh machine, measured 2026-11-23). Every other test walks the
+widths a user gets, qualified as a user's run is."""
 from __future__ import annotations
 
 from pathlib import Path
