@@ -9,10 +9,9 @@
  * and e ln 2 in two parts (0.693359375, exact in float, and -2.12194440e-4); within 1 ulp of
  * the correctly rounded -ln U (tests/test_kernel_blocks.py). Only correctly rounded operations
  * (products, sums, fma, bit operations): the same bits on every device and at every lane
- * width. native_log, which this replaced, is each device's own:
- * Intel's CPU runtime on AVX2 (Zen 3) was 1e-4 relative off, which moved exit times by up to
- * 3e-4 (docs/performance.md). U >= 2^-33 in single precision (philox.h uniform): never
- * subnormal. */
+ * width. native_log, which this replaced, is each device's own: Intel's CPU runtime on AVX2
+ * (Zen 3) was 1e-4 relative off, which moved exit times by up to 3e-4 (docs/performance.md).
+ * U >= 2^-33 in single precision (philox.h uniform): never subnormal. */
 inline VREAL optical_step(VREAL U)
 {
 #ifdef WARPE_DOUBLE
@@ -50,9 +49,7 @@ inline VREAL optical_step(VREAL U)
 inline void azimuth(VREAL U, VREAL *sin_psi, VREAL *cos_psi)
 {
 #ifdef WARPE_DOUBLE
-    VREAL c;
-    *sin_psi = sincos((REAL)(2.0 * WARPE_PI) * U, &c);
-    *cos_psi = c;
+    *sin_psi = sincos((REAL)(2.0 * WARPE_PI) * U, cos_psi);
 #else
     const VREAL q = rint((REAL)4 * U);
     const VREAL x = (U - (REAL)0.25 * q) * (REAL)(2.0 * WARPE_PI);

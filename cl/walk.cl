@@ -725,7 +725,8 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
     const VREAL len = SEL(s_b, s, c) * r->time_scale;
     r->z = SEL(r->z, SEL(SEL(r->z_top, r->z_bottom, r->uz > (REAL)0), r->z + s * r->uz, c), fl);
 #else
-    const VREAL s = SEL((VREAL)INFINITY, optical_step(u0) / sc->E, (VMASK)(sc->E > (REAL)0 ? -1 : 0));
+    const VREAL s = SEL((VREAL)INFINITY, optical_step(u0) / sc->E,
+                        (VMASK)(sc->E > (REAL)0 ? -1 : 0));
     /* the way to the boundary ahead: (h - z)/uz down, -z/uz up, none level (one division) */
     const VREAL s_b = SEL((VREAL)INFINITY, SEL(-r->z, sc->h - r->z, r->uz > (REAL)0) / r->uz,
                           (r->uz < (REAL)0) | (r->uz > (REAL)0));
