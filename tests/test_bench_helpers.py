@@ -1,6 +1,7 @@
 """The pure-Python helpers of ``tools/bench.py``: the heavy-tail scene T1, the statistics over
-rounds and the reading of the toy walk's output. Nothing here is timed and no toy is run (speed
-is measured by the tool, never in the unit tests)."""
+rounds and the reading of the toy walk's output; and the engine hook that ``tools/bench_ab.py
+--kernel-only`` times other kernels through. Nothing here is timed and no toy is run (speed is
+measured by the tools, never in the unit tests)."""
 from __future__ import annotations
 
 import json
@@ -107,3 +108,23 @@ def test_toy_command_has_b1s_medium(tmp_path):
     assert float(opt["--mua"]) == pytest.approx(0.005, rel=1e-3)
     assert (opt["--g"], opt["--n"], opt["--h"], opt["--albedo"]) == ("0.8", "1.3", "60", "0.15")
     assert (opt["--tend"], opt["--nbins"]) == ("5", "100")
+
+
+def test_engine_walks_with_the_program_it_is_given(engine):
+    """tools/bench_ab.py --kernel-only times other trees' kernels through Engine.use_program,
+    so Engine.kernel must hand back the installed kernel for that structure (with a key of
+    its own, bench_ab once timed the engine's own kernel under both names: issue 16's nadir
+    switch had lengthened the engine's key). A trivial program stands in for the walk."""
+    import copy
+
+    import pyopencl as cl
+    from warpe_cl.engine import kernel_key
+    e = copy.copy(engine)
+    e._kernels, e._folds = {}, {}
+    source = "__kernel void walk(void) {}\n__kernel void nadir_fold(void) {}\n"
+    for nadir in (False, True):
+        structure = ("slab", "single", False, 1, False, nadir)
+        kern = e.use_program(cl.Program(e.context, source).build(), kernel_key(*structure))
+        assert e.kernel(*structure) is kern
+        assert e.kernel("slab", "single", 0, 1, 0, int(nadir)) is kern    # the key normalises
+        assert (kernel_key(*structure) in e._folds) == nadir

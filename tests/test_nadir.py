@@ -173,10 +173,10 @@ def test_fold_adds_the_slices_exactly(engine):
     of the 192-bit words, with the carries from word to word, and of the visits: against
     Python's integers, on words near 2^64 that carry in every add."""
     import pyopencl as cl
-    from warpe_cl.engine import _exact_sums, fold_nadir_slices
+    from warpe_cl.engine import _exact_sums, fold_nadir_slices, kernel_key
     from warpe_cl.params import FIXED_WORDS
     engine.kernel("slab", "single", False, 1, False, True)
-    fold = engine._folds[("slab", "single", False, 1, False, True)]
+    fold = engine._folds[kernel_key("slab", "single", False, 1, False, True)]
     rng = np.random.default_rng(3)
     shape = (7, 2, 3, 5)
     words = rng.integers(0, 2**64, size=(*shape, FIXED_WORDS), dtype=np.uint64)

@@ -20,7 +20,11 @@ checks that both give the same counts, bit for bit (``--different-bits``: a chan
 arithmetic, which moves the last bits; the difference of their scattering events is printed);
 it also reports scattering events per CPU second of the process (the driver's threads
 included), less sensitive to other processes on a shared machine than the wall time. It needs
-kernels with the same arguments.
+kernels with the same arguments. Each run installs its kernel in the engine
+(``Engine.use_program``) and checks that the engine walked with it. ``--nadir`` walks the
+scenes with the nadir estimate (``simulation.nadir: true``), which bench.py's scenes leave out.
+
+    python tools/bench_ab.py --kernel-only [--nadir] [--different-bits] --before A --after B
 """
 from __future__ import annotations
 
@@ -82,7 +86,7 @@ def kernel_only(trees: dict, args, say) -> dict:
     from warpe_cl import device as devmod
     from warpe_cl.api import walk_params
     from warpe_cl.config import load_preset
-    from warpe_cl.engine import WALK_FILES, Engine, build_options
+    from warpe_cl.engine import WALK_FILES, Engine, build_options, kernel_key
 
     engine = Engine(args.device)
     say(f"# host {HERE.parent}; device {engine.info.device} | {engine.info.platform} "
@@ -90,19 +94,29 @@ def kernel_only(trees: dict, args, say) -> dict:
     samples = {label: {} for label in trees}
     n = int(args.photons)
     for scene in args.scenes.split(","):
-        params, _ = walk_params(load_preset(SCENES[scene]))
+        cfg = load_preset(SCENES[scene], overrides={"simulation.nadir": bool(args.nadir)})
+        params, _ = walk_params(cfg)
         lanes = engine.lanes_for(params.texture, args.precision, params.weighted)
-        key = (params.texture, args.precision, False, lanes, params.weighted)
-        options = build_options(params.texture, args.precision, False, lanes, params.weighted)
-        kernels = {}
+        structure = (params.texture, args.precision, False, lanes, params.weighted,
+                     params.nadir)
+        key = kernel_key(*structure)
+        programs = {}
         for label, tree in trees.items():
             source = devmod.assemble_source(WALK_FILES, tree / "cl")
-            program = cl.Program(engine.context, source).build(options=list(options))
-            kernels[label] = cl.Kernel(program, "walk")
-        counts = {}
-        for label in trees:                             # warm-up, and the same bits
-            engine._kernels[key] = kernels[label]
-            counts[label] = engine.run(params, n, precision=args.precision, lanes=lanes)
+            programs[label] = cl.Program(engine.context, source).build(
+                options=list(build_options(*structure)))
+
+        def walk(label):
+            """One run of ``label``'s kernel; checks that the engine walked with it."""
+            kern = engine.use_program(programs[label], key)
+            t0, c0 = time.perf_counter(), time.process_time()
+            c = engine.run(params, n, precision=args.precision, lanes=lanes)
+            dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+            if engine.kernel(*structure) is not kern:
+                raise RuntimeError(f"{scene}: the engine did not walk with {label}'s kernel")
+            return c, dt, cpu
+
+        counts = {label: walk(label)[0] for label in trees}     # warm-up, and the same bits
         if counts["A"].same_as(counts["B"]):
             say(f"# {scene}: {lanes} lanes, both kernels give the same counts ({n} photons)")
         elif args.different_bits:
@@ -116,10 +130,7 @@ def kernel_only(trees: dict, args, say) -> dict:
             order = list(trees) if r % 2 == 0 else list(trees)[::-1]
             cells = []
             for label in order:
-                engine._kernels[key] = kernels[label]
-                t0, c0 = time.perf_counter(), time.process_time()
-                c = engine.run(params, n, precision=args.precision, lanes=lanes)
-                dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+                c, dt, cpu = walk(label)
                 v = samples[label].setdefault(scene, {"events_per_s": [], "photons_per_s": [],
                                                       "events_per_cpu_s": []})
                 v["events_per_s"].append(c.scattering_events / dt)
@@ -129,6 +140,7 @@ def kernel_only(trees: dict, args, say) -> dict:
                              f"({c.scattering_events / cpu:.4g} per CPU s)")
             say(f"{scene} round {r + 1}: " + ", ".join(cells) + f" events/s | load {loadavg()}")
         engine._kernels.pop(key, None)
+        engine._folds.pop(key, None)
     return samples
 
 
@@ -150,7 +162,12 @@ def main(argv=None) -> int:
                    help="--kernel-only: the kernels may differ in their last bits (a change of "
                         "arithmetic); say by how much their scattering events differ instead "
                         "of stopping")
+    p.add_argument("--nadir", action="store_true",
+                   help="--kernel-only: walk the scenes with the nadir estimate "
+                        "(simulation.nadir: true; bench.py's scenes walk without it)")
     args = p.parse_args(argv)
+    if args.nadir and not args.kernel_only:
+        p.error("--nadir goes with --kernel-only")
     trees = {"A": args.before.resolve(), "B": args.after.resolve()}
     lines = []
 
@@ -162,7 +179,8 @@ def main(argv=None) -> int:
             else "tools/bench.py")
     say(f"# bench_ab: {args.rounds} interleaved rounds of {what}, --scenes {args.scenes} "
         f"--photons {args.photons:g} --precision {args.precision} --modes {args.modes}"
-        + (f" --device {args.device}" if args.device else ""))
+        + (f" --device {args.device}" if args.device else "")
+        + (" --nadir" if args.nadir else ""))
     say(f"# {os.cpu_count()} cores, load average at the start {loadavg()}")
     for label, tree in trees.items():
         say(f"# {label} = {tree}: {describe_tree(tree)}")

@@ -74,6 +74,13 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
     return tuple(opts) + layout_options()
 
 
+def kernel_key(texture: str, precision: str, records: bool, lanes: int,
+               weighted: bool = False, nadir: bool = False) -> tuple:
+    """The key of one walk kernel in an :class:`Engine`: the structure :func:`build_options`
+    compiles (the same arguments, normalised), so that every caller names a kernel alike."""
+    return (texture, precision, bool(records), int(lanes), bool(weighted), bool(nadir))
+
+
 @lru_cache(maxsize=1)
 def walk_source_hash() -> str:
     """``kernel_sha256`` of the output files: SHA-256 of the walk kernel's files (their names
@@ -391,15 +398,23 @@ class Engine:
             raise devmod.DeviceError(f"{self.info.device} has no 64-bit atomics "
                                      "(cl_khr_int64_base_atomics), which the nadir "
                                      "estimator's exact sums need; use simulation.nadir: false")
-        options = build_options(texture, precision, records, lanes, weighted, nadir)
-        program = devmod.build_program(self.device, WALK_FILES, options)
         self.kernel_hash = walk_source_hash()
-        key = (texture, precision, records, lanes, weighted, nadir)
+        key = kernel_key(texture, precision, records, lanes, weighted, nadir)
         if key not in self._kernels:
-            import pyopencl as cl
-            self._kernels[key] = cl.Kernel(program, "walk")
-            if nadir:
-                self._folds[key] = cl.Kernel(program, "nadir_fold")
+            options = build_options(texture, precision, records, lanes, weighted, nadir)
+            self.use_program(devmod.build_program(self.device, WALK_FILES, options), key)
+        return self._kernels[key]
+
+    def use_program(self, program, key: tuple):
+        """Walk the structure ``key`` (:func:`kernel_key`) with ``program``'s kernels from now
+        on; returns its ``walk`` kernel. :meth:`kernel` calls it with the program it built;
+        tools/bench_ab.py --kernel-only with programs built from other trees' sources (in
+        this engine's context, with :func:`build_options` of the key), to time them in one
+        process."""
+        import pyopencl as cl
+        self._kernels[key] = cl.Kernel(program, "walk")
+        if key[-1]:                                     # nadir: its fold kernel too
+            self._folds[key] = cl.Kernel(program, "nadir_fold")
         return self._kernels[key]
 
     def run(self, params: WalkParams, photons: int, precision: str = "single",
@@ -624,7 +639,8 @@ class Engine:
         if lost_weights:
             raise WeightError(lost_weights)
         if nadir:
-            fold = self._folds[(params.texture, precision, records, lanes, weighted, nadir)]
+            fold = self._folds[kernel_key(params.texture, precision, records, lanes, weighted,
+                                          nadir)]
             words, visits = fold_nadir_slices(queue, fold, buffers["nadir_sum"],
                                               buffers["nadir_visits"], nadir_shape)
             total.nadir_sum = _exact_sums(words)
