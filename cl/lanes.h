@@ -128,6 +128,43 @@ inline int all_lanes(VMASK m)
 {
     return BYTES_ALL(MASK_BYTES(m));
 }
+
+/* The top bits of 8 bytes gathered into one byte, byte i to bit i: the multiplier is the sum
+ * of 2^(7k), k = 0 .. 7, so byte i's top bit (bit 8i + 7) times 2^(7 (7 - i)) lands on bit
+ * 56 + i, and every other product falls below bit 56 or beyond bit 63 without a carry (checked
+ * for all 256 patterns, tests/test_kernel_blocks.py). */
+inline uint byte_signs(ulong b)
+{
+    return (uint)(((b & 0x8080808080808080ul) * 0x0002040810204081ul) >> 56);
+}
+
+/* The lanes of a mask, one bit each (lane j: bit j), from its bytes (MASK_BYTES). */
+inline uint lane_bits(VMASK m)
+{
+#if WARPE_LANES == 16
+    const ulong2 b = MASK_BYTES(m);
+    return byte_signs(b.x) | byte_signs(b.y) << 8;
+#else
+    return byte_signs((ulong)MASK_BYTES(m));
+#endif
+}
+
+/* Each lane's index 0 .. WARPE_LANES - 1, to pick one lane of a vector: SEL(v, x, LANE_INDEX == j) */
+#if WARPE_LANES == 16
+#define LANE_INDEX ((VMASK)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#elif WARPE_LANES == 8
+#define LANE_INDEX ((VMASK)(0, 1, 2, 3, 4, 5, 6, 7))
+#elif WARPE_LANES == 4
+#define LANE_INDEX ((VMASK)(0, 1, 2, 3))
+#else
+#define LANE_INDEX ((VMASK)(0, 1))
+#endif
+#else
+inline uint lane_bits(VMASK m)
+{
+    return m ? 1u : 0u;
+}
+#define LANE_INDEX ((VMASK)0)
 #endif
 
 #endif /* WARPE_LANES_H */

@@ -1,7 +1,9 @@
-/* selftest.cl (built with WARPE_LANES = 1): small kernels that expose the walk's building blocks to the test suite
- * (Philox known answers, uniforms, the HG and Lambert samplers, the Fresnel laws) and to
- * `warpe-cl devices`, which builds them to check that a device can compile our code. */
+/* selftest.cl (built with WARPE_LANES = 1; lane_bits_of at every width): small kernels that
+ * expose the walk's building blocks to the test suite (Philox known answers, uniforms, the HG
+ * and Lambert samplers, the Fresnel laws, the lanes' masks) and to `warpe-cl devices`, which
+ * builds them to check that a device can compile our code. */
 
+#if WARPE_LANES == 1        /* the building blocks of one lane */
 __kernel void philox_kat(__global const uint4 *ctr, __global const uint2 *key, __global uint4 *out)
 {
     size_t i = get_global_id(0);
@@ -64,4 +66,14 @@ __kernel void word_events(const ulong T, __global const uint *x, __global int *o
 {
     size_t i = get_global_id(0);
     out[i] = word_at_least(x[i], T) ? 1 : 0;
+}
+#endif
+
+/* lanes.h lane_bits of the mask whose lane j is set where bit j of pattern[i] is (the lanes of
+ * the width this program is built with; the test builds it at each width). */
+__kernel void lane_bits_of(__global const uint *pattern, __global uint *out)
+{
+    size_t i = get_global_id(0);
+    const VMASK m = (((VMASK)(IREAL)pattern[i] >> LANE_INDEX) & (VMASK)1) != (VMASK)0;
+    out[i] = lane_bits(m);
 }

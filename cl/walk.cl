@@ -1033,42 +1033,43 @@ WALK_STEP void nadir_add(VMASK m, VREAL s, VREAL tv, VMASK row, VMASK first, ray
     if (!ANY(moved | one))
         return;
 
-    IREAL mv[WARPE_LANES], on[WARPE_LANES], cell[WARPE_LANES], rw[WARPE_LANES];
-    REAL pv[WARPE_LANES], lo[WARPE_LANES], hi[WARPE_LANES], sv[WARPE_LANES], tt[WARPE_LANES];
+    /* The lanes to visit, one bit each; the lanes' values read one by one from stores of
+     * whole vectors, and the new pending cells written back into the vectors by selects, one
+     * lane at a time: no vector is read back from stores of single lanes (a load that waits
+     * for its stores to retire on x86, docs/performance.md). */
+    const uint bits_moved = lane_bits(moved), bits_one = lane_bits(one);
+    IREAL cell[WARPE_LANES], rw[WARPE_LANES];
+    REAL pv[WARPE_LANES], sv[WARPE_LANES], tt[WARPE_LANES];
     uint pl[WARPE_LANES];
-    VSTORE(moved, mv);
-    VSTORE(one, on);
     VSTORE(r->pend_cell, cell);
     VSTORE(row, rw);
     VSTORE(r->pend, pv);
-    VSTORE(r->pend_lo, lo);
-    VSTORE(r->pend_hi, hi);
     VSTORE(s, sv);
     VSTORE(tv, tt);
     VSTORE(r->p_lo, pl);
-    uint bits = 0;               /* the lanes to visit, one bit each */
-    for (int j = 0; j < WARPE_LANES; ++j)
-        bits |= (mv[j] || on[j]) ? 1u << j : 0u;
+    VMASK new_cell = r->pend_cell;
+    VREAL new_lo = r->pend_lo, new_hi = r->pend_hi;
+    uint bits = bits_moved | bits_one;
     while (bits) {
         const int j = 31 - (int)clz(bits & (0u - bits));
         bits &= bits - 1u;
         REAL a, b;
         const int col = nadir_column(tt[j], tally, &a, &b);
-        if (on[j])
+        if (bits_one >> j & 1u)
             nadir_flush(tally, pl[j], NADIR_ROW_ORDER_1 * cols + col, sv[j]);
-        if (mv[j]) {
+        if (bits_moved >> j & 1u) {
             if (cell[j] >= 0)
                 nadir_flush(tally, pl[j], (int)cell[j], pv[j]);
-            cell[j] = (IREAL)((int)rw[j] * cols + col);
-            pv[j] = sv[j];
-            lo[j] = a;
-            hi[j] = b;
+            const VMASK lane = LANE_INDEX == (VMASK)j;
+            new_cell = SEL(new_cell, (VMASK)(IREAL)((int)rw[j] * cols + col), lane);
+            new_lo = SEL(new_lo, (VREAL)a, lane);
+            new_hi = SEL(new_hi, (VREAL)b, lane);
         }
     }
-    r->pend_cell = VLOAD(cell);
-    r->pend = VLOAD(pv);
-    r->pend_lo = VLOAD(lo);
-    r->pend_hi = VLOAD(hi);
+    r->pend_cell = new_cell;
+    r->pend = SEL(r->pend, s, moved);
+    r->pend_lo = new_lo;
+    r->pend_hi = new_hi;
 }
 
 /* The analog walk's roulette of small scores (walk.md §8.3): a score s < s_min becomes s_min
