@@ -22,16 +22,10 @@ typedef float REAL;
 
 #define WARPE_PI 3.14159265358979323846
 
-/* The walk's one native function: in single precision, the first guess of a time bin, which
- * the edges then decide (walk.cl nadir_column). The walk's elementary functions whose
- * accuracy the result depends on, -ln U and the azimuth's sine and cosine, are scatter.h's
- * optical_step and azimuth: correctly rounded operations only, the same bits on every device.
- * In double precision the correctly specified log. */
-#ifdef WARPE_DOUBLE
-#define LOG(x) log(x)
-#else
-#define LOG(x) native_log(x)
-#endif
+/* The walk's elementary functions whose accuracy the result depends on, -ln U and the
+ * azimuth's sine and cosine, are scatter.h's optical_step and azimuth: correctly rounded
+ * operations only, the same bits on every device (no native_ function, whose accuracy OpenCL
+ * leaves to the driver). */
 /* speed of light in vacuum, m/ns */
 #define WARPE_C_M_PER_NS 0.299792458
 
