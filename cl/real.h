@@ -14,6 +14,13 @@
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
 
+/* No contraction of a * b + c into one fma: each product and sum is rounded as written, so
+ * that every device and every lane width gives the same bits (a compiler free to contract
+ * fuses where it likes: in a vector path and not in the scalar one, on one driver and not on
+ * another), and no driver without fused hardware (PoCL built for a generic x86-64 CPU) emulates
+ * fma in software: 6x slower than a product and a sum there (docs/performance.md). */
+#pragma OPENCL FP_CONTRACT OFF
+
 #ifdef WARPE_DOUBLE
 typedef double REAL;
 #else

@@ -4,14 +4,16 @@
 
 /* The optical depth to the next collision, l = -ln U (U in (0, 1]; docs/physics.md §5.3,
  * paper eq. 3). Double precision: -log(U). Single precision: Cephes' logf (S. L. Moshier,
- * Cephes Mathematical Library, 1984-1992) in fma steps: U = 2^e m with m in [sqrt(1/2),
- * sqrt(2)) from the bits, f = m - 1 (exact), ln m = f - f^2/2 + f^3 P(f) with P of degree 8,
- * and e ln 2 in two parts (0.693359375, exact in float, and -2.12194440e-4); within 1 ulp of
- * the correctly rounded -ln U (tests/test_kernel_blocks.py). Only correctly rounded operations
- * (products, sums, fma, bit operations): the same bits on every device and at every lane
- * width. native_log, which this replaced, is each device's own: Intel's CPU runtime on AVX2
- * (Zen 3) was 1e-4 relative off, which moved exit times by up to 3e-4 (docs/performance.md).
- * U >= 2^-33 in single precision (philox.h uniform): never subnormal. */
+ * Cephes Mathematical Library, 1984-1992) as Cephes writes it, each product and sum rounded
+ * (real.h turns contraction off: no fma, which some drivers emulate in software): U = 2^e m
+ * with m in [sqrt(1/2), sqrt(2)) from the bits, f = m - 1 (exact), ln m = f - f^2/2 + f^3 P(f)
+ * with P of degree 8, and e ln 2 in two parts (0.693359375, exact in float, and
+ * -2.12194440e-4); within 1 ulp of the correctly rounded -ln U (tests/test_kernel_blocks.py).
+ * Only correctly rounded operations (products, sums, bit operations): the same bits on every
+ * device and at every lane width. native_log, which this replaced, is each device's own:
+ * Intel's CPU runtime on AVX2 (Zen 3) was 1e-4 relative off, which moved exit times by up to
+ * 3e-4 (docs/performance.md). U >= 2^-33 in single precision (philox.h uniform): never
+ * subnormal. */
 inline VREAL optical_step(VREAL U)
 {
 #ifdef WARPE_DOUBLE
@@ -23,18 +25,18 @@ inline VREAL optical_step(VREAL U)
     const VREAL e = CONVERT_VREAL((bits >> 23) - (VMASK)126 - ONE(low));
     const VREAL f = SEL(m - (REAL)1, (m + m) - (REAL)1, low);        /* exact (Sterbenz) */
     const VREAL z = f * f;
-    VREAL p = fma(f, (VREAL)7.0376836292e-2f, (VREAL)-1.1514610310e-1f);
-    p = fma(f, p, (VREAL)1.1676998740e-1f);
-    p = fma(f, p, (VREAL)-1.2420140846e-1f);
-    p = fma(f, p, (VREAL)1.4249322787e-1f);
-    p = fma(f, p, (VREAL)-1.6668057665e-1f);
-    p = fma(f, p, (VREAL)2.0000714765e-1f);
-    p = fma(f, p, (VREAL)-2.4999993993e-1f);
-    p = fma(f, p, (VREAL)3.3333331174e-1f);
+    VREAL p = (REAL)7.0376836292e-2f * f - (REAL)1.1514610310e-1f;
+    p = p * f + (REAL)1.1676998740e-1f;
+    p = p * f - (REAL)1.2420140846e-1f;
+    p = p * f + (REAL)1.4249322787e-1f;
+    p = p * f - (REAL)1.6668057665e-1f;
+    p = p * f + (REAL)2.0000714765e-1f;
+    p = p * f - (REAL)2.4999993993e-1f;
+    p = p * f + (REAL)3.3333331174e-1f;
     VREAL y = p * f * z;
-    y = fma(e, (VREAL)-2.12194440e-4f, y);
-    y = fma((VREAL)-0.5f, z, y);
-    return -fma(e, (VREAL)0.693359375f, f + y);
+    y = y + e * (REAL)-2.12194440e-4f;
+    y = y - (REAL)0.5f * z;                  /* 0.5 z is exact */
+    return -(e * (REAL)0.693359375f + (f + y));  /* e 0.693359375 is exact (|e| <= 33) */
 #endif
 }
 
@@ -42,7 +44,7 @@ inline VREAL optical_step(VREAL U)
  * Double precision: sincos(2 pi U), as the reference computes it. Single precision: the
  * quadrant from U itself, q = rint(4U) and r = U - q/4 in [-1/8, 1/8] (exact: Sterbenz), so
  * that no angle is reduced; x = 2 pi r in [-pi/4, pi/4]; Cephes' sinf and cosf polynomials
- * (S. L. Moshier, Cephes Mathematical Library) in fma steps; then the quadrant's turn by
+ * (S. L. Moshier, Cephes Mathematical Library), each product and sum rounded; then the quadrant's turn by
  * q pi/2. Within 2e-7 of sin and cos of 2 pi U (1.0e-7 measured; tests/test_kernel_blocks.py).
  * Only correctly rounded operations, like optical_step: the same bits on every device, where
  * native_sin and native_cos are each device's own. */
@@ -54,12 +56,12 @@ inline void azimuth(VREAL U, VREAL *sin_psi, VREAL *cos_psi)
     const VREAL q = rint((REAL)4 * U);
     const VREAL x = (U - (REAL)0.25 * q) * (REAL)(2.0 * WARPE_PI);
     const VREAL z = x * x;
-    VREAL s = fma(z, (VREAL)-1.9515295891e-4f, (VREAL)8.3321608736e-3f);
-    s = fma(z, s, (VREAL)-1.6666654611e-1f);
-    s = fma(z * x, s, x);
-    VREAL c = fma(z, (VREAL)2.443315711809948e-5f, (VREAL)-1.388731625493765e-3f);
-    c = fma(z, c, (VREAL)4.166664568298827e-2f);
-    c = fma(z * z, c, fma((VREAL)-0.5f, z, (VREAL)1.0f));
+    VREAL s = z * (REAL)-1.9515295891e-4f + (REAL)8.3321608736e-3f;
+    s = z * s - (REAL)1.6666654611e-1f;
+    s = (z * x) * s + x;
+    VREAL c = z * (REAL)2.443315711809948e-5f - (REAL)1.388731625493765e-3f;
+    c = z * c + (REAL)4.166664568298827e-2f;
+    c = (z * z) * c + ((REAL)1 - (REAL)0.5f * z);
     /* psi = q pi/2 + x: quadrant 1 (sin, cos) = (cos x, -sin x), 2: (-sin x, -cos x),
      * 3: (-cos x, sin x); q = 4 is quadrant 0 */
     const VMASK k = CONVERT_VMASK(q) & (VMASK)3;
@@ -107,8 +109,11 @@ inline void rotate_direction(VREAL *ux, VREAL *uy, VREAL *uz, VREAL cos_theta,
     y = SEL(gy, vy, vertical);
     z = SEL(gz, vz, vertical);
 #ifndef WARPE_DOUBLE
-    /* float32 drifts off the unit sphere over long walks: renormalise (docs/physics.md §5.4) */
-    VREAL inv = rsqrt(x * x + y * y + z * z);
+    /* float32 drifts off the unit sphere over long walks: renormalise (docs/physics.md §5.4) by
+     * one Newton step for 1/sqrt(r2) from 1, 3/2 - r2/2, off by (3/8)(r2 - 1)^2: 1e-14 for the
+     * |r2 - 1| ~ 1e-7 of one turn's rounding. Correctly rounded operations only, where rsqrt
+     * is each driver's own (Intel's vector rsqrt differs from its scalar one in the last bits) */
+    VREAL inv = (REAL)1.5 - (REAL)0.5 * (x * x + y * y + z * z);
     x *= inv; y *= inv; z *= inv;
 #endif
     *ux = x; *uy = y; *uz = z;

@@ -169,8 +169,8 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
 
 #ifdef WARPE_NADIR
 /* e^-tau (tau >= 0) for the nadir scores. Double precision: exp. Single precision: 2^n 2^f
- * with y = -tau log2(e) = n + f, n = rint(y), |f| <= 1/2, and 2^f by a degree-5 polynomial in
- * fma steps (a weighted least-squares fit of 2^f on [-1/2, 1/2]: 3.4e-7 relative at most, 6
+ * with y = -tau log2(e) = n + f, n = rint(y), |f| <= 1/2, and 2^f by a degree-5 polynomial,
+ * each product and sum rounded (a weighted least-squares fit of 2^f on [-1/2, 1/2]: 3.4e-7 relative at most, 6
  * ulp); 0 below 2^-125, so that no device's flushing of denormals matters. Only correctly
  * rounded operations: for the same tau, the same bits at every lane width and on every
  * device (native_exp is each device's own, and differs between its vector and scalar forms),
@@ -183,11 +183,11 @@ WALK_STEP VREAL exp_neg(VREAL tau)
     const VREAL y = -tau * (REAL)1.4426950408889634;
     const VREAL n = rint(y);
     const VREAL f = y - n;
-    VREAL p = fma(f, (VREAL)0.0012915669940412045f, (VREAL)0.009668530896306038f);
-    p = fma(f, p, (VREAL)0.055516887456178665f);
-    p = fma(f, p, (VREAL)0.24022264778614044f);
-    p = fma(f, p, (VREAL)0.6931464672088623f);
-    p = fma(f, p, (VREAL)1.0f);
+    VREAL p = f * (REAL)0.0012915669940412045f + (REAL)0.009668530896306038f;
+    p = f * p + (REAL)0.055516887456178665f;
+    p = f * p + (REAL)0.24022264778614044f;
+    p = f * p + (REAL)0.6931464672088623f;
+    p = f * p + (REAL)1.0f;
     const VREAL scale = AS_VREAL((CONVERT_VMASK(fmax(n, (REAL)-126)) + (VMASK)127) << 23);
     return SEL((VREAL)0, p * scale, n >= (REAL)-125);
 #endif
@@ -206,9 +206,9 @@ WALK_STEP VREAL pow_m3_2(VREAL x)
 #else
     const VREAL hx = (REAL)0.5 * x;
     VREAL y = AS_VREAL((VMASK)0x5f3759df - (AS_VMASK(x) >> 1));
-    y = y * fma(-hx * y, y, (VREAL)1.5);
-    y = y * fma(-hx * y, y, (VREAL)1.5);
-    y = y * fma(-hx * y, y, (VREAL)1.5);
+    y = y * ((REAL)1.5 - hx * y * y);
+    y = y * ((REAL)1.5 - hx * y * y);
+    y = y * ((REAL)1.5 - hx * y * y);
     return y * y * y;
 #endif
 }
