@@ -160,3 +160,21 @@ def test_engine_records_the_kernel_hash(engine):
     engine.run(medium(), 100)
     assert engine.kernel_hash == walk_source_hash()
     assert re.fullmatch(r"[0-9a-f]{64}", engine.kernel_hash)
+
+
+def test_emergence_table_is_the_hosts():
+    """cl/tally.h's COS_DEGREE tables are params.COS_DEGREE: the doubles exactly, and their
+    roundings to float for the single walk (hex literals, so no compiler's decimal parsing
+    enters); the host's emergence_bin follows the acos rule away from the edges, and puts an
+    exit at an edge's cosine in the bin that starts there."""
+    text = (kernel_dir() / "tally.h").read_text()
+    double_block, float_block = re.findall(r"COS_DEGREE\[N_EMERGENCE\] = \{(.*?)\};", text, re.S)
+    doubles = [float.fromhex(x) for x in re.findall(r"0x[0-9a-f.]+p[-+]\d+", double_block)]
+    floats = [float.fromhex(x) for x in re.findall(r"0x[0-9a-f.]+p[-+]\d+", float_block)]
+    assert doubles == list(P.COS_DEGREE)
+    assert floats == [float(np.float32(c)) for c in P.COS_DEGREE]
+    for deg in np.linspace(0.0, 90.0, 9001):
+        if abs(deg - round(deg)) > 1e-6:
+            assert P.emergence_bin(np.cos(np.radians(deg))) == min(int(deg), P.N_EMERGENCE - 1)
+    assert [P.emergence_bin(c) for c in P.COS_DEGREE] == list(range(P.N_EMERGENCE))
+    assert P.emergence_bin(1.5) == 0 and P.emergence_bin(-0.1) == P.N_EMERGENCE - 1

@@ -6,6 +6,8 @@ rules that connect the two are written out in ``docs/walk.md``.
 """
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +20,19 @@ N_COMPONENTS = len(COMPONENTS)
 FATES = ("specular", "escaped", "absorbed_medium", "absorbed_floor", "terminated")
 N_FATES = len(FATES)
 N_EMERGENCE = 90  # 1-degree emergence bins, 0..90 deg
+#: cos(k degrees), k = 0 .. N_EMERGENCE - 1: the emergence bins' edges in cosine. cl/tally.h
+#: holds the same doubles (and their floats, for the single-precision walk) as COS_DEGREE.
+COS_DEGREE = tuple(math.cos(math.radians(k)) for k in range(N_EMERGENCE))
+_MINUS_COS_DEGREE = tuple(-c for c in COS_DEGREE[1:])        # increasing, for bisect
+
+
+def emergence_bin(cos_exit: float) -> int:
+    """The emergence bin of an exit (docs/walk.md §4): min(floor(θ_e in degrees), 89) with
+    θ_e = acos(cos_exit), counted as the whole degrees k in 1 .. 89 with cos_exit <= cos(k°)
+    (:data:`COS_DEGREE`): the rule of cl/tally.h ``emergence_bin``, whose table decides
+    where each driver's acos differs in its last bits."""
+    c = min(max(cos_exit, 0.0), 1.0)
+    return bisect.bisect_right(_MINUS_COS_DEGREE, -c)
 TEXTURES = ("slab", "granular")
 #: The kernel builds: one per texture of a single layer, and one for a stack of layers (or a
 #: layer over a substrate), whose textures are per-layer values (docs/walk.md §7).

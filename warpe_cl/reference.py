@@ -24,7 +24,8 @@ calls (no NumPy scalars), for speed. Lengths are in metres, times in nanoseconds
 
 Two guards against rounding appear below and change nothing in exact arithmetic: sin² terms
 computed as 1 − cos² are clamped at 0 before a square root (a direction cosine can exceed 1 by
-an ulp after many rotations), and the emergence angle takes acos(min(cos θ_e, 1)).
+an ulp after many rotations), and the emergence bin clamps cos θ_e to [0, 1] before it counts
+the whole degrees k with cos θ_e <= cos(k°) (:func:`warpe_cl.params.emergence_bin`).
 
 Examples
 --------
@@ -52,6 +53,7 @@ from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, LAYER_STA
                      RECORD_FIELDS, RULES,
                      TEXTURES, TIME_BIN_EARLY, TIME_BIN_LATE, Counts, WalkParams,
                      batch_photons, fixed_point, lost_weight)
+from .params import emergence_bin as emergence_of   # the name emergence_bin is a local below
 from .nadir import mirror_table
 from .rng import PhotonStream
 
@@ -1131,9 +1133,8 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                         component = BF_DIFFUSE if time_ns >= first_bf_time else SCATTERING
                     if ray.n_scat >= 1 and ray.n_lamb >= 1:
                         mixed_history += 1
-                # Emergence bin: min(floor(θ_e in degrees), 89).
-                theta_degrees = math.degrees(math.acos(min(ray.cos_exit, 1.0)))
-                emergence_bin = min(int(math.floor(theta_degrees)), N_EMERGENCE - 1)
+                # Emergence bin: min(floor(θ_e in degrees), 89), by the table of cos(k°)
+                emergence_bin = emergence_of(ray.cos_exit)
                 # Time bin i with edges[i] <= t < edges[i+1] (searchsorted(side="right") - 1);
                 # before edges[0]: an early exit, counted apart and never in a bin; at or
                 # after edges[-1]: no bin (walk.md §4).
