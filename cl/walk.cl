@@ -1224,7 +1224,8 @@ WALK_STEP void nadir_contact(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
 WALK_STEP void nadir_gap(VMASK m, VUINT x0, const scene_t *sc, rays_t *r,
                          const tallies_t *tally)
 {
-    VREAL s = (VREAL)(sc->vg_factor * sc->vg_mu * (REAL)(1.0 / WARPE_PI) * exp(-sc->vg_tau));
+    /* exp_neg, not the driver's exp: the same bits on every driver */
+    VREAL s = (sc->vg_factor * sc->vg_mu * (REAL)(1.0 / WARPE_PI)) * exp_neg((VREAL)sc->vg_tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
     const VREAL v = (VREAL)0;    /* no roulette */
