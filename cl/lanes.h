@@ -149,7 +149,8 @@ inline uint lane_bits(VMASK m)
 #endif
 }
 
-/* Each lane's index 0 .. WARPE_LANES - 1, to pick one lane of a vector: SEL(v, x, LANE_INDEX == j) */
+/* Each lane's index 0 .. WARPE_LANES - 1, to pick one lane of a vector:
+ * SEL(v, x, LANE_INDEX == j) */
 #if WARPE_LANES == 16
 #define LANE_INDEX ((VMASK)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
 #elif WARPE_LANES == 8

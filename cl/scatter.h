@@ -44,10 +44,10 @@ inline VREAL optical_step(VREAL U)
  * Double precision: sincos(2 pi U), as the reference computes it. Single precision: the
  * quadrant from U itself, q = rint(4U) and r = U - q/4 in [-1/8, 1/8] (exact: Sterbenz), so
  * that no angle is reduced; x = 2 pi r in [-pi/4, pi/4]; Cephes' sinf and cosf polynomials
- * (S. L. Moshier, Cephes Mathematical Library), each product and sum rounded; then the quadrant's turn by
- * q pi/2. Within 2e-7 of sin and cos of 2 pi U (1.0e-7 measured; tests/test_kernel_blocks.py).
- * Only correctly rounded operations, like optical_step: the same bits on every device, where
- * native_sin and native_cos are each device's own. */
+ * (S. L. Moshier, Cephes Mathematical Library), each product and sum rounded; then the
+ * quadrant's turn by q pi/2. Within 2e-7 of sin and cos of 2 pi U (1.0e-7 measured;
+ * tests/test_kernel_blocks.py). Only correctly rounded operations, like optical_step: the same
+ * bits on every device, where native_sin and native_cos are each device's own. */
 inline void azimuth(VREAL U, VREAL *sin_psi, VREAL *cos_psi)
 {
 #ifdef WARPE_DOUBLE

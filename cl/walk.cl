@@ -170,11 +170,11 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
 #ifdef WARPE_NADIR
 /* e^-tau (tau >= 0) for the nadir scores. Double precision: exp. Single precision: 2^n 2^f
  * with y = -tau log2(e) = n + f, n = rint(y), |f| <= 1/2, and 2^f by a degree-5 polynomial,
- * each product and sum rounded (a weighted least-squares fit of 2^f on [-1/2, 1/2]: 3.4e-7 relative at most, 6
- * ulp); 0 below 2^-125, so that no device's flushing of denormals matters. Only correctly
- * rounded operations: for the same tau, the same bits at every lane width and on every
- * device (native_exp is each device's own, and differs between its vector and scalar forms),
- * and cheaper than native_exp on Intel's CPU runtime (docs/performance.md). */
+ * each product and sum rounded (a weighted least-squares fit of 2^f on [-1/2, 1/2]: 3.5e-7
+ * relative at most, 6 ulp); 0 below 2^-125, so that no device's flushing of denormals
+ * matters. Only correctly rounded operations: for the same tau, the same bits at every lane
+ * width and on every device (native_exp is each device's own, and differs between its vector
+ * and scalar forms), and cheaper than native_exp on Intel's CPU runtime (docs/performance.md). */
 WALK_STEP VREAL exp_neg(VREAL tau)
 {
 #ifdef WARPE_DOUBLE
