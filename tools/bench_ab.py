@@ -22,7 +22,8 @@ it also reports scattering events per CPU second of the process (the driver's th
 included), less sensitive to other processes on a shared machine than the wall time. It needs
 kernels with the same arguments. Each run installs its kernel in the engine
 (``Engine.use_program``) and checks that the engine walked with it. ``--nadir`` walks the
-scenes with the nadir estimate (``simulation.nadir: true``), which bench.py's scenes leave out.
+scenes with the nadir estimate (``simulation.nadir: true``), which bench.py's scenes leave out;
+``--modes analog,weighted`` walks each scene in each mode.
 
     python tools/bench_ab.py --kernel-only [--nadir] [--different-bits] --before A --after B
 """
@@ -93,8 +94,10 @@ def kernel_only(trees: dict, args, say) -> dict:
         f"{engine.info.platform_version}")
     samples = {label: {} for label in trees}
     n = int(args.photons)
-    for scene in args.scenes.split(","):
-        cfg = load_preset(SCENES[scene], overrides={"simulation.nadir": bool(args.nadir)})
+    for scene, mode in ((s, m) for s in args.scenes.split(",") for m in args.modes.split(",")):
+        name = scene if mode == "analog" else f"{scene} {mode}"
+        cfg = load_preset(SCENES[scene], overrides={"simulation.nadir": bool(args.nadir),
+                                                    "simulation.mode": mode})
         params, _ = walk_params(cfg)
         lanes = engine.lanes_for(params.texture, args.precision, params.weighted)
         structure = (params.texture, args.precision, False, lanes, params.weighted,
@@ -113,32 +116,32 @@ def kernel_only(trees: dict, args, say) -> dict:
             c = engine.run(params, n, precision=args.precision, lanes=lanes)
             dt, cpu = time.perf_counter() - t0, time.process_time() - c0
             if engine.kernel(*structure) is not kern:
-                raise RuntimeError(f"{scene}: the engine did not walk with {label}'s kernel")
+                raise RuntimeError(f"{name}: the engine did not walk with {label}'s kernel")
             return c, dt, cpu
 
         counts = {label: walk(label)[0] for label in trees}     # warm-up, and the same bits
         if counts["A"].same_as(counts["B"]):
-            say(f"# {scene}: {lanes} lanes, both kernels give the same counts ({n} photons)")
+            say(f"# {name}: {lanes} lanes, both kernels give the same counts ({n} photons)")
         elif args.different_bits:
             ea, eb = counts["A"].scattering_events, counts["B"].scattering_events
-            say(f"# {scene}: {lanes} lanes, the kernels' counts differ (--different-bits): "
+            say(f"# {name}: {lanes} lanes, the kernels' counts differ (--different-bits): "
                 f"{ea} and {eb} scattering events ({eb / ea - 1:+.2e}), {n} photons")
         else:
-            raise RuntimeError(f"{scene}: the two kernels give different counts "
+            raise RuntimeError(f"{name}: the two kernels give different counts "
                                "(--different-bits for a change of arithmetic)")
         for r in range(args.rounds):
             order = list(trees) if r % 2 == 0 else list(trees)[::-1]
             cells = []
             for label in order:
                 c, dt, cpu = walk(label)
-                v = samples[label].setdefault(scene, {"events_per_s": [], "photons_per_s": [],
+                v = samples[label].setdefault(name, {"events_per_s": [], "photons_per_s": [],
                                                       "events_per_cpu_s": []})
                 v["events_per_s"].append(c.scattering_events / dt)
                 v["photons_per_s"].append(n / dt)
                 v["events_per_cpu_s"].append(c.scattering_events / cpu)
                 cells.append(f"{label} {c.scattering_events / dt:.4g} "
                              f"({c.scattering_events / cpu:.4g} per CPU s)")
-            say(f"{scene} round {r + 1}: " + ", ".join(cells) + f" events/s | load {loadavg()}")
+            say(f"{name} round {r + 1}: " + ", ".join(cells) + f" events/s | load {loadavg()}")
         engine._kernels.pop(key, None)
         engine._folds.pop(key, None)
     return samples
