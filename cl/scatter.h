@@ -1,4 +1,5 @@
-/* scatter.h: sampling of directions (docs/physics.md §5.4, §5.5), lane by lane (lanes.h). */
+/* scatter.h: sampling of directions (docs/physics.md §5.4, §5.5), lane by lane (lanes.h), and the
+ * walk's own elementary functions: -ln U, the azimuth's sine and cosine, e^-tau. */
 #ifndef WARPE_SCATTER_H
 #define WARPE_SCATTER_H
 
@@ -37,6 +38,36 @@ inline VREAL optical_step(VREAL U)
     y = y + e * (REAL)-2.12194440e-4f;
     y = y - (REAL)0.5f * z;                  /* 0.5 z is exact */
     return -(e * (REAL)0.693359375f + (f + y));  /* e 0.693359375 is exact (|e| <= 33) */
+#endif
+}
+
+/* e^-tau (tau >= 0): the weighted walk's absorbed fraction (and a gap's nadir score). Double
+ * precision: exp. Single precision: Cephes' expf (S. L. Moshier, Cephes Mathematical Library),
+ * each product and sum rounded: n = rint(-tau log2(e)), x = -tau - n ln 2 with ln 2 in two
+ * parts (0.693359375, whose product with n is exact, and -2.12194440e-4), e^x = 1 + x + x^2
+ * P(x) with P of degree 5, times 2^n from the bits; 0 below 2^-125, so that no device's
+ * flushing of denormals matters. Within 1 ulp of e^-tau (tests/test_kernel_blocks.py). Only
+ * correctly rounded operations: the same bits at every lane width and on every device, where
+ * exp and native_exp are each driver's own (and differ between their vector and scalar forms
+ * on Intel's runtime), and no library call (native_exp is one on Intel's CPU runtime, which
+ * spills every vector register: docs/performance.md). */
+inline VREAL exp_neg(VREAL tau)
+{
+#ifdef WARPE_DOUBLE
+    return exp(-tau);
+#else
+    const VREAL n = rint(-tau * (REAL)1.4426950408889634);
+    VREAL x = -tau - n * (REAL)0.693359375f;
+    x = x - n * (REAL)-2.12194440e-4f;
+    const VREAL z = x * x;
+    VREAL p = (REAL)1.9875691500e-4f * x + (REAL)1.3981999507e-3f;
+    p = p * x + (REAL)8.3334519073e-3f;
+    p = p * x + (REAL)4.1665795894e-2f;
+    p = p * x + (REAL)1.6666665459e-1f;
+    p = p * x + (REAL)5.0000001201e-1f;
+    p = (p * z + x) + (REAL)1;
+    const VREAL scale = AS_VREAL((CONVERT_VMASK(fmax(n, (REAL)-126)) + (VMASK)127) << 23);
+    return SEL((VREAL)0, p * scale, n >= (REAL)-125);
 #endif
 }
 

@@ -60,6 +60,13 @@ __kernel void walk_math(__global const REAL *u, __global REAL *out)
     out[3 * i + 2] = c;
 }
 
+/* The walk's e^-tau (scatter.h exp_neg) on given tau, for the accuracy test. */
+__kernel void exp_neg_of(__global const REAL *tau, __global REAL *out)
+{
+    size_t i = get_global_id(0);
+    out[i] = exp_neg(tau[i]);
+}
+
 /* The walk's exact event rule (philox.h word_at_least) on given words: out = 1 where the event
  * "U > P" happens for the threshold T = floor(P 2^32 + 1/2). */
 __kernel void word_events(const ulong T, __global const uint *x, __global int *out)

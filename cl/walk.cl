@@ -168,14 +168,14 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
 }
 
 #ifdef WARPE_NADIR
-/* e^-tau (tau >= 0) for the nadir scores. Double precision: exp. Single precision: 2^n 2^f
- * with y = -tau log2(e) = n + f, n = rint(y), |f| <= 1/2, and 2^f by a degree-5 polynomial,
- * each product and sum rounded (a weighted least-squares fit of 2^f on [-1/2, 1/2]: 3.5e-7
- * relative at most, 6 ulp); 0 below 2^-125, so that no device's flushing of denormals
- * matters. Only correctly rounded operations: for the same tau, the same bits at every lane
- * width and on every device (native_exp is each device's own, and differs between its vector
- * and scalar forms), and cheaper than native_exp on Intel's CPU runtime (docs/performance.md). */
-WALK_STEP VREAL exp_neg(VREAL tau)
+/* e^-tau (tau >= 0) for the nadir scores, cheaper than exp_neg (scatter.h) and less accurate:
+ * at every event of every ray, where the scores' own statistical error is far larger. Double
+ * precision: exp. Single precision: 2^n 2^f with y = -tau log2(e) = n + f, n = rint(y),
+ * |f| <= 1/2, and 2^f by a degree-5 polynomial, each product and sum rounded (a weighted
+ * least-squares fit of 2^f on [-1/2, 1/2]: 3.5e-7 relative at most, 6 ulp); 0 below 2^-125.
+ * Only correctly rounded operations: the same bits on every device and lane width. exp_neg
+ * in its place cost B1 with the estimate 4 % (docs/performance.md). */
+WALK_STEP VREAL exp_neg_score(VREAL tau)
 {
 #ifdef WARPE_DOUBLE
     return exp(-tau);
@@ -196,9 +196,9 @@ WALK_STEP VREAL exp_neg(VREAL tau)
 /* x^(-3/2) (x > 0), of the HG phase function. Double precision: rsqrt(x) / x, as the
  * reference computes it. Single precision: y^3, y the inverse square root from the bits of x
  * (0x5f3759df - bits / 2: within 3.5 %, Lomont 2003) and three Newton steps
- * y (3/2 - x y^2 / 2), within a few ulp. Like exp_neg, only correctly rounded operations (the
- * same bits everywhere), and cheaper than the accurate rsqrt and a division, which were three
- * of the slowest instructions of an event (docs/performance.md). */
+ * y (3/2 - x y^2 / 2), within a few ulp. Like exp_neg_score, only correctly rounded
+ * operations (the same bits everywhere), and cheaper than the accurate rsqrt and a division,
+ * which were three of the slowest instructions of an event (docs/performance.md). */
 WALK_STEP VREAL pow_m3_2(VREAL x)
 {
 #ifdef WARPE_DOUBLE
@@ -749,7 +749,7 @@ WALK_STEP void free_flight(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r, end
     c &= !over;
     b &= !over;
 #ifdef WARPE_WEIGHTED
-    r->w = SEL(r->w, r->w * exp(-sc->mu_a * len), c | b);
+    r->w = SEL(r->w, r->w * exp_neg(sc->mu_a * len), c | b);
 #endif
     *coll = c;
     *bnd = b;
@@ -1151,7 +1151,7 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
 #endif
     const VREAL c = r->ux * sin_v - r->uz * mu_v;
     const VREAL x = ((REAL)1 + g * g) - (REAL)2 * g * c;
-    VREAL s = k * pow_m3_2(x) * exp_neg(tau);
+    VREAL s = k * pow_m3_2(x) * exp_neg_score(tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
     const VREAL v = (VREAL)0;    /* no roulette */
@@ -1177,7 +1177,7 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
         const VREAL tau_down = sc->v_tau_per_m * below, path_down = sc->v_path_per_m * below;
 #endif
         const VREAL xd = ((REAL)1 + g * g) - (REAL)2 * g * (r->ux * sin_v + r->uz * mu_v);
-        VREAL sd = k * pow_m3_2(xd) * exp_neg(tau_down);
+        VREAL sd = k * pow_m3_2(xd) * exp_neg_score(tau_down);
 #ifdef WARPE_WEIGHTED
         sd *= r->w;
 #endif
@@ -1201,7 +1201,7 @@ WALK_STEP void nadir_contact(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     const VREAL path = sc->v_path_per_m * r->z;
     const REAL k = sc->v_factor * sc->v_mu * (REAL)(1.0 / WARPE_PI);
 #endif
-    VREAL s = k * exp_neg(tau);
+    VREAL s = k * exp_neg_score(tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
     const VREAL v = (VREAL)0;    /* no roulette */
