@@ -41,7 +41,7 @@ inline VREAL optical_step(VREAL U)
 #endif
 }
 
-/* e^-tau (tau >= 0): the weighted walk's absorbed fraction (and a gap's nadir score). Double
+/* e^-tau: the weighted walk's absorbed fraction (and a gap's nadir score). Double
  * precision: exp. Single precision: Cephes' expf (S. L. Moshier, Cephes Mathematical Library),
  * each product and sum rounded: n = rint(-tau log2(e)), x = -tau - n ln 2 with ln 2 in two
  * parts (0.693359375, whose product with n is exact, and -2.12194440e-4), e^x = 1 + x + x^2
@@ -66,8 +66,13 @@ inline VREAL exp_neg(VREAL tau)
     p = p * x + (REAL)1.6666665459e-1f;
     p = p * x + (REAL)5.0000001201e-1f;
     p = (p * z + x) + (REAL)1;
-    const VREAL scale = AS_VREAL((CONVERT_VMASK(fmax(n, (REAL)-126)) + (VMASK)127) << 23);
-    return SEL((VREAL)0, p * scale, n >= (REAL)-125);
+    /* 2^n from the bits for n in [-126, 127]; 0 below 2^-125, +inf above 2^127 (tau < 0: the
+     * growing weights of omega > 1, which the exits then refuse), and NaN stays NaN (clamp
+     * gives NaN the scale of -126, p is NaN): no bad input becomes a plausible weight */
+    const VREAL scale = AS_VREAL((CONVERT_VMASK(clamp(n, (REAL)-126, (REAL)127)) + (VMASK)127)
+                                 << 23);
+    const VREAL v = SEL(p * scale, (VREAL)0, n < (REAL)-125);
+    return SEL(v, (VREAL)INFINITY, n > (REAL)127);
 #endif
 }
 
