@@ -135,7 +135,7 @@ def kernel_only(trees: dict, args, say) -> dict:
             for label in order:
                 c, dt, cpu = walk(label)
                 v = samples[label].setdefault(name, {"events_per_s": [], "photons_per_s": [],
-                                                      "events_per_cpu_s": []})
+                                                     "events_per_cpu_s": []})
                 v["events_per_s"].append(c.scattering_events / dt)
                 v["photons_per_s"].append(n / dt)
                 v["events_per_cpu_s"].append(c.scattering_events / cpu)
