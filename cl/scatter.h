@@ -41,12 +41,26 @@ inline VREAL optical_step(VREAL U)
 #endif
 }
 
+#ifndef WARPE_DOUBLE
+/* p 2^n for an integral n (a float), 2^n from its bits: 0 where n < -125, so that no device's
+ * flushing of denormals matters (p is in [0.7, 1.42] for exp_neg and exp_neg_score); +inf where
+ * n > 127 (tau < 0: the growing weights of omega > 1, which the exits then refuse); NaN where
+ * p is (clamp gives a NaN n the scale of -126, and p is NaN with it): no bad input becomes a
+ * plausible value. */
+inline VREAL times_pow2(VREAL p, VREAL n)
+{
+    const VREAL scale = AS_VREAL((CONVERT_VMASK(clamp(n, (REAL)-126, (REAL)127)) + (VMASK)127)
+                                 << 23);
+    const VREAL v = SEL(p * scale, (VREAL)0, n < (REAL)-125);
+    return SEL(v, (VREAL)INFINITY, n > (REAL)127);
+}
+#endif
+
 /* e^-tau: the weighted walk's absorbed fraction (and a gap's nadir score). Double
  * precision: exp. Single precision: Cephes' expf (S. L. Moshier, Cephes Mathematical Library),
  * each product and sum rounded: n = rint(-tau log2(e)), x = -tau - n ln 2 with ln 2 in two
  * parts (0.693359375, whose product with n is exact, and -2.12194440e-4), e^x = 1 + x + x^2
- * P(x) with P of degree 5, times 2^n from the bits; 0 below 2^-125, so that no device's
- * flushing of denormals matters. Within 1 ulp of e^-tau (tests/test_kernel_blocks.py). Only
+ * P(x) with P of degree 5, times 2^n (times_pow2). Within 1 ulp of e^-tau (tests/test_kernel_blocks.py). Only
  * correctly rounded operations: the same bits at every lane width and on every device, where
  * exp and native_exp are each driver's own (and differ between their vector and scalar forms
  * on Intel's runtime), and no library call (native_exp is one on Intel's CPU runtime, which
@@ -66,13 +80,7 @@ inline VREAL exp_neg(VREAL tau)
     p = p * x + (REAL)1.6666665459e-1f;
     p = p * x + (REAL)5.0000001201e-1f;
     p = (p * z + x) + (REAL)1;
-    /* 2^n from the bits for n in [-126, 127]; 0 below 2^-125, +inf above 2^127 (tau < 0: the
-     * growing weights of omega > 1, which the exits then refuse), and NaN stays NaN (clamp
-     * gives NaN the scale of -126, p is NaN): no bad input becomes a plausible weight */
-    const VREAL scale = AS_VREAL((CONVERT_VMASK(clamp(n, (REAL)-126, (REAL)127)) + (VMASK)127)
-                                 << 23);
-    const VREAL v = SEL(p * scale, (VREAL)0, n < (REAL)-125);
-    return SEL(v, (VREAL)INFINITY, n > (REAL)127);
+    return times_pow2(p, n);
 #endif
 }
 

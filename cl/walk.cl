@@ -172,9 +172,9 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
  * at every event of every ray, where the scores' own statistical error is far larger. Double
  * precision: exp. Single precision: 2^n 2^f with y = -tau log2(e) = n + f, n = rint(y),
  * |f| <= 1/2, and 2^f by a degree-5 polynomial, each product and sum rounded (a weighted
- * least-squares fit of 2^f on [-1/2, 1/2]: 3.5e-7 relative at most, 6 ulp); 0 below 2^-125.
- * Only correctly rounded operations: the same bits on every device and lane width. exp_neg
- * in its place cost B1 with the estimate 4 % (docs/performance.md). */
+ * least-squares fit of 2^f on [-1/2, 1/2]: 3.5e-7 relative at most, 6 ulp), times 2^n
+ * (times_pow2, scatter.h). Only correctly rounded operations: the same bits on every device
+ * and lane width. exp_neg in its place cost B1 with the estimate 4 % (docs/performance.md). */
 WALK_STEP VREAL exp_neg_score(VREAL tau)
 {
 #ifdef WARPE_DOUBLE
@@ -188,8 +188,7 @@ WALK_STEP VREAL exp_neg_score(VREAL tau)
     p = f * p + (REAL)0.24022264778614044f;
     p = f * p + (REAL)0.6931464672088623f;
     p = f * p + (REAL)1.0f;
-    const VREAL scale = AS_VREAL((CONVERT_VMASK(fmax(n, (REAL)-126)) + (VMASK)127) << 23);
-    return SEL((VREAL)0, p * scale, n >= (REAL)-125);
+    return times_pow2(p, n);
 #endif
 }
 

@@ -52,8 +52,8 @@ from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, LAYER_STA
                      MAX_LAYERS, MIRROR_KINDS, N_EMERGENCE, NADIR_BATCHES, NADIR_ROWS,
                      RECORD_FIELDS, RULES,
                      TEXTURES, TIME_BIN_EARLY, TIME_BIN_LATE, Counts, WalkParams,
-                     batch_photons, fixed_point, lost_weight)
-from .params import emergence_bin as emergence_of   # the name emergence_bin is a local below
+                     batch_photons, fixed_point, lost_weight,
+                     emergence_bin as emergence_of)   # emergence_bin: a local name below
 from .nadir import mirror_table
 from .rng import PhotonStream
 
