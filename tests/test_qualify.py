@@ -166,3 +166,35 @@ def test_devices_shows_the_verdicts(engine):
     assert out.returncode == 0, out.stderr
     assert "qualified:" in out.stdout and "scattering events/s" in out.stdout
     assert "picks" in out.stdout
+
+
+class _TalkativeProgram:
+    """A pyopencl Program whose build succeeds and warns, as Intel's compiler always does."""
+
+    def __init__(self, ctx, source):
+        pass
+
+    def build(self, options):
+        import warnings
+
+        import pyopencl
+        warnings.warn("Non-empty compiler output encountered.", pyopencl.CompilerWarning)
+        warnings.warn("something else", UserWarning)
+        return "built"
+
+
+@pytest.mark.parametrize("debug", ["", "1"])
+def test_the_compilers_chatter_is_quiet_unless_debugging(monkeypatch, debug):
+    """build_program, where every kernel is built (API, CLI, tools), drops pyopencl's
+    "Non-empty compiler output" warning and no other; WARPE_CL_DEBUG=1 keeps it."""
+    import warnings
+    fake = types.SimpleNamespace(Program=_TalkativeProgram)
+    monkeypatch.setattr(devmod, "_cl", lambda: fake)
+    monkeypatch.setattr(devmod, "context_and_queue", lambda device: ("ctx", "queue"))
+    monkeypatch.setenv("WARPE_CL_DEBUG", debug)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert devmod.build_program.__wrapped__("device", ("real.h",), ()) == "built"
+    messages = [str(w.message) for w in seen]
+    assert ("Non-empty compiler output encountered." in messages) == (debug == "1")
+    assert "something else" in messages
