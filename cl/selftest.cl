@@ -1,7 +1,7 @@
 /* selftest.cl (built with WARPE_LANES = 1; lane_bits_of at every width): small kernels that
  * expose the walk's building blocks to the test suite (Philox known answers, uniforms, the HG
- * and Lambert samplers, the Fresnel laws, the lanes' masks) and to `warpe-cl devices`, which
- * builds them to check that a device can compile our code. */
+ * and Lambert samplers, the Fresnel laws, the nadir score and its bound, the lanes' masks) and
+ * to `warpe-cl devices`, which builds them to check that a device can compile our code. */
 
 #if WARPE_LANES == 1        /* the building blocks of one lane */
 __kernel void philox_kat(__global const uint4 *ctr, __global const uint2 *key, __global uint4 *out)
@@ -65,6 +65,18 @@ __kernel void exp_neg_of(__global const REAL *tau, __global REAL *out)
 {
     size_t i = get_global_id(0);
     out[i] = exp_neg(tau[i]);
+}
+
+/* score.h on given x and tau: the nadir score of walk.cl's nadir_scatter before its weight
+ * and roulette, k pow_m3_2(x) exp_neg_score(tau), and the bound its skip compares with,
+ * score_cap(k, g, s_min, 0) exp_neg_bound(tau) (walk.md §8.3). */
+__kernel void score_and_bound(const REAL k, const REAL g, const REAL s_min,
+                              __global const REAL *x, __global const REAL *tau,
+                              __global REAL *score, __global REAL *bound)
+{
+    size_t i = get_global_id(0);
+    score[i] = k * pow_m3_2(x[i]) * exp_neg_score(tau[i]);
+    bound[i] = score_cap(k, g, s_min, 0) * exp_neg_bound(tau[i]);
 }
 
 /* The walk's exact event rule (philox.h word_at_least) on given words: out = 1 where the event

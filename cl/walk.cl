@@ -8,7 +8,8 @@
  * WARPE_DOUBLE (precision), WARPE_LANES (photons per work-item), WARPE_POOL (photons a
  * work-item takes ahead, pool_t), WARPE_WEIGHTED (survival weighting, walk.md §6),
  * WARPE_NADIR (the next-event estimate toward the receiver, walk.md §8),
- * WARPE_RECORD (one record per photon, for the parity tests); the
+ * WARPE_RECORD (one record per photon, for the parity tests), WARPE_NO_SCORE_SKIP (every
+ * nadir score computed, for the test that the skip of nadir_scatter changes no bit); the
  * layouts the host reads back come as -D macros too (tally.h). Every physical value is a
  * kernel argument, so a new scenario never recompiles.
  *
@@ -76,6 +77,9 @@ typedef struct {
     /* analog: scores below s_min play a roulette (walk.md §8.3); inv_omega_words and
      * inv_albedo_words turn a surviving word x < T into a uniform (x + 1/2) / T */
     REAL s_min, inv_omega_words, inv_albedo_words;
+#ifndef WARPE_TEXTURE_LAYERS
+    REAL s_cap;                  /* a scattering's score <= s_cap exp_neg_bound(tau) (score.h) */
+#endif
 #endif
 } scene_t;
 
@@ -166,52 +170,6 @@ WALK_STEP rays_t no_rays(IREAL phase_start)
 #endif
     return r;
 }
-
-#ifdef WARPE_NADIR
-/* e^-tau (tau >= 0) for the nadir scores, cheaper than exp_neg (scatter.h) and less accurate:
- * at every event of every ray, where the scores' own statistical error is far larger. Double
- * precision: exp. Single precision: 2^n 2^f with y = -tau log2(e) = n + f, n = rint(y),
- * |f| <= 1/2, and 2^f by a degree-5 polynomial, each product and sum rounded (a weighted
- * least-squares fit of 2^f on [-1/2, 1/2]: 3.5e-7 relative at most, 6 ulp), times 2^n
- * (times_pow2, scatter.h). Only correctly rounded operations: the same bits on every device
- * and lane width. exp_neg in its place cost B1 with the estimate 4 % (docs/performance.md). */
-WALK_STEP VREAL exp_neg_score(VREAL tau)
-{
-#ifdef WARPE_DOUBLE
-    return exp(-tau);
-#else
-    const VREAL y = -tau * (REAL)1.4426950408889634;
-    const VREAL n = rint(y);
-    const VREAL f = y - n;
-    VREAL p = f * (REAL)0.0012915669940412045f + (REAL)0.009668530896306038f;
-    p = f * p + (REAL)0.055516887456178665f;
-    p = f * p + (REAL)0.24022264778614044f;
-    p = f * p + (REAL)0.6931464672088623f;
-    p = f * p + (REAL)1.0f;
-    return times_pow2(p, n);
-#endif
-}
-
-/* x^(-3/2) (x > 0), of the HG phase function. Double precision: rsqrt(x) / x, as the
- * reference computes it. Single precision: y^3, y the inverse square root from the bits of x
- * (0x5f3759df - bits / 2: within 3.5 %, Lomont 2003) and three Newton steps
- * y (3/2 - x y^2 / 2), within a few ulp. Like exp_neg_score, only correctly rounded
- * operations (the same bits everywhere), and cheaper than the accurate rsqrt and a division,
- * which were three of the slowest instructions of an event (docs/performance.md). */
-WALK_STEP VREAL pow_m3_2(VREAL x)
-{
-#ifdef WARPE_DOUBLE
-    return rsqrt(x) / x;
-#else
-    const VREAL hx = (REAL)0.5 * x;
-    VREAL y = AS_VREAL((VMASK)0x5f3759df - (AS_VMASK(x) >> 1));
-    y = y * ((REAL)1.5 - hx * y * y);
-    y = y * ((REAL)1.5 - hx * y * y);
-    y = y * ((REAL)1.5 - hx * y * y);
-    return y * y * y;
-#endif
-}
-#endif
 
 #ifdef WARPE_TEXTURE_LAYERS
 /* The lanes in m take the values of the layer they are in (walk.md §7.3): a select per layer,
@@ -1148,17 +1106,26 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     const VREAL path = sc->v_path_per_m * r->z;
     const REAL k = sc->v_factor * sc->phase_k;
 #endif
-    const VREAL c = r->ux * sin_v - r->uz * mu_v;
-    const VREAL x = ((REAL)1 + g * g) - (REAL)2 * g * c;
-    VREAL s = k * pow_m3_2(x) * exp_neg_score(tau);
 #ifdef WARPE_WEIGHTED
-    s *= r->w;
     const VREAL v = (VREAL)0;    /* no roulette */
 #elif defined(WARPE_TEXTURE_LAYERS)
     const VREAL words = SEL(CONVERT_VREAL(r->omega_lo), (VREAL)0x1p32, r->scatter_all);
     const VREAL v = (CONVERT_VREAL(x1) + (REAL)0.5) / words;
 #else
     const VREAL v = (CONVERT_VREAL(x1) + (REAL)0.5) * sc->inv_omega_words;
+#ifndef WARPE_NO_SCORE_SKIP
+    /* every lane's score lost to the roulette for certain (walk.md §8.3): v s_min above the
+     * bound s_cap exp_neg_bound(tau) of the score s, so v s_min >= s: nothing to add, and
+     * nothing to compute (the events deep in a thick medium: most of them) */
+    if (!ANY(m & !(v * sc->s_min > sc->s_cap * exp_neg_bound(tau))))
+        return;
+#endif
+#endif
+    const VREAL c = r->ux * sin_v - r->uz * mu_v;
+    const VREAL x = ((REAL)1 + g * g) - (REAL)2 * g * c;
+    VREAL s = k * pow_m3_2(x) * exp_neg_score(tau);
+#ifdef WARPE_WEIGHTED
+    s *= r->w;
 #endif
     const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)0);
     const VREAL tv = (r->Ls + path) * tally->ns_per_m;
@@ -1501,6 +1468,11 @@ __kernel void walk(const uint seed, const ulong scenario,
                         .s_min = nadir_min,
                         .inv_omega_words = (REAL)(1.0 / (double)omega_words),
                         .inv_albedo_words = (REAL)(1.0 / (double)albedo_words),
+#ifndef WARPE_TEXTURE_LAYERS
+                        .s_cap = score_cap(view[VIEW_FACTOR]
+                                           * (((REAL)1 - g * g) * (REAL)(0.25 / WARPE_PI)),
+                                           g, nadir_min, n_mirror),
+#endif
 #undef GAP_ROW
 #endif
                         };

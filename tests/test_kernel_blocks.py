@@ -236,11 +236,66 @@ def test_exp_neg_accuracy(engine, selftest):
     d_out = cl.Buffer(engine.context, mf.WRITE_ONLY, out.nbytes)
     _run(engine, selftest["single"].exp_neg_of, len(tau), d_t, d_out)
     cl.enqueue_copy(engine.queue, out, d_out)
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore"):              # e^-tau beyond float's range: +inf
         exact = np.exp(-tau.astype(np.float64))
+        ulp = np.spacing(exact.astype(np.float32)).astype(np.float64)
     normal = (exact >= 2.0 ** -125 * np.sqrt(2)) & (exact < 2.0 ** 127)   # p in [0.7, 1.42]
-    ulp = np.spacing(exact.astype(np.float32)).astype(np.float64)
     assert np.all(np.abs(out[normal] - exact[normal]) <= ulp[normal])
     assert out[tau == 0.0][0] == 1.0
     assert np.all(out[exact < 2.0 ** -126] == 0.0)
     assert np.all(out[exact > 2.0 ** 129] == np.inf) and np.isnan(out[np.isnan(tau)]).all()
+
+
+@pytest.mark.parametrize("precision", ["single", "double"])
+def test_nadir_score_bound_holds(engine, selftest, precision):
+    """score.h: the bound that lets nadir_scatter skip the events whose score the roulette
+    drops for certain (walk.md §8.3) is above every score the kernel computes,
+    k pow_m3_2(x) exp_neg_score(tau) <= score_cap exp_neg_bound(tau), for x as the kernel
+    rounds it from cos Theta in [-1, 1] and a little beyond (|u| = 1 to a few ulp), at the
+    forward peak x = (1 - |g|)^2 above all, and tau across the steps of exp_neg_bound; and it
+    stays useful: exp_neg_bound(tau) in [e^-tau, 2 e^-tau) until its clamp. The cap is +inf
+    where (1 - |g|)^2 is within its rounding margin of 0, and without the roulette."""
+    if precision not in selftest:
+        pytest.skip("the device has no double precision")
+    real = np.float32 if precision == "single" else np.float64
+    rng_ = np.random.default_rng(11)
+    steps = np.arange(0, 130) / (np.log2(np.e) * (1 - 1e-6))    # where 2^-j steps down
+    tau = np.concatenate([rng_.uniform(0, 100, 4000), rng_.uniform(0, 1e-3, 500), [0.0],
+                          steps, np.nextafter(steps, 0), np.nextafter(steps, 1e3)])
+    c = np.concatenate([np.linspace(-1, 1, 41), [1 + 1e-6, 1 + 3e-7, -1 - 1e-6]])
+    k_factor = 0.37                                   # a view factor times (1 - g^2) / 4 pi
+    mf = cl.mem_flags
+    for g in (0.0, 0.3, -0.5, 0.8, -0.9, 0.95, 0.99, 0.996, 0.997):
+        gr = real(g)
+        cc, tt = np.meshgrid(c, tau)
+        # x as nadir_scatter rounds it: (1 + g^2) - 2 g c, each operation in `real`
+        x = ((real(1) + gr * gr) - (real(2) * gr) * cc.astype(real)).ravel().astype(real)
+        tt = tt.ravel().astype(real)
+        score, bound = np.zeros_like(x), np.zeros_like(x)
+        d_x = cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+        d_t = cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tt)
+        d_s = cl.Buffer(engine.context, mf.WRITE_ONLY, score.nbytes)
+        d_b = cl.Buffer(engine.context, mf.WRITE_ONLY, bound.nbytes)
+        _run(engine, selftest[precision].score_and_bound, len(x), real(k_factor), gr,
+             real(1e-3), d_x, d_t, d_s, d_b)
+        cl.enqueue_copy(engine.queue, score, d_s)
+        cl.enqueue_copy(engine.queue, bound, d_b)
+        if g == 0.997:                           # (1 - |g|)^2 = 9e-6: within the margin
+            assert np.all(bound == np.inf)
+            continue
+        assert np.all(np.isfinite(bound)) and np.all(score <= bound), g
+        # and as tight as the skip needs: the cap's margin 2 (x / x_low)^(3/2) times
+        # exp_neg_bound / e^-tau in [1, 2), until exp_neg_score nears its underflow
+        x_low = (1 - abs(g)) ** 2 - 1.2e-5
+        live = tt < 80
+        ratio = bound[live].astype(float) / score[live]
+        assert np.all(ratio < 4.001 * (x[live] / x_low) ** 1.5), g
+    # without the roulette (s_min = 0) nothing is ever skipped
+    one = np.ones(1, dtype=np.float32)
+    d_one = cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=one)
+    d_s, d_b = (cl.Buffer(engine.context, mf.WRITE_ONLY, 4) for _ in range(2))
+    _run(engine, selftest["single"].score_and_bound, 1, np.float32(0.37), np.float32(0.5),
+         np.float32(0.0), d_one, d_one, d_s, d_b)
+    out = np.zeros(1, dtype=np.float32)
+    cl.enqueue_copy(engine.queue, out, d_b)
+    assert out[0] == np.inf

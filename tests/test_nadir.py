@@ -207,6 +207,36 @@ def test_lane_widths_give_the_same_bits(engine, name):
     assert np.array_equal(wide.nadir_sum, one.nadir_sum)
 
 
+@pytest.mark.parametrize("lanes", [1, 16])
+@pytest.mark.parametrize("texture", ["granular", "slab"])
+def test_skipped_scores_change_no_bit(engine, texture, lanes):
+    """nadir_scatter leaves out the events at which every lane's score would lose the
+    roulette for certain (cl/score.h's bound, walk.md §8.3). Every tally, the nadir sums and
+    each ray's total score included, is the same bits as with every score computed
+    (-DWARPE_NO_SCORE_SKIP), in a medium deep enough (tau0 = 200) that most events are left
+    out, in the vector form and in the GPUs' one-lane form."""
+    from warpe_cl.device import build_program
+    from warpe_cl.engine import WALK_FILES, build_options, kernel_key
+    params = WalkParams(texture=texture, thickness=0.05, extinction=4000.0, omega=0.999, g=0.8,
+                        n=1.3, k=0.0, albedo=0.15, bottom_interface="none", time_edges=EDGES,
+                        nadir=True, nadir_roulette=0.1, view_zenith=20.0)
+    structure = (texture, "single", True, lanes, False, True)
+    skipping = engine.run(params, 2000, records=True, lanes=lanes, qualified=True)
+    every = build_program(engine.device, WALK_FILES,
+                          build_options(*structure) + ("-DWARPE_NO_SCORE_SKIP",))
+    key = kernel_key(*structure)
+    try:
+        kernel = engine.use_program(every, key)
+        computed = engine.run(params, 2000, records=True, lanes=lanes, qualified=True)
+        assert engine.kernel(*structure) is kernel         # it walked with `every`
+    finally:
+        engine._kernels.pop(key, None)                      # the engine builds its own again
+        engine._folds.pop(key, None)
+    assert np.count_nonzero(computed.records["nadir"]) > 1000
+    assert skipping.same_as(computed)
+    assert np.array_equal(skipping.records["nadir"], computed.records["nadir"])
+
+
 def test_view_table_granular_and_slab():
     """The factor T / (m^2 mu): 1 / mu_v for a granular layer (no interface, m = 1); for a
     slab at nadir (1 - R_int(1)) / n^2, the gap row (1 - R_ext) T_top / 1."""

@@ -23,7 +23,7 @@ def test_wheel_contains_kernels_and_presets(tmp_path):
     wheel = next(tmp_path.glob("warpe_cl-*.whl"))
     names = set(zipfile.ZipFile(wheel).namelist())
     for kernel in ("walk.cl", "selftest.cl", "real.h", "philox.h", "fresnel.h", "scatter.h",
-                   "tally.h"):
+                   "score.h", "tally.h"):
         assert f"warpe_cl/cl/{kernel}" in names, kernel
     assert "warpe_cl/presets/radiative/slab_co2_1m.yaml" in names
     for instrument in ("bela", "gala", "atlas"):
