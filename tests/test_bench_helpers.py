@@ -117,14 +117,14 @@ def test_engine_walks_with_the_program_it_is_given(engine):
     switch had lengthened the engine's key). A trivial program stands in for the walk."""
     import copy
 
-    import pyopencl as cl
+    from warpe_cl.device import build_source
     from warpe_cl.engine import kernel_key
     e = copy.copy(engine)
     e._kernels, e._folds = {}, {}
     source = "__kernel void walk(void) {}\n__kernel void nadir_fold(void) {}\n"
     for nadir in (False, True):
         structure = ("slab", "single", False, 1, False, nadir)
-        kern = e.use_program(cl.Program(e.context, source).build(), kernel_key(*structure))
+        kern = e.use_program(build_source(e.context, source), kernel_key(*structure))
         assert e.kernel(*structure) is kern
         assert e.kernel("slab", "single", 0, 1, 0, int(nadir)) is kern    # the key normalises
         assert (kernel_key(*structure) in e._folds) == nadir

@@ -20,8 +20,9 @@ checks that both give the same counts, bit for bit (``--different-bits``: a chan
 arithmetic, which moves the last bits; the difference of their scattering events is printed);
 it also reports scattering events per CPU second of the process (the driver's threads
 included), less sensitive to other processes on a shared machine than the wall time. It needs
-kernels with the same arguments. Each run installs its kernel in the engine
-(``Engine.use_program``) and checks that the engine walked with it. ``--nadir`` walks the
+kernels with the same arguments (a file of the host's walk files that a tree lacks, a header
+split out after it, is built as if empty, and said so). Each run installs its kernel in the
+engine (``Engine.use_program``) and checks that the engine walked with it. ``--nadir`` walks the
 scenes with the nadir estimate (``simulation.nadir: true``), which bench.py's scenes leave out;
 ``--modes analog,weighted`` walks each scene in each mode.
 
@@ -79,8 +80,6 @@ def kernel_only(trees: dict, args, say) -> dict:
     """``--kernel-only``: both trees' kernels in this process; ``{label: {scene: samples}}``."""
     import time
 
-    import pyopencl as cl
-
     sys.path.insert(0, str(HERE.parent))
     sys.path.insert(1, str(HERE))
     from bench import SCENES
@@ -92,6 +91,9 @@ def kernel_only(trees: dict, args, say) -> dict:
     engine = Engine(args.device)
     say(f"# host {HERE.parent}; device {engine.info.device} | {engine.info.platform} "
         f"{engine.info.platform_version}")
+    for label, tree in trees.items():        # a header split out after the tree was written
+        for missing in (f for f in WALK_FILES if not (tree / "cl" / f).exists()):
+            say(f"# {label}: {tree / 'cl'} has no {missing}: built as if it were empty")
     samples = {label: {} for label in trees}
     n = int(args.photons)
     for scene, mode in ((s, m) for s in args.scenes.split(",") for m in args.modes.split(",")):
@@ -105,9 +107,10 @@ def kernel_only(trees: dict, args, say) -> dict:
         key = kernel_key(*structure)
         programs = {}
         for label, tree in trees.items():
-            source = devmod.assemble_source(WALK_FILES, tree / "cl")
-            programs[label] = cl.Program(engine.context, source).build(
-                options=list(build_options(*structure)))
+            source = devmod.assemble_source(
+                [f for f in WALK_FILES if (tree / "cl" / f).exists()], tree / "cl")
+            programs[label] = devmod.build_source(engine.context, source,
+                                                  build_options(*structure))
 
         def walk(label):
             """One run of ``label``'s kernel; checks that the engine walked with it."""

@@ -169,17 +169,21 @@ def build_program(device, names: tuple, options: tuple):
     pyopencl and PoCL cache binaries on disk (keyed by the source text and the options), so a
     second process rebuilds nothing. What identifies the kernel in output files is
     :func:`source_hash` (computed once per process by its users, not per build).
-
-    pyopencl's "Non-empty compiler output" warning is left out (Intel's compiler always
-    reports its vectorisation): the kernels' correctness is what the qualification checks
-    (docs/devices.md). ``WARPE_CL_DEBUG=1`` shows it.
     """
-    cl = _cl()
     ctx, _ = context_and_queue(device)
+    return build_source(ctx, assemble_source(names), options)
+
+
+def build_source(ctx, source: str, options=()):
+    """``pyopencl.Program(ctx, source).build(options)``, without pyopencl's "Non-empty compiler
+    output" warning (Intel's compiler always reports its vectorisation): the kernels'
+    correctness is what the qualification checks (docs/devices.md). ``WARPE_CL_DEBUG=1``
+    shows it."""
+    cl = _cl()
     with warnings.catch_warnings():
         if os.environ.get("WARPE_CL_DEBUG", "") != "1":
             warnings.filterwarnings("ignore", message="Non-empty compiler output")
-        return cl.Program(ctx, assemble_source(names)).build(options=list(options))
+        return cl.Program(ctx, source).build(options=list(options))
 
 
 def _explain_build_failure(err: Exception) -> str:
