@@ -1,7 +1,8 @@
 /* score.h: the arithmetic of the next-event (nadir) scores (docs/walk.md §8): e^-tau and
  * x^(-3/2) of the HG phase function, and the bound that lets walk.cl's nadir_scatter leave out
- * the events whose score the roulette would drop for certain (walk.md §8.3). Only correctly
- * rounded operations: the same bits on every device and at every lane width. */
+ * the events whose score the roulette would drop for certain (walk.md §8.3). In single
+ * precision only correctly rounded operations: the same bits on every device and at every lane
+ * width. */
 #ifndef WARPE_SCORE_H
 #define WARPE_SCORE_H
 

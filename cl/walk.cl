@@ -1115,7 +1115,7 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
     const VREAL v = (CONVERT_VREAL(x1) + (REAL)0.5) * sc->inv_omega_words;
 #ifndef WARPE_NO_SCORE_SKIP
     /* every lane's score lost to the roulette for certain (walk.md §8.3): v s_min above the
-     * bound s_cap exp_neg_bound(tau) of the score s, so v s_min >= s: nothing to add, and
+     * bound s_cap exp_neg_bound(tau) of the score s, so v s_min > s: nothing to add, and
      * nothing to compute (the events deep in a thick medium: most of them) */
     if (!ANY(m & !(v * sc->s_min > sc->s_cap * exp_neg_bound(tau))))
         return;

@@ -24,7 +24,8 @@ from pathlib import Path
 
 from .errors import DeviceError
 
-SELFTEST_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "score.h", "selftest.cl")
+SELFTEST_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "score.h",
+                  "selftest.cl")
 
 INSTALL_HINT = (
     "install an OpenCL driver: on Linux x86-64 `pip install intel-opencl-rt intel-cmplr-lib-rt` "
