@@ -60,11 +60,11 @@ inline VREAL times_pow2(VREAL p, VREAL n)
  * precision: exp. Single precision: Cephes' expf (S. L. Moshier, Cephes Mathematical Library),
  * each product and sum rounded: n = rint(-tau log2(e)), x = -tau - n ln 2 with ln 2 in two
  * parts (0.693359375, whose product with n is exact, and -2.12194440e-4), e^x = 1 + x + x^2
- * P(x) with P of degree 5, times 2^n (times_pow2). Within 1 ulp of e^-tau (tests/test_kernel_blocks.py). Only
- * correctly rounded operations: the same bits at every lane width and on every device, where
- * exp and native_exp are each driver's own (and differ between their vector and scalar forms
- * on Intel's runtime), and no library call (native_exp is one on Intel's CPU runtime, which
- * spills every vector register: docs/performance.md). */
+ * P(x) with P of degree 5, times 2^n (times_pow2). Within 1 ulp of e^-tau
+ * (tests/test_kernel_blocks.py). Only correctly rounded operations: the same bits at every
+ * lane width and on every device, where exp and native_exp are each driver's own (and differ
+ * between their vector and scalar forms on Intel's runtime), and no library call (native_exp
+ * is one on Intel's CPU runtime, which spills every vector register: docs/performance.md). */
 inline VREAL exp_neg(VREAL tau)
 {
 #ifdef WARPE_DOUBLE

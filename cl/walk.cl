@@ -1436,6 +1436,9 @@ __kernel void walk(const uint seed, const ulong scenario,
 #endif
                    )
 {
+#if defined(WARPE_NADIR) && !defined(WARPE_TEXTURE_LAYERS)
+    const REAL phase_k = ((REAL)1 - g * g) * (REAL)(0.25 / WARPE_PI);   /* HG's (1 - g^2)/4pi */
+#endif
     const scene_t sc = {.h = h, .E = E, .g = g, .n = n, .k = k, .L_max = L_max,
                         .max_flights = max_flights, .bottom_fresnel = bottom_fresnel,
                         .omega_words = omega_words, .albedo_words = albedo_words, .A = A,
@@ -1458,7 +1461,7 @@ __kernel void walk(const uint seed, const ulong scenario,
                         .v_sin = view[VIEW_SIN], .v_mu = view[VIEW_MU],
                         .v_tau_per_m = view[VIEW_TAU_PER_M],
                         .v_path_per_m = view[VIEW_PATH_PER_M], .v_factor = view[VIEW_FACTOR],
-                        .phase_k = ((REAL)1 - g * g) * (REAL)(0.25 / WARPE_PI),
+                        .phase_k = phase_k,
 #define GAP_ROW N_VIEW
 #endif
                         .mirror = mirror, .n_mirror = n_mirror,
@@ -1469,9 +1472,8 @@ __kernel void walk(const uint seed, const ulong scenario,
                         .inv_omega_words = (REAL)(1.0 / (double)omega_words),
                         .inv_albedo_words = (REAL)(1.0 / (double)albedo_words),
 #ifndef WARPE_TEXTURE_LAYERS
-                        .s_cap = score_cap(view[VIEW_FACTOR]
-                                           * (((REAL)1 - g * g) * (REAL)(0.25 / WARPE_PI)),
-                                           g, nadir_min, n_mirror),
+                        .s_cap = score_cap(view[VIEW_FACTOR] * phase_k, g, nadir_min,
+                                           n_mirror),
 #endif
 #undef GAP_ROW
 #endif

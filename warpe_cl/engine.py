@@ -29,7 +29,8 @@ from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, IFACE_REAL_COLU
                      STATE_REAL_COLUMNS, Counts, WalkParams, batch_photons, kernel_layout,
                      tally_shapes)
 
-WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "score.h", "tally.h", "walk.cl")
+WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "score.h", "tally.h",
+              "walk.cl")
 MAX_LAUNCH = 2 ** 31 - 1
 #: Events per work-item of a walk's first launch; later launches scale it to take about
 #: ``target_launch_s`` (docs/walk.md §5)

@@ -33,6 +33,8 @@ def emergence_bin(cos_exit: float) -> int:
     where each driver's acos differs in its last bits."""
     c = min(max(cos_exit, 0.0), 1.0)
     return bisect.bisect_right(_MINUS_COS_DEGREE, -c)
+
+
 TEXTURES = ("slab", "granular")
 #: The kernel builds: one per texture of a single layer, and one for a stack of layers (or a
 #: layer over a substrate), whose textures are per-layer values (docs/walk.md §7).

@@ -52,8 +52,7 @@ from .params import (BOTTOM_INTERFACES, C_M_PER_NS, COMPONENTS, FATES, LAYER_STA
                      MAX_LAYERS, MIRROR_KINDS, N_EMERGENCE, NADIR_BATCHES, NADIR_ROWS,
                      RECORD_FIELDS, RULES,
                      TEXTURES, TIME_BIN_EARLY, TIME_BIN_LATE, Counts, WalkParams,
-                     batch_photons, fixed_point, lost_weight,
-                     emergence_bin as emergence_of)   # emergence_bin: a local name below
+                     batch_photons, emergence_bin, fixed_point, lost_weight)
 from .nadir import mirror_table
 from .rng import PhotonStream
 
@@ -1117,7 +1116,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
             component = -1
             time_ns = math.nan
             time_bin = -1
-            emergence_bin = -1
+            angle_bin = -1
             if ray.fate == FATE_SPECULAR or ray.fate == FATE_ESCAPED:
                 # Component of the exit (walk.md §4, docs/physics.md §6.1).
                 if ray.fate == FATE_SPECULAR:
@@ -1134,7 +1133,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                     if ray.n_scat >= 1 and ray.n_lamb >= 1:
                         mixed_history += 1
                 # Emergence bin: min(floor(θ_e in degrees), 89), by the table of cos(k°)
-                emergence_bin = emergence_of(ray.cos_exit)
+                angle_bin = emergence_bin(ray.cos_exit)
                 # Time bin i with edges[i] <= t < edges[i+1] (searchsorted(side="right") - 1);
                 # before edges[0]: an early exit, counted apart and never in a bin; at or
                 # after edges[-1]: no bin (walk.md §4).
@@ -1145,7 +1144,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                     time_bin = TIME_BIN_LATE
                 in_fov = ray.cos_exit >= cos_fov[component]
                 total[component] += 1
-                angular[component][emergence_bin] += 1
+                angular[component][angle_bin] += 1
                 if time_bin >= 0:
                     time_any[component][time_bin] += 1
                     if in_fov:
@@ -1159,7 +1158,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                     w1, w2 = fixed_point(ray.weight), fixed_point(ray.weight * ray.weight)
                     counts.w_total[component] += w1
                     counts.w2_total[component] += w2
-                    counts.w_angular[component, emergence_bin] += w1
+                    counts.w_angular[component, angle_bin] += w1
                     if time_bin == TIME_BIN_EARLY:
                         counts.w_early[component] += w1
                     if time_bin >= 0:
@@ -1178,7 +1177,7 @@ def simulate_reference(params: WalkParams, photons: int, first_photon: int = 0,
                 rows["n_bspec"].append(ray.n_bspec)
                 rows["n_top"].append(ray.n_top)
                 rows["time_bin"].append(time_bin)
-                rows["emergence_bin"].append(emergence_bin)
+                rows["emergence_bin"].append(angle_bin)
                 rows["layer"].append(ray.layer if layered else 0)
                 rows["nadir"].append(nadir.total if nadir is not None else 0.0)
         done += len(streams)
