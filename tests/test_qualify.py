@@ -198,3 +198,28 @@ def test_the_compilers_chatter_is_quiet_unless_debugging(monkeypatch, debug):
     messages = [str(w.message) for w in seen]
     assert ("Non-empty compiler output encountered." in messages) == (debug == "1")
     assert "something else" in messages
+
+
+@pytest.mark.filterwarnings("ignore:Non-empty compiler output")
+@pytest.mark.parametrize("debug", ["", "1"])
+def test_the_compilers_warnings_are_quiet_unless_debugging(capfd, monkeypatch, debug):
+    """build_source builds with -w: on every device here, a source that warns (#warning) builds
+    with no warning in its build log and nothing on the terminal (PoCL's clang prints "N
+    warnings generated." on stderr itself); WARPE_CL_DEBUG=1 keeps the warning. A comment
+    unique to this run keeps pyopencl's and PoCL's caches from answering."""
+    import uuid
+
+    import pyopencl as cl
+    monkeypatch.setenv("WARPE_CL_DEBUG", debug)
+    devices = devmod.list_devices()
+    assert devices, "no OpenCL device: pip's PoCL comes with the package"
+    for info, dev in devices:
+        ctx, _ = devmod.context_and_queue(dev)
+        source = (f"// {uuid.uuid4()}\n#warning warpe_probe_of_warnings\n"
+                  "__kernel void nothing(__global int *x) { x[0] = 1; }\n")
+        prg = devmod.build_source(ctx, source)
+        log = prg.get_build_info(dev, cl.program_build_info.LOG)
+        assert ("warpe_probe_of_warnings" in log) == (debug == "1"), (info.platform, log)
+    err = capfd.readouterr().err
+    if debug != "1":
+        assert "warning" not in err, err
