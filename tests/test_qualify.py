@@ -77,20 +77,23 @@ def test_the_session_device_passes_every_combination_in_process(engine):
 
 @pytest.mark.slow
 def test_a_crash_or_a_wrong_kernel_falls_back_and_says_so(engine, cache, monkeypatch):
-    """16 lanes abort the child, 8 lanes compute wrong rays: the walk runs at 4 lanes, gives
-    the reference's counts, and warns once in one line naming both failures."""
+    """The widest lane width aborts the child (16 with Intel's runtime), the next computes
+    wrong rays: the walk runs at the third, gives the reference's counts, and warns once in
+    one line naming both failures."""
     if engine.info.kind == "gpu":
         pytest.skip("GPUs walk one ray per work-item: there is no lane width to fall back to")
-    monkeypatch.setenv(qualify.FAULT_ENV, "16:abort,8:wrong")
+    first, second, third = qualify.Qualifier(engine.info).lane_chain("single")[:3]
+    monkeypatch.setenv(qualify.FAULT_ENV, f"{first}:abort,{second}:wrong")
     e = _fresh_engine(engine)
     params = qualify._scenes(qualify.Combo("granular", "single", False))["granular"]
     with pytest.warns(WarpeWarning) as caught:
         counts = e.run(params, 3000, precision="single")
     messages = [str(w.message) for w in caught if issubclass(w.category, WarpeWarning)]
     assert len(messages) == 1 and "\n" not in messages[0]
-    assert "SIGABRT" in messages[0] and "16, 8 lanes" in messages[0] and "walking 4 lanes" in messages[0]
-    assert e.lanes_for("granular", "single", False) == 4
-    direct = engine.run(params, 3000, precision="single", lanes=4)
+    assert ("SIGABRT" in messages[0] and f"{first}, {second} lanes" in messages[0]
+            and f"walking {third} lanes" in messages[0])
+    assert e.lanes_for("granular", "single", False) == third
+    direct = engine.run(params, 3000, precision="single", lanes=third)
     assert counts.same_as(direct)
     # the verdicts are on disk, each under a key that names the injected fault
     stored = cache._read()
@@ -223,3 +226,27 @@ def test_the_compilers_warnings_are_quiet_unless_debugging(capfd, monkeypatch, d
     err = capfd.readouterr().err
     if debug != "1":
         assert "warning" not in err, err
+
+
+@pytest.mark.parametrize("kind, precision, preferred, widest", [
+    ("cpu", "single", 1, 16),      # Intel's runtime: it vectorises scalar code itself
+    ("cpu", "single", 8, 8),       # PoCL on AVX2
+    ("cpu", "single", 16, 16),     # PoCL on AVX-512
+    ("cpu", "single", 32, 16),     # never wider than 512 bits
+    ("cpu", "single", 6, 4),       # an odd width: the widest of ours below it
+    ("cpu", "double", 1, 8),
+    ("cpu", "double", 4, 4),       # PoCL on AVX2
+    ("cpu", "double", 8, 8),
+    ("cpu", "double", 2, 2),       # SSE2: 2 doubles, then 1
+    ("gpu", "single", 4, 1),       # a GPU's work-items are its lanes
+])
+def test_the_widest_lanes_follow_the_drivers_preferred_vector(kind, precision, preferred, widest):
+    """engine.widest_lanes, and the qualifier's chain that starts there: 512 bits on CPUs, or
+    the driver's preferred vector width where narrower (docs/performance.md: pip's PoCL on
+    AVX2 walks 1.4x faster at 8 lanes than at 16)."""
+    from warpe_cl.engine import widest_lanes
+    assert widest_lanes(kind, precision, preferred) == widest
+    info = devmod.DeviceInfo(0, 0, "P", "1", "dev", kind, "d", 2, True,
+                             vector_float=preferred, vector_double=preferred)
+    chain = qualify.Qualifier(info).lane_chain(precision)
+    assert chain[0] == widest and list(chain) == sorted(chain, reverse=True) and chain[-1] == 1

@@ -113,11 +113,20 @@ class DeviceInfo:
     driver: str
     compute_units: int
     fp64: bool
+    #: the driver's preferred vector widths (CL_DEVICE_PREFERRED_VECTOR_WIDTH_FLOAT, _DOUBLE):
+    #: 1 where it vectorises scalar code itself (Intel's CPU runtime), the SIMD register's
+    #: width where it wants vectors written out (PoCL: 8 floats with AVX2, 16 with AVX-512)
+    vector_float: int = 1
+    vector_double: int = 1
 
     @property
     def spec(self) -> str:
         """The ``--device`` spelling that picks this device."""
         return f"{self.platform_index}:{self.device_index}"
+
+    def preferred_width(self, precision: str) -> int:
+        """The driver's preferred vector width for ``precision`` (``single`` or ``double``)."""
+        return self.vector_double if precision == "double" else self.vector_float
 
     def describe(self) -> str:
         return (f"{self.spec}  {self.kind}  {self.device} | {self.platform} {self.platform_version} "
@@ -150,7 +159,9 @@ def list_devices():
                     "cpu" if dev.type & cl.device_type.CPU else "other")
             info = DeviceInfo(pi, di, platform.name.strip(), platform.version.strip(),
                               dev.name.strip(), kind, dev.driver_version.strip(),
-                              int(dev.max_compute_units), bool(dev.double_fp_config))
+                              int(dev.max_compute_units), bool(dev.double_fp_config),
+                              int(dev.preferred_vector_width_float),
+                              int(dev.preferred_vector_width_double))
             out.append((info, dev))
     return out
 

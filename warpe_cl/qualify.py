@@ -414,11 +414,11 @@ class Qualifier:
         self._memo = {}
 
     def lane_chain(self, precision: str) -> tuple:
-        """The lane widths tried, widest first (a vector of 512 bits on CPUs)."""
-        if self.info.kind == "gpu":
-            return (1,)
-        widest = 8 if precision == "double" else 16
-        return tuple(w for w in FALLBACK_LANES if w <= widest)
+        """The lane widths tried, widest first (engine.widest_lanes: a vector of 512 bits on
+        CPUs, or the driver's preferred vector width where narrower; one on GPUs)."""
+        from .engine import widest_lanes
+        widest = widest_lanes(self.info.kind, precision, self.info.preferred_width(precision))
+        return (widest,) + tuple(w for w in FALLBACK_LANES if w < widest)
 
     def verdicts(self, lanes: int, combos, measure: bool = True) -> dict:
         """``{combo: entry}`` at ``lanes``; the missing ones are checked in one child."""
