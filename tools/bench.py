@@ -622,6 +622,9 @@ def main(argv=None) -> int:
         plan[name] = {"params": params, "photons": photons, "numpy_photons": numpy_photons}
         for mode in args.mode_list:
             warm_up(engine, dataclasses.replace(params, mode=mode), photons, args.precision)
+            result.setdefault("lanes", {})[f"{params.texture} {mode}"] = engine.lanes_for(
+                params.texture, args.precision, mode == "weighted")
+    print("# lanes: " + ", ".join(f"{k} {v}" for k, v in result.get("lanes", {}).items()))
 
     runs = {name: {"numpy": [], **{mode_key(m): [] for m in args.mode_list}} for name in plan}
     counts = {}

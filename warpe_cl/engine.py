@@ -346,8 +346,9 @@ class Engine:
 
         ``lanes`` (or ``$WARPE_CL_LANES``) asks for one width: it is used if it qualifies,
         otherwise :class:`~warpe_cl.errors.DeviceError` says why. Without a request, the widest
-        width that qualifies, from 16 (8 in double; 1 on GPUs) down through 8, 4 and 1; a
-        fallback is said in one warning line. ``check=False`` (the known-answer walk itself),
+        width that qualifies, from :func:`widest_lanes` (16, 8 in double, or the driver's narrower
+        preferred vector width; 1 on GPUs) down through 8, 4 and 1; a fallback is said in one
+        warning line. ``check=False`` (the known-answer walk itself),
         or an engine made with ``qualify=False``: the width asked for, else
         :func:`default_lanes`, unchecked.
         """
