@@ -114,7 +114,8 @@ def test_engine_walks_with_the_program_it_is_given(engine):
     """tools/bench_ab.py --kernel-only times other trees' kernels through Engine.use_program,
     so Engine.kernel must hand back the installed kernel for that structure (with a key of
     its own, bench_ab once timed the engine's own kernel under both names: issue 16's nadir
-    switch had lengthened the engine's key). A trivial program stands in for the walk."""
+    switch had lengthened the engine's key); Engine.forget undoes it. A trivial program stands
+    in for the walk."""
     import copy
 
     from warpe_cl.device import build_source
@@ -128,3 +129,5 @@ def test_engine_walks_with_the_program_it_is_given(engine):
         assert e.kernel(*structure) is kern
         assert e.kernel("slab", "single", 0, 1, 0, int(nadir)) is kern    # the key normalises
         assert (kernel_key(*structure) in e._folds) == nadir
+        e.forget(kernel_key(*structure))                 # and Engine.forget undoes it
+        assert kernel_key(*structure) not in e._kernels and kernel_key(*structure) not in e._folds

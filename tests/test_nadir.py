@@ -230,8 +230,7 @@ def test_skipped_scores_change_no_bit(engine, texture, lanes):
         computed = engine.run(params, 2000, records=True, lanes=lanes, qualified=True)
         assert engine.kernel(*structure) is kernel         # it walked with `every`
     finally:
-        engine._kernels.pop(key, None)                      # the engine builds its own again
-        engine._folds.pop(key, None)
+        engine.forget(key)                                  # the engine builds its own again
     assert np.count_nonzero(computed.records["nadir"]) > 1000
     assert skipping.same_as(computed)
     assert np.array_equal(skipping.records["nadir"], computed.records["nadir"])

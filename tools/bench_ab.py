@@ -91,9 +91,12 @@ def kernel_only(trees: dict, args, say) -> dict:
     engine = Engine(args.device)
     say(f"# host {HERE.parent}; device {engine.info.device} | {engine.info.platform} "
         f"{engine.info.platform_version}")
+    sources = {}
     for label, tree in trees.items():        # a header split out after the tree was written
         for missing in (f for f in WALK_FILES if not (tree / "cl" / f).exists()):
             say(f"# {label}: {tree / 'cl'} has no {missing}: built as if it were empty")
+        sources[label] = devmod.assemble_source(
+            [f for f in WALK_FILES if (tree / "cl" / f).exists()], tree / "cl")
     samples = {label: {} for label in trees}
     n = int(args.photons)
     for scene, mode in ((s, m) for s in args.scenes.split(",") for m in args.modes.split(",")):
@@ -105,12 +108,9 @@ def kernel_only(trees: dict, args, say) -> dict:
         structure = (params.texture, args.precision, False, lanes, params.weighted,
                      params.nadir)
         key = kernel_key(*structure)
-        programs = {}
-        for label, tree in trees.items():
-            source = devmod.assemble_source(
-                [f for f in WALK_FILES if (tree / "cl" / f).exists()], tree / "cl")
-            programs[label] = devmod.build_source(engine.context, source,
-                                                  build_options(*structure))
+        programs = {label: devmod.build_source(engine.context, sources[label],
+                                               build_options(*structure))
+                    for label in trees}
 
         def walk(label):
             """One run of ``label``'s kernel; checks that the engine walked with it."""
@@ -145,8 +145,7 @@ def kernel_only(trees: dict, args, say) -> dict:
                 cells.append(f"{label} {c.scattering_events / dt:.4g} "
                              f"({c.scattering_events / cpu:.4g} per CPU s)")
             say(f"{name} round {r + 1}: " + ", ".join(cells) + f" events/s | load {loadavg()}")
-        engine._kernels.pop(key, None)
-        engine._folds.pop(key, None)
+        engine.forget(key)
     return samples
 
 

@@ -434,6 +434,12 @@ class Engine:
             self._folds[key] = cl.Kernel(program, "nadir_fold")
         return self._kernels[key]
 
+    def forget(self, key: tuple) -> None:
+        """Undo :meth:`use_program` for ``key``: the next :meth:`kernel` of that structure
+        builds this engine's own program again."""
+        self._kernels.pop(key, None)
+        self._folds.pop(key, None)
+
     def run(self, params: WalkParams, photons: int, precision: str = "single",
             first_photon: int = 0, records: bool = False, batch: int | None = None,
             global_size: int | None = None, local_size: int | None = None,
