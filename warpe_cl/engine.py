@@ -75,6 +75,18 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
     return tuple(opts) + layout_options()
 
 
+def driver_options(info) -> tuple:
+    """The ``-D`` switches that depend on the driver, not on the walk: they change its speed,
+    never a bit (tests/test_select.py). ``WARPE_SELECT_BUILTIN`` spells ``SEL`` (cl/lanes.h)
+    as OpenCL's ``select()`` on Intel's CPU runtime, the code it was tuned with (the ``?:``
+    operator gives it a program 4.7 times the size, no faster); every other driver gets
+    ``?:``, one select instruction, where pip's PoCL 3.0 calls a library function for each
+    ``select()`` (its walk 1.14-1.44x faster with ``?:``; docs/performance.md)."""
+    if info.kind == "cpu" and info.platform.startswith("Intel"):
+        return ("-DWARPE_SELECT_BUILTIN",)
+    return ()
+
+
 def kernel_key(texture: str, precision: str, records: bool, lanes: int,
                weighted: bool = False, nadir: bool = False) -> tuple:
     """The key of one walk kernel in an :class:`Engine`: the structure :func:`build_options`
@@ -418,7 +430,8 @@ class Engine:
         self.kernel_hash = walk_source_hash()
         key = kernel_key(texture, precision, records, lanes, weighted, nadir)
         if key not in self._kernels:
-            options = build_options(texture, precision, records, lanes, weighted, nadir)
+            options = (build_options(texture, precision, records, lanes, weighted, nadir)
+                       + driver_options(self.info))
             self.use_program(devmod.build_program(self.device, WALK_FILES, options), key)
         return self._kernels[key]
 
