@@ -18,7 +18,7 @@ inline VREAL fresnel_external(VREAL mu, VREAL n, VREAL k)
     VREAL a = (nk2 - (REAL)1) + mu * mu;
     VREAL b = sqrt(a * a + (REAL)4 * n * n * k * k);
     VREAL G1 = sqrt((REAL)0.5 * (a + b));
-    VREAL G2 = sqrt(fmax((REAL)0.5 * (b - a), (REAL)0));
+    VREAL G2 = sqrt(max0((REAL)0.5 * (b - a)));
     VREAL r_perp = ((mu - G1) * (mu - G1) + G2 * G2) / ((mu + G1) * (mu + G1) + G2 * G2);
     VREAL tnk = (REAL)2 * n * k * mu;
     VREAL r_par = ((nk2 * mu - G1) * (nk2 * mu - G1) + (tnk - G2) * (tnk - G2))
@@ -33,7 +33,7 @@ inline VREAL fresnel_external(VREAL mu, VREAL n, VREAL k)
 inline VREAL fresnel_internal(VREAL mu, VREAL n)
 {
     /* 1 - n^2 (1 - mu^2) written as (1 - n^2) + n^2 mu^2: well conditioned near grazing */
-    VREAL cos_t = sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0));
+    VREAL cos_t = sqrt(max0(((REAL)1 - n * n) + n * n * mu * mu));
     VREAL rs = (n * mu - cos_t) / (n * mu + cos_t);
     VREAL rp = (mu - n * cos_t) / (mu + n * cos_t);
     return (REAL)0.5 * (rs * rs + rp * rp);

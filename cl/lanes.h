@@ -96,10 +96,9 @@ typedef WARPE_CAT(ulong, WARPE_LANES) VULONG;
 #define ALL(m) all_lanes(m)
 /* SEL(a, b, m): b where m, else a. The ?: operator on vectors, which clang turns into one
  * select instruction: pip's PoCL 3.0 calls a library function for each select(), and walks
- * 1.14-1.44x faster with ?: (docs/performance.md). Intel's CPU runtime keeps select()
- * (WARPE_SELECT_BUILTIN, warpe_cl/engine.py driver_options), the code it was tuned with: ?:
- * gives it a program 4.7 times the size, no faster. Both give the same bits. */
-#ifdef WARPE_SELECT_BUILTIN
+ * 1.14-1.44x faster with ?: (docs/performance.md). Intel's CPU runtime, whose built-ins are
+ * inline, keeps select() (WARPE_BUILTINS, below). Both give the same bits. */
+#ifdef WARPE_BUILTINS
 #define SEL(a, b, m) select((a), (b), (m))
 #else
 #define SEL(a, b, m) ((m) ? (b) : (a))
@@ -175,6 +174,50 @@ inline uint lane_bits(VMASK m)
     return m ? 1u : 0u;
 }
 #define LANE_INDEX ((VMASK)0)
+#endif
+
+/* fmax(x, 0), clamp, fabs and rint of the lanes. WARPE_BUILTINS (warpe_cl/engine.py
+ * driver_options: Intel's CPU runtime, whose built-ins are inline instructions) uses the
+ * built-ins; every other driver gets comparisons, selects and bits, where pip's PoCL 3.0 calls
+ * a library function for each built-in, with the vector registers saved around the call
+ * (docs/performance.md). The same values for every number the walk gives them (never a NaN,
+ * tests/test_kernel_blocks.py): max0 gives +0 for -0, where fmax may give either zero, and no
+ * difference or sum of the walk is -0 (a - a is +0). */
+#ifdef WARPE_BUILTINS
+#define max0(x) fmax((x), (REAL)0)
+#define clamp_lanes(x, lo, hi) clamp((x), (lo), (hi))
+#define abs_lanes(x) fabs(x)
+#define rint_lanes(x) rint(x)
+#else
+#ifdef WARPE_DOUBLE
+#define SIGN_BIT ((VMASK)(-0x7fffffffffffffffL - 1))
+#define ROUND_BIG 0x1.0p52
+#else
+#define SIGN_BIT ((VMASK)(-0x7fffffff - 1))
+#define ROUND_BIG 0x1.0p23f
+#endif
+inline VREAL max0(VREAL x)
+{
+    return SEL((VREAL)0, x, x > (REAL)0);
+}
+inline VREAL clamp_lanes(VREAL x, REAL lo, REAL hi)
+{
+    return SEL(SEL(x, (VREAL)lo, x < lo), (VREAL)hi, x > hi);
+}
+inline VREAL abs_lanes(VREAL x)
+{
+    return AS_VREAL(AS_VMASK(x) & ~SIGN_BIT);
+}
+/* rint (to nearest, ties to even): x + m - m with m = 2^23 (double: 2^52) of x's sign rounds x
+ * to an integer where |x| < 2^23, ties to even, and the sign of zero is x's, as rint's; from
+ * 2^23 on, x is an integer. */
+inline VREAL rint_lanes(VREAL x)
+{
+    const VMASK sign = AS_VMASK(x) & SIGN_BIT;
+    const VREAL m = AS_VREAL(AS_VMASK((VREAL)ROUND_BIG) | sign);
+    const VREAL r = AS_VREAL(AS_VMASK((x + m) - m) | sign);
+    return SEL(r, x, abs_lanes(x) >= (REAL)ROUND_BIG);
+}
 #endif
 
 #endif /* WARPE_LANES_H */

@@ -45,11 +45,11 @@ inline VREAL optical_step(VREAL U)
 /* p 2^n for an integral n (a float), 2^n from its bits: 0 where n < -125, so that no device's
  * flushing of denormals matters (p is in [0.7, 1.42] for exp_neg and exp_neg_score); +inf where
  * n > 127 (tau < 0: the growing weights of omega > 1, which the exits then refuse); NaN where
- * p is (clamp gives a NaN n the scale of -126, and p is NaN with it): no bad input becomes a
- * plausible value. */
+ * p is (a NaN n gives some scale, and p is NaN with it): no bad input becomes a plausible
+ * value. */
 inline VREAL times_pow2(VREAL p, VREAL n)
 {
-    const VREAL scale = AS_VREAL((CONVERT_VMASK(clamp(n, (REAL)-126, (REAL)127)) + (VMASK)127)
+    const VREAL scale = AS_VREAL((CONVERT_VMASK(clamp_lanes(n, (REAL)-126, (REAL)127)) + (VMASK)127)
                                  << 23);
     const VREAL v = SEL(p * scale, (VREAL)0, n < (REAL)-125);
     return SEL(v, (VREAL)INFINITY, n > (REAL)127);
@@ -70,7 +70,7 @@ inline VREAL exp_neg(VREAL tau)
 #ifdef WARPE_DOUBLE
     return exp(-tau);
 #else
-    const VREAL n = rint(-tau * (REAL)1.4426950408889634);
+    const VREAL n = rint_lanes(-tau * (REAL)1.4426950408889634);
     VREAL x = -tau - n * (REAL)0.693359375f;
     x = x - n * (REAL)-2.12194440e-4f;
     const VREAL z = x * x;
@@ -97,7 +97,7 @@ inline void azimuth(VREAL U, VREAL *sin_psi, VREAL *cos_psi)
 #ifdef WARPE_DOUBLE
     *sin_psi = sincos((REAL)(2.0 * WARPE_PI) * U, cos_psi);
 #else
-    const VREAL q = rint((REAL)4 * U);
+    const VREAL q = rint_lanes((REAL)4 * U);
     const VREAL x = (U - (REAL)0.25 * q) * (REAL)(2.0 * WARPE_PI);
     const VREAL z = x * x;
     VREAL s = z * (REAL)-1.9515295891e-4f + (REAL)8.3321608736e-3f;
@@ -129,7 +129,7 @@ inline VREAL hg_cos_theta(VREAL g, VREAL U)
     VREAL q = (REAL)4 * U * ((REAL)1 - U);
     VREAL d = ((REAL)1 - g) + (REAL)2 * g * U;
     VREAL c = s + g * q * (((REAL)3 - g * g) + (REAL)2 * g * s) / ((REAL)2 * d * d);
-    return clamp(c, (REAL)-1, (REAL)1);
+    return clamp_lanes(c, (REAL)-1, (REAL)1);
 }
 
 /* Turn the unit direction u by the polar angle acos(cos_theta) and azimuth psi, given as
@@ -138,11 +138,11 @@ inline VREAL hg_cos_theta(VREAL g, VREAL U)
 inline void rotate_direction(VREAL *ux, VREAL *uy, VREAL *uz, VREAL cos_theta,
                              VREAL cos_psi, VREAL sin_psi)
 {
-    VREAL sin_theta = sqrt(fmax((REAL)1 - cos_theta * cos_theta, (REAL)0));
+    VREAL sin_theta = sqrt(max0((REAL)1 - cos_theta * cos_theta));
     VREAL x = *ux, y = *uy, z = *uz;
-    VMASK vertical = fabs(z) > (REAL)0.99999;
+    VMASK vertical = abs_lanes(z) > (REAL)0.99999;
     /* general case; d is replaced by 1 on vertical lanes so that no lane divides by 0 */
-    VREAL d = SEL(sqrt(fmax((REAL)1 - z * z, (REAL)0)), (VREAL)1, vertical);
+    VREAL d = SEL(sqrt(max0((REAL)1 - z * z)), (VREAL)1, vertical);
     VREAL gx = sin_theta * (x * z * cos_psi - y * sin_psi) / d + x * cos_theta;
     VREAL gy = sin_theta * (y * z * cos_psi + x * sin_psi) / d + y * cos_theta;
     VREAL gz = -sin_theta * cos_psi * d + z * cos_theta;
@@ -168,7 +168,7 @@ inline void rotate_direction(VREAL *ux, VREAL *uy, VREAL *uz, VREAL cos_theta,
 inline void lambert_direction(VREAL mu, VREAL cos_psi, VREAL sin_psi,
                               VREAL *ux, VREAL *uy, VREAL *uz)
 {
-    VREAL s = sqrt(fmax((REAL)1 - mu * mu, (REAL)0));
+    VREAL s = sqrt(max0((REAL)1 - mu * mu));
     *ux = s * cos_psi;
     *uy = s * sin_psi;
     *uz = -mu;

@@ -21,7 +21,7 @@ SCORE_STEP VREAL exp_neg_score(VREAL tau)
     return exp(-tau);
 #else
     const VREAL y = -tau * (REAL)1.4426950408889634;
-    const VREAL n = rint(y);
+    const VREAL n = rint_lanes(y);
     const VREAL f = y - n;
     VREAL p = f * (REAL)0.0012915669940412045f + (REAL)0.009668530896306038f;
     p = f * p + (REAL)0.055516887456178665f;
@@ -58,10 +58,10 @@ SCORE_STEP VREAL pow_m3_2(VREAL x)
 SCORE_STEP VREAL exp_neg_bound(VREAL tau)
 {
 #ifdef WARPE_DOUBLE
-    const VMASK j = CONVERT_VMASK(clamp(tau * (REAL)1.4426936, (REAL)0, (REAL)1022));
+    const VMASK j = CONVERT_VMASK(clamp_lanes(tau * (REAL)1.4426936, (REAL)0, (REAL)1022));
     return AS_VREAL(((VMASK)1023 - j) << 52);
 #else
-    const VMASK j = CONVERT_VMASK(clamp(tau * (REAL)1.4426936f, (REAL)0, (REAL)126));
+    const VMASK j = CONVERT_VMASK(clamp_lanes(tau * (REAL)1.4426936f, (REAL)0, (REAL)126));
     return AS_VREAL(((VMASK)127 - j) << 23);
 #endif
 }

@@ -96,3 +96,16 @@ __kernel void lane_bits_of(__global const uint *pattern, __global uint *out)
     const VMASK m = (((VMASK)(IREAL)pattern[i] >> LANE_INDEX) & (VMASK)1) != (VMASK)0;
     out[i] = lane_bits(m);
 }
+
+/* lanes.h max0, clamp_lanes(x, -1, 1), abs_lanes and rint_lanes of x[i], WARPE_LANES values a
+ * work-item (the width this program is built with; the test builds it at several): the four
+ * results of x[i] at out[i], out[n + i], out[2 n + i], out[3 n + i], n values in all. */
+__kernel void lane_math_of(__global const REAL *x, __global REAL *out)
+{
+    const size_t i = get_global_id(0) * WARPE_LANES, n = get_global_size(0) * WARPE_LANES;
+    const VREAL v = VLOAD(x + i);
+    VSTORE(max0(v), out + i);
+    VSTORE(clamp_lanes(v, (REAL)-1, (REAL)1), out + n + i);
+    VSTORE(abs_lanes(v), out + 2 * n + i);
+    VSTORE(rint_lanes(v), out + 3 * n + i);
+}

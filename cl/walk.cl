@@ -236,8 +236,9 @@ typedef struct {
     __global ulong *nadir_visits;
     int nadir_cols;              /* n_edges + 1: before the first edge, the bins, after */
     int nadir_own;
-    /* a first guess of a time's bin: floor(b log(t / a)) for log-spaced edges (bin_log), else
-     * floor(b (t - a)); the edges then correct it (walk.md §8) */
+    /* a first guess of a time's bin: floor(b (ln t - a)) for log-spaced edges (bin_log; a is
+     * ln of the argument bin_a, the first edge), else floor(b (t - a)); the edges then correct
+     * it (walk.md §8) */
     int bin_log;
     REAL bin_a, bin_b;
 #endif
@@ -742,8 +743,8 @@ WALK_STEP void reach_boundary(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos
     const VMASK top = bnd & !down;
 #ifdef WARPE_TEXTURE_SLAB
     const REAL n = sc->n;
-    const VREAL mu = fabs(r->uz);
-    const VMASK reflect = (n * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= (REAL)1)
+    const VREAL mu = abs_lanes(r->uz);
+    const VMASK reflect = (n * sqrt(max0((REAL)1 - mu * mu)) >= (REAL)1)
                         | (u1 <= fresnel_internal(mu, (VREAL)n));
     if (sc->bottom_fresnel) {
         const VMASK back = bottom & reflect;
@@ -757,7 +758,7 @@ WALK_STEP void reach_boundary(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL cos
     r->n_top += ONE(up);
     const VMASK out = top & !reflect;
     /* Snell: cos theta_e = sqrt(1 - n^2 (1 - mu^2)) (docs/physics.md §3.5) */
-    e->cos_exit = SEL(e->cos_exit, sqrt(fmax(((REAL)1 - n * n) + n * n * mu * mu, (REAL)0)),
+    e->cos_exit = SEL(e->cos_exit, sqrt(max0(((REAL)1 - n * n) + n * n * mu * mu)),
                       out);
     finish(e, out, FATE_ESCAPED);
 #else
@@ -799,7 +800,7 @@ WALK_STEP void cross_interface(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL co
     const VMASK top = bnd & (j == (VMASK)0);
     const VMASK bottom = bnd & (j == (VMASK)N);
     const VMASK inner = bnd & !top & !bottom;
-    const VREAL mu = fabs(r->uz);
+    const VREAL mu = abs_lanes(r->uz);
     VMASK reflect = (VMASK)0;
     VREAL cos_t = mu;
     if (ANY(fres)) {
@@ -808,12 +809,11 @@ WALK_STEP void cross_interface(VMASK bnd, VREAL u1, VUINT x1, VREAL u2, VREAL co
         VREAL R = fresnel_internal(mu, near);
         if (!ALL(to_vacuum | !fres))
             R = SEL(fresnel_external(mu, far_n / near, far_k / near), R, to_vacuum);
-        reflect = fres & ((near * sqrt(fmax((REAL)1 - mu * mu, (REAL)0)) >= far_n)
+        reflect = fres & ((near * sqrt(max0((REAL)1 - mu * mu)) >= far_n)
                           | (u1 <= R));
         /* the refracted |uz| = sqrt((1 - r^2) + r^2 mu^2), r = near/far: Snell */
         const VREAL ratio = near / far_n;
-        cos_t = SEL(mu, sqrt(fmax(((REAL)1 - ratio * ratio) + ratio * ratio * mu * mu,
-                                  (REAL)0)), fres);
+        cos_t = SEL(mu, sqrt(max0(((REAL)1 - ratio * ratio) + ratio * ratio * mu * mu)), fres);
         const VMASK bend = inner & fres & !reflect;
         r->ux = SEL(r->ux, r->ux * ratio, bend);
         r->uy = SEL(r->uy, r->uy * ratio, bend);
@@ -863,7 +863,7 @@ WALK_STEP void gap_event(VMASK gap, VREAL u0, VUINT x0, VREAL u1, VREAL u2, VREA
     azimuth(u2, &s2, &c2);
 #ifdef WARPE_TEXTURE_LAYERS
     const REAL n_g = sc->gap_near, n2 = sc->gap_far_n, k2 = sc->gap_far_k;
-    const VREAL sin_g = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0));
+    const VREAL sin_g = sqrt(max0((REAL)1 - mu_v * mu_v));
     const VREAL R = (n2 == (REAL)1 && k2 == (REAL)0)
                   ? fresnel_internal(mu_v, (VREAL)n_g)
                   : fresnel_external(mu_v, (VREAL)(n2 / n_g), (VREAL)(k2 / n_g));
@@ -874,7 +874,7 @@ WALK_STEP void gap_event(VMASK gap, VREAL u0, VUINT x0, VREAL u1, VREAL u2, VREA
     count_lanes(st, LSTAT_UP, enter, (VMASK)sc->n_layers);
 #else
     const VMASK enter = gap & (u3 > fresnel_external(mu_v, (VREAL)sc->n, (VREAL)sc->k));
-    const VREAL sin_s = sqrt(fmax((REAL)1 - mu_v * mu_v, (REAL)0)) / sc->n;
+    const VREAL sin_s = sqrt(max0((REAL)1 - mu_v * mu_v)) / sc->n;
 #endif
     r->ux = SEL(r->ux, sin_s * c2, enter);
     r->uy = SEL(r->uy, sin_s * s2, enter);
@@ -946,9 +946,9 @@ WALK_STEP int nadir_column(REAL t, const tallies_t *tally, REAL *lo, REAL *hi)
         return tally->n_edges;
     }
     /* the guess, then the edges decide: edges[tb] <= t < edges[tb + 1], as time_bin */
-    const REAL x = tally->bin_log ? tally->bin_b * rough_log(t / tally->bin_a)
-                                  : tally->bin_b * (t - tally->bin_a);
-    int tb = (int)clamp(floor(x), (REAL)0, (REAL)(last - 1));
+    const REAL x = tally->bin_b * ((tally->bin_log ? rough_log(t) : t) - tally->bin_a);
+    int tb = (int)x;             /* t >= the first edge: x > -1, and (int)x is floor(x) or 0 */
+    tb = tb < 0 ? 0 : (tb > last - 1 ? last - 1 : tb);
     while (t < edges[tb])
         --tb;
     while (t >= edges[tb + 1])
@@ -1499,7 +1499,7 @@ __kernel void walk(const uint seed, const ulong scenario,
         .nadir_visits = nadir_visits + (size_t)(get_global_id(0) % nadir_slices)
                         * N_NADIR_ROWS * (size_t)(n_edges + 1),
         .nadir_cols = n_edges + 1, .nadir_own = nadir_slices >= get_global_size(0),
-        .bin_log = bin_log, .bin_a = bin_a, .bin_b = bin_b,
+        .bin_log = bin_log, .bin_a = bin_log ? rough_log(bin_a) : bin_a, .bin_b = bin_b,
 #endif
         };
     const uint base_lo = (uint)first_photon, base_hi = (uint)(first_photon >> 32);

@@ -219,6 +219,48 @@ def test_lane_bits_at_every_width(engine, lanes):
     np.testing.assert_array_equal(out, pattern)
 
 
+@pytest.mark.parametrize("builtins", [False, True])
+@pytest.mark.parametrize("lanes", [1, 8, 16])
+@pytest.mark.parametrize("precision", ["single", "double"])
+def test_lane_math_is_the_builtins(engine, lanes, precision, builtins):
+    """lanes.h max0, clamp_lanes, abs_lanes and rint_lanes, in their inline form (comparisons,
+    selects and bits in place of fmax(x, 0), clamp, fabs and rint, which are calls on pip's
+    PoCL) and as the built-ins (-DWARPE_BUILTINS): bit for bit NumPy's maximum (with +0 for
+    -0, which the walk never gives them: fmax(-0, 0) may be either zero), clip, abs and rint
+    (to nearest, ties to even, the sign of zero kept), on ties, zeros of both signs, the edges
+    of the rounding trick (2^23 in single, 2^52 in double) and random values, at 1, 8 and 16
+    lanes."""
+    from warpe_cl.device import SELFTEST_FILES, build_program
+    if precision == "double" and not engine.info.fp64:
+        pytest.skip("device has no fp64")  # pragma: no cover - PoCL and NVIDIA have fp64
+    dtype = np.float64 if precision == "double" else np.float32
+    big = 2.0 ** (52 if precision == "double" else 23)
+    edges = [0.0, -0.0, 0.5, -0.5, 1.5, -1.5, 2.5, -2.5, 3.5, -3.5, 0.49999997, -0.49999997,
+             1e-30, -1e-30, 1.0, -1.0, 1.0000001, -1.0000001, big / 2 + 0.5, -(big / 2 + 0.5),
+             big - 1.0, big - 0.5, -(big - 0.5), big, -big, big + 2.0, 3e18, -3e18,
+             np.inf, -np.inf]
+    rng_ = np.random.default_rng(11)
+    x = np.concatenate([edges, rng_.normal(0, 3, 4000), rng_.normal(0, 1e6, 2000),
+                        np.round(rng_.normal(0, 100, 2000)) + 0.5]).astype(dtype)
+    x = np.concatenate([x, np.zeros(-len(x) % 16, dtype)])
+    options = ((f"-DWARPE_LANES={lanes}",) + (("-DWARPE_DOUBLE",) if precision == "double" else ())
+               + (("-DWARPE_BUILTINS",) if builtins else ()))
+    prog = build_program(engine.device, SELFTEST_FILES, options)
+    out = np.zeros(4 * len(x), dtype)
+    mf = cl.mem_flags
+    d_x = cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    d_out = cl.Buffer(engine.context, mf.WRITE_ONLY, out.nbytes)
+    _run(engine, prog.lane_math_of, len(x) // lanes, d_x, d_out)
+    cl.enqueue_copy(engine.queue, out, d_out)
+    got = out.reshape(4, len(x))
+    expected = [np.where(x > 0, x, dtype(0.0)), np.clip(x, -1, 1), np.abs(x), np.rint(x)]
+    if builtins:                                   # fmax(-0, 0): either zero
+        got[0][x == 0] = expected[0][x == 0] = 0.0
+    bits = np.uint64 if precision == "double" else np.uint32
+    for name, g, e in zip(("max0", "clamp", "abs", "rint"), got, expected):
+        assert np.array_equal(g.view(bits), e.astype(dtype).view(bits)), name
+
+
 def test_exp_neg_accuracy(engine, selftest):
     """scatter.h exp_neg, the weighted walk's absorbed fraction (Cephes' expf in products and
     sums): within 1 ulp of the correctly rounded e^-tau over tau in [-88, 86] (measured 0.98

@@ -77,13 +77,15 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
 
 def driver_options(info) -> tuple:
     """The ``-D`` switches that depend on the driver, not on the walk: they change its speed,
-    never a bit (tests/test_select.py). ``WARPE_SELECT_BUILTIN`` spells ``SEL`` (cl/lanes.h)
-    as OpenCL's ``select()`` on Intel's CPU runtime, the code it was tuned with (the ``?:``
-    operator gives it a program 4.7 times the size, no faster); every other driver gets
-    ``?:``, one select instruction, where pip's PoCL 3.0 calls a library function for each
-    ``select()`` (its walk 1.14-1.44x faster with ``?:``; docs/performance.md)."""
+    never a bit (tests/test_builtins.py). ``WARPE_BUILTINS`` (cl/lanes.h) keeps OpenCL's
+    built-ins ``select``, ``fmax``, ``clamp``, ``fabs`` and ``rint`` on Intel's CPU runtime,
+    whose built-ins are inline instructions: the code it was tuned with (without them its
+    program is 4.7 times the size and B1 walks 0.9-0.98x as fast). Every other driver gets
+    the ``?:`` operator and comparisons, selects and bits instead, where pip's PoCL 3.0 calls
+    a library function for each built-in (its walk 1.2-1.5x faster without them;
+    docs/performance.md)."""
     if info.kind == "cpu" and info.platform.startswith("Intel"):
-        return ("-DWARPE_SELECT_BUILTIN",)
+        return ("-DWARPE_BUILTINS",)
     return ()
 
 

@@ -1,7 +1,8 @@
-"""The two spellings of the kernels' SEL (cl/lanes.h): the ?: operator, and OpenCL's select()
-that warpe_cl.engine.driver_options picks for Intel's CPU runtime. They differ in speed only:
-every tally and every ray's record is the same bits, on this device, in the vector form of the
-walk and in the GPUs' one-lane form."""
+"""The two forms of the kernels' built-ins (cl/lanes.h): OpenCL's select(), fmax, clamp, fabs
+and rint, which warpe_cl.engine.driver_options keeps for Intel's CPU runtime (-DWARPE_BUILTINS),
+and the ?: operator with comparisons, selects and bits that every other driver gets. They differ
+in speed only: every tally and every ray's record is the same bits, on this device, in the
+vector form of the walk and in the GPUs' one-lane form."""
 import numpy as np
 import pytest
 
@@ -19,20 +20,20 @@ def _params(texture: str) -> WalkParams:
                       nadir_roulette=0.1, view_zenith=10.0)
 
 
-def test_driver_options_pick_select_for_intel_cpu_only():
+def test_driver_options_keep_the_builtins_for_intel_cpu_only():
     from warpe_cl.device import DeviceInfo
     intel = DeviceInfo(0, 0, "Intel(R) OpenCL", "OpenCL 3.1", "cpu", "cpu", "x", 2, True)
     pocl = DeviceInfo(1, 0, "Portable Computing Language", "OpenCL 3.0 PoCL", "cpu", "cpu",
                       "x", 2, True, 8, 4)
     gpu = DeviceInfo(0, 0, "Intel(R) OpenCL Graphics", "OpenCL 3.0", "gpu", "gpu", "x", 24, True)
-    assert driver_options(intel) == ("-DWARPE_SELECT_BUILTIN",)
+    assert driver_options(intel) == ("-DWARPE_BUILTINS",)
     assert driver_options(pocl) == () and driver_options(gpu) == ()
 
 
 @pytest.mark.parametrize("lanes,precision", [(1, "single"), (8, "single"), (16, "single"),
                                              (4, "double")])
 @pytest.mark.parametrize("texture", ["granular", "slab"])
-def test_select_and_ternary_give_the_same_bits(engine, texture, lanes, precision):
+def test_builtins_and_inline_forms_give_the_same_bits(engine, texture, lanes, precision):
     from warpe_cl.device import build_program
     from warpe_cl.engine import WALK_FILES, build_options
     if precision == "double" and not engine.info.fp64:
@@ -41,14 +42,14 @@ def test_select_and_ternary_give_the_same_bits(engine, texture, lanes, precision
     structure = (texture, precision, True, lanes, False, True)
     own = engine.run(params, 2000, records=True, lanes=lanes, qualified=True,
                      precision=precision)
-    other = (() if driver_options(engine.info) else ("-DWARPE_SELECT_BUILTIN",))
+    other = (() if driver_options(engine.info) else ("-DWARPE_BUILTINS",))
     program = build_program(engine.device, WALK_FILES, build_options(*structure) + other)
     key = kernel_key(*structure)
     try:
         kernel = engine.use_program(program, key)
         swapped = engine.run(params, 2000, records=True, lanes=lanes, qualified=True,
                              precision=precision)
-        assert engine.kernel(*structure) is kernel         # it walked with the other SEL
+        assert engine.kernel(*structure) is kernel         # it walked with the other form
     finally:
         engine.forget(key)                                  # the engine builds its own again
     assert own.scattering_events > 40_000                  # 20 scatterings a ray and more
