@@ -49,8 +49,8 @@ inline VREAL optical_step(VREAL U)
  * value. */
 inline VREAL times_pow2(VREAL p, VREAL n)
 {
-    const VREAL scale = AS_VREAL((CONVERT_VMASK(clamp_lanes(n, (REAL)-126, (REAL)127)) + (VMASK)127)
-                                 << 23);
+    const VMASK e = CONVERT_VMASK(clamp_lanes(n, (REAL)-126, (REAL)127));
+    const VREAL scale = AS_VREAL((e + (VMASK)127) << 23);
     const VREAL v = SEL(p * scale, (VREAL)0, n < (REAL)-125);
     return SEL(v, (VREAL)INFINITY, n > (REAL)127);
 }
