@@ -42,9 +42,10 @@ def test_builtins_and_inline_forms_give_the_same_bits(engine, texture, lanes, pr
     structure = (texture, precision, True, lanes, False, True)
     own = engine.run(params, 2000, records=True, lanes=lanes, qualified=True,
                      precision=precision)
+    key = kernel_key(*structure)
+    assert engine.program_options(key) == build_options(*structure) + driver_options(engine.info)
     other = (() if driver_options(engine.info) else ("-DWARPE_BUILTINS",))
     program = build_program(engine.device, WALK_FILES, build_options(*structure) + other)
-    key = kernel_key(*structure)
     try:
         kernel = engine.use_program(program, key)
         swapped = engine.run(params, 2000, records=True, lanes=lanes, qualified=True,

@@ -86,7 +86,7 @@ def kernel_only(trees: dict, args, say) -> dict:
     from warpe_cl import device as devmod
     from warpe_cl.api import walk_params
     from warpe_cl.config import load_preset
-    from warpe_cl.engine import WALK_FILES, Engine, build_options, driver_options, kernel_key
+    from warpe_cl.engine import WALK_FILES, Engine, kernel_key
 
     engine = Engine(args.device)
     say(f"# host {HERE.parent}; device {engine.info.device} | {engine.info.platform} "
@@ -109,8 +109,7 @@ def kernel_only(trees: dict, args, say) -> dict:
                      params.nadir)
         key = kernel_key(*structure)
         programs = {label: devmod.build_source(engine.context, sources[label],
-                                               build_options(*structure)
-                                               + driver_options(engine.info))
+                                               engine.program_options(key))
                     for label in trees}
 
         def walk(label):

@@ -432,16 +432,22 @@ class Engine:
         self.kernel_hash = walk_source_hash()
         key = kernel_key(texture, precision, records, lanes, weighted, nadir)
         if key not in self._kernels:
-            options = (build_options(texture, precision, records, lanes, weighted, nadir)
-                       + driver_options(self.info))
-            self.use_program(devmod.build_program(self.device, WALK_FILES, options), key)
+            self.use_program(devmod.build_program(self.device, WALK_FILES,
+                                                  self.program_options(key)), key)
         return self._kernels[key]
+
+    def program_options(self, key: tuple) -> tuple:
+        """The build options of the walk kernel of structure ``key`` (:func:`kernel_key`) on
+        this engine's device: :func:`build_options` of the structure, then
+        :func:`driver_options` of the driver. Every build of a walk to be timed or compared
+        with the engine's own takes them from here."""
+        return build_options(*key) + driver_options(self.info)
 
     def use_program(self, program, key: tuple):
         """Walk the structure ``key`` (:func:`kernel_key`) with ``program``'s kernels from now
         on; returns its ``walk`` kernel. :meth:`kernel` calls it with the program it built;
         tools/bench_ab.py --kernel-only with programs built from other trees' sources (in
-        this engine's context, with :func:`build_options` of the key), to time them in one
+        this engine's context, with :meth:`program_options` of the key), to time them in one
         process."""
         import pyopencl as cl
         self._kernels[key] = cl.Kernel(program, "walk")
