@@ -176,6 +176,20 @@ inline uint lane_bits(VMASK m)
 #define LANE_INDEX ((VMASK)0)
 #endif
 
+/* A vector and its lanes one by one: x.s[j] reads lane j of x.v from the vector's store,
+ * without vstore / vload (library calls on pip's PoCL 3.0, docs/performance.md). */
+typedef union { VREAL v; REAL s[WARPE_LANES]; } lanes_real;
+typedef union { VMASK v; IREAL s[WARPE_LANES]; } lanes_mask;
+typedef union { VUINT v; uint s[WARPE_LANES]; } lanes_uint;
+
+/* The index of the lowest set bit of bits != 0 (0 .. 31): bits & -bits is a power of two up to
+ * 2^31, which a float holds exactly, so its exponent is the index. Inline arithmetic where
+ * pip's PoCL 3.0 calls a library function for clz (docs/performance.md). */
+inline int lowest_lane(uint bits)
+{
+    return (int)(as_uint((float)(bits & (0u - bits))) >> 23) - 127;
+}
+
 /* fmax(x, 0), clamp, fabs and rint of the lanes. WARPE_BUILTINS (warpe_cl/engine.py
  * driver_options: Intel's CPU runtime, whose built-ins are inline instructions) uses the
  * built-ins; every other driver gets comparisons, selects and bits, where pip's PoCL 3.0 calls

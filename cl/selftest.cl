@@ -97,6 +97,13 @@ __kernel void lane_bits_of(__global const uint *pattern, __global uint *out)
     out[i] = lane_bits(m);
 }
 
+/* lanes.h lowest_lane of pattern[i] (never 0) */
+__kernel void lowest_lane_of(__global const uint *pattern, __global int *out)
+{
+    size_t i = get_global_id(0);
+    out[i] = lowest_lane(pattern[i]);
+}
+
 /* lanes.h max0, clamp_lanes(x, -1, 1), abs_lanes and rint_lanes of x[i], WARPE_LANES values a
  * work-item (the width this program is built with; the test builds it at several): the four
  * results of x[i] at out[i], out[n + i], out[2 n + i], out[3 n + i], n values in all. */

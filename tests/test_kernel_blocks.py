@@ -219,6 +219,26 @@ def test_lane_bits_at_every_width(engine, lanes):
     np.testing.assert_array_equal(out, pattern)
 
 
+def test_lowest_lane_of_every_bit(engine):
+    """lanes.h lowest_lane, the lane the nadir flushes visit next (from a float's exponent): the
+    index of the lowest set bit at each of the 32 positions, alone, under every higher bit, and
+    under random higher bits."""
+    from warpe_cl.device import SELFTEST_FILES, build_program
+    prog = build_program(engine.device, SELFTEST_FILES, ("-DWARPE_LANES=1",))
+    rng = np.random.default_rng(5)
+    k = np.repeat(np.arange(32, dtype=np.uint64), 3)
+    high = np.stack([np.zeros(32, np.uint64), np.full(32, 0xFFFFFFFF, np.uint64),
+                     rng.integers(0, 2 ** 32, 32, dtype=np.uint64)], axis=1).ravel()
+    pattern = (((high >> k) << k) | (np.uint64(1) << k)).astype(np.uint32)
+    out = np.zeros(len(pattern), dtype=np.int32)
+    mf = cl.mem_flags
+    d_p = cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pattern)
+    d_out = cl.Buffer(engine.context, mf.WRITE_ONLY, out.nbytes)
+    _run(engine, prog.lowest_lane_of, len(pattern), d_p, d_out)
+    cl.enqueue_copy(engine.queue, out, d_out)
+    np.testing.assert_array_equal(out, k.astype(np.int32))
+
+
 @pytest.mark.parametrize("builtins", [False, True])
 @pytest.mark.parametrize("lanes", [1, 8, 16])
 @pytest.mark.parametrize("precision", ["single", "double"])
