@@ -131,3 +131,15 @@ def test_engine_walks_with_the_program_it_is_given(engine):
         assert (kernel_key(*structure) in e._folds) == nadir
         e.forget(kernel_key(*structure))                 # and Engine.forget undoes it
         assert kernel_key(*structure) not in e._kernels and kernel_key(*structure) not in e._folds
+
+
+def test_paired_ratios_of_the_rounds():
+    """tools/bench_ab.py's paired summary: the ratio B / A of each round, then their median,
+    quartiles and range; a drift common to both runs of a round cancels."""
+    import bench_ab
+    a = [1.0, 2.0, 4.0, 1.0, 3.0]               # the machine's speed drifts round to round
+    b = [1.1 * x for x in a[:4]] + [0.9 * a[4]]
+    p = bench_ab.paired_ratios(a, b)
+    assert p["median"] == pytest.approx(1.1)
+    assert (p["min"], p["max"]) == (pytest.approx(0.9), pytest.approx(1.1))
+    assert p["q1"] == pytest.approx(1.1) and len(p["values"]) == 5

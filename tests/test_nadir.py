@@ -236,6 +236,24 @@ def test_skipped_scores_change_no_bit(engine, texture, lanes):
     assert np.array_equal(skipping.records["nadir"], computed.records["nadir"])
 
 
+@pytest.mark.parametrize("g", [0.0, 0.8, -0.3])
+@pytest.mark.parametrize("view", [0.0, 40.0])
+@pytest.mark.parametrize("texture", ["slab", "granular"])
+def test_roulette_threshold(g, view, texture):
+    """s_min of the roulette (walk.md §8.3): r F p(pi), r = nadir_roulette times the score of a
+    scattering at the top straight back up (F the top layer's view factor); the host's value,
+    which the kernel gets, and the reference's agree; none in the weighted mode or at r = 0."""
+    from warpe_cl.reference import _nadir_scorer
+    p = WalkParams(texture=texture, thickness=1e-3, extinction=1e3, omega=0.9, g=g, n=1.3,
+                   k=0.0, albedo=0.0, time_edges=EDGES, nadir=True, nadir_roulette=0.1,
+                   view_zenith=view)
+    expected = 0.1 * view_table(p)[0, -1] * henyey_greenstein_phase(g, -1.0)
+    assert p.nadir_min_score == pytest.approx(expected, rel=1e-12)
+    assert _nadir_scorer(p, None, list(EDGES)).s_min == pytest.approx(expected, rel=1e-12)
+    assert dataclasses.replace(p, nadir_roulette=0.0).nadir_min_score == 0.0
+    assert dataclasses.replace(p, mode="weighted").nadir_min_score == 0.0
+
+
 def test_view_table_granular_and_slab():
     """The factor T / (m^2 mu): 1 / mu_v for a granular layer (no interface, m = 1); for a
     slab at nadir (1 - R_int(1)) / n^2, the gap row (1 - R_ext) T_top / 1."""

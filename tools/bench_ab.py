@@ -10,7 +10,10 @@ per tree, in a new process with ``PYTHONPATH`` set to that tree; the order alter
 round to round (A B, B A, A B, ...) so that a drift of the machine's load falls on both alike.
 bench.py times one run per scene after a warm-up. Prints every round and the load
 average, then per scene the median and the range of scattering events/s and photons/s of each
-tree and the ratio of the medians (B / A). ``--out`` also writes everything printed to a file.
+tree, the ratio of the medians (B / A), and the median, quartiles and range of the rounds' own
+ratios (a round's two runs are close in time, so on a machine whose speed drifts from second to
+second these are the sharper measure: short runs, many rounds). ``--out`` also writes everything
+printed to a file.
 
 ``--kernel-only`` compares the two trees' walk kernels (their ``cl/`` folders) in this one
 process instead, with the host of the tree this script belongs to: both are built with its
@@ -74,6 +77,16 @@ def run_bench(tree: Path, args) -> dict:
         if proc.returncode != 0:
             raise RuntimeError(f"bench.py failed on {tree}:\n{proc.stdout}\n{proc.stderr}")
         return json.loads(out.read_text())
+
+
+def paired_ratios(a: list, b: list) -> dict:
+    """B / A of each round (the two runs of a round are seconds apart, so a drift of a shared
+    machine's speed cancels in their ratio, where it widens the two ranges): median, quartiles
+    (the middle half of the rounds) and range."""
+    r = sorted(y / x for x, y in zip(a, b))
+    n = len(r)
+    return {"median": statistics.median(r), "q1": r[n // 4], "q3": r[(3 * n) // 4],
+            "min": r[0], "max": r[-1], "values": r}
 
 
 def kernel_only(trees: dict, args, say) -> dict:
@@ -226,6 +239,10 @@ def main(argv=None) -> int:
         if a.get("events_per_cpu_s"):
             line += (f" (per CPU s: "
                      f"{med(b['events_per_cpu_s']) / med(a['events_per_cpu_s']):.3f})")
+        pairs = paired_ratios(a["events_per_s"], b["events_per_s"])
+        line += (f"; paired, B / A of each round: median {pairs['median']:.3f}, quartiles "
+                 f"{pairs['q1']:.3f}-{pairs['q3']:.3f}, range {pairs['min']:.3f}-"
+                 f"{pairs['max']:.3f} ({len(pairs['values'])} rounds)")
         say(line)
     if args.out:
         Path(args.out).write_text("\n".join(lines) + "\n")

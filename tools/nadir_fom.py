@@ -22,7 +22,10 @@ reduction). Per configuration, median [min-max] over rounds:
   rays: their errors do not add in quadrature);
 - for the run without the estimator, the FOM of the FOV estimate of the same quantities in
   cones of --cones degrees, time-integrated from ``angular_reflectance`` (rays in the cone,
-  Poisson sigma = sqrt(rays), the same T).
+  Poisson sigma = sqrt(rays), the same T);
+- per time bin, each estimator configuration's FOM of the ``scattering`` row over the first
+  one's in the same round (the median over the bins, and the lowest bin), which shows what a
+  larger roulette costs the bins it touches most (the earliest and the latest).
 
 B1's slab lies over a vacuum gap: the estimate includes the mirror paths of its lower face
 (docs/walk.md §8.5; at τ0 = 60 none is above the mirror table's cut).
@@ -39,6 +42,8 @@ import statistics
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 import warpe_cl
 from bench import SCENES, fmt_spread, rounds_text, spread  # tools/ is first on sys.path
@@ -84,6 +89,9 @@ def one_run(overrides: dict, photons: int, cones, device=None, scene_name: str =
         nad = nadir_sum(ds, counts)
         row["nadir"]["diffuse"] = (nad["brdf"], nad["brdf_err"],
                                    fom(nad["brdf"], nad["brdf_err"], walk))
+        row["bins"] = (ds["nadir_reflectance"].sel(component="scattering").values,
+                       ds["nadir_reflectance_stderr"].sel(component="scattering").values,
+                       ds["nadir_reflectance"]["time"].values)
     kind = cfg.get("simulation.solid_angle")
     for theta in cones:
         for q, comps in (("scattering", ("scattering",)), ("bf_diffuse", ("bf_diffuse",)),
@@ -108,6 +116,39 @@ def measure(args) -> dict:
         print(f"round {i + 1}/{args.rounds}: scattering events/s: " + ", ".join(line),
               flush=True)
     return runs
+
+
+def bin_foms(row: dict) -> np.ndarray:
+    """The FOM of each time bin of the run's scattering row, (value / sigma)^2 / T (NaN where
+    either is 0)."""
+    v, s, _ = row["bins"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where((v > 0) & (s > 0), (v / s) ** 2 / row["walk_s"], np.nan)
+
+
+def per_bin_lines(runs: dict) -> list:
+    """Each nadir configuration's per-bin FOM over the first nadir configuration's, same round
+    (time bins of ``scattering`` whose relative error is below 0.3 in the first round of the
+    first configuration): the median over bins (median [min-max] over rounds), and the lowest
+    bin of the ratio averaged over rounds, which shows a bin that a roulette hurts."""
+    labels = [label for label in runs if runs[label][0]["nadir"]]
+    if len(labels) < 2:
+        return []
+    ref = labels[0]
+    v, s, t = runs[ref][0]["bins"]
+    ok = (v > 0) & (s > 0) & (s < 0.3 * v)
+    lines = ["", f"per-bin FOM of the scattering row over {ref}'s, same round ({ok.sum()} time "
+                 "bins with relative error < 0.3): median over bins, lowest bin of the mean "
+                 "over rounds"]
+    for label in labels[1:]:
+        ratios = np.array([bin_foms(r)[ok] / bin_foms(o)[ok]
+                           for r, o in zip(runs[label], runs[ref])])
+        med = spread(np.nanmedian(ratios, axis=1))
+        mean = np.nanmean(ratios, axis=0)
+        low = int(np.nanargmin(mean))
+        lines.append(f"{label:<22} median {fmt_spread(med, '.3f')}, lowest {mean[low]:.3f} "
+                     f"(t = {t[ok][low]:.3g} ns)")
+    return lines
 
 
 def table(runs: dict, args, header: str) -> list:
@@ -161,7 +202,7 @@ def table(runs: dict, args, header: str) -> list:
         gains.append(f"{theta} deg {fmt_spread(g, '.3g')}")
     lines += ["", f"FOM gain of the diffuse sum, best nadir configuration ({best_label}) / FOV "
                   f"(same round): " + ", ".join(gains)]
-    return lines
+    return lines + per_bin_lines(runs)
 
 
 def main(argv=None) -> int:
