@@ -58,6 +58,8 @@ typedef ulong VULONG;
 #define ONE(m) ((m) ? (IREAL)1 : (IREAL)0) /* 1 where m, else 0 */
 #define VSTORE(v, p) (*(p) = (v))
 #define VLOAD(p) (*(p))
+#define VSTORE_GLOBAL(v, p) (*(p) = (v))
+#define VLOAD_GLOBAL(p) (*(p))
 #define MASK32(m) (m)
 #else
 #ifdef WARPE_DOUBLE
@@ -104,8 +106,31 @@ typedef WARPE_CAT(ulong, WARPE_LANES) VULONG;
 #define SEL(a, b, m) ((m) ? (b) : (a))
 #endif
 #define ONE(m) (-(m))                      /* vector comparisons give -1 for true */
+/* VSTORE(v, p) / VLOAD(p): a vector to and from a private array of its lanes (the walk's
+ * per-lane arrays). Intel's CPU runtime (WARPE_BUILTINS) keeps vstoreN / vloadN, inline
+ * there; every other driver copies the bytes with __builtin_memcpy, which clang turns into one
+ * unaligned store or load, where pip's PoCL 3.0 calls a library function for each vstoreN and
+ * vloadN, with the vector registers saved around the call (docs/performance.md). VLOAD's
+ * vector type is that of the array's lanes (ext_vector_type: OpenCL's floatN, intN, uintN,
+ * longN, doubleN are such types). Both give the same bits. VSTORE_GLOBAL / VLOAD_GLOBAL:
+ * global arrays (the self-test kernels), vstoreN / vloadN on every driver. */
+#ifdef WARPE_BUILTINS
 #define VSTORE(v, p) WARPE_CAT(vstore, WARPE_LANES)((v), 0, (p))
 #define VLOAD(p) WARPE_CAT(vload, WARPE_LANES)(0, (p))
+#else
+#define VSTORE(v, p) do {                                                                  \
+        const __typeof__(v) vstore_v_ = (v);                                                \
+        __builtin_memcpy((p), &vstore_v_, sizeof(vstore_v_));                               \
+    } while (0)
+#define VLOAD(p) ({                                                                         \
+        typedef __typeof__((p)[0] + 0) vload_t_ __attribute__((ext_vector_type(WARPE_LANES))); \
+        vload_t_ vload_v_;                                                                  \
+        __builtin_memcpy(&vload_v_, (p), sizeof(vload_v_));                                 \
+        vload_v_;                                                                           \
+    })
+#endif
+#define VSTORE_GLOBAL(v, p) WARPE_CAT(vstore, WARPE_LANES)((v), 0, (p))
+#define VLOAD_GLOBAL(p) WARPE_CAT(vload, WARPE_LANES)(0, (p))
 #endif
 
 #if WARPE_LANES > 1
@@ -175,12 +200,6 @@ inline uint lane_bits(VMASK m)
 }
 #define LANE_INDEX ((VMASK)0)
 #endif
-
-/* A vector and its lanes one by one: x.s[j] reads lane j of x.v from the vector's store,
- * without vstore / vload (library calls on pip's PoCL 3.0, docs/performance.md). */
-typedef union { VREAL v; REAL s[WARPE_LANES]; } lanes_real;
-typedef union { VMASK v; IREAL s[WARPE_LANES]; } lanes_mask;
-typedef union { VUINT v; uint s[WARPE_LANES]; } lanes_uint;
 
 /* The index of the lowest set bit of bits != 0 (0 .. 31): bits & -bits is a power of two up to
  * 2^31, which a float holds exactly, so its exponent is the index. Inline arithmetic where

@@ -110,9 +110,9 @@ __kernel void lowest_lane_of(__global const uint *pattern, __global int *out)
 __kernel void lane_math_of(__global const REAL *x, __global REAL *out)
 {
     const size_t i = get_global_id(0) * WARPE_LANES, n = get_global_size(0) * WARPE_LANES;
-    const VREAL v = VLOAD(x + i);
-    VSTORE(max0(v), out + i);
-    VSTORE(clamp_lanes(v, (REAL)-1, (REAL)1), out + n + i);
-    VSTORE(abs_lanes(v), out + 2 * n + i);
-    VSTORE(rint_lanes(v), out + 3 * n + i);
+    const VREAL v = VLOAD_GLOBAL(x + i);
+    VSTORE_GLOBAL(max0(v), out + i);
+    VSTORE_GLOBAL(clamp_lanes(v, (REAL)-1, (REAL)1), out + n + i);
+    VSTORE_GLOBAL(abs_lanes(v), out + 2 * n + i);
+    VSTORE_GLOBAL(rint_lanes(v), out + 3 * n + i);
 }

@@ -1011,13 +1011,19 @@ WALK_STEP void nadir_add(VMASK m, VREAL s, VREAL tv, VMASK row, VMASK first, ray
         return;
 
     /* The lanes to visit, one bit each; the lanes' values read one by one from stores of
-     * whole vectors (lanes.h unions), and the new pending cells written back into the vectors
-     * by selects, one lane at a time: no vector is read back from stores of single lanes (a
-     * load that waits for its stores to retire on x86, docs/performance.md). */
+     * whole vectors, and the new pending cells written back into the vectors by selects, one
+     * lane at a time: no vector is read back from stores of single lanes (a load that waits
+     * for its stores to retire on x86, docs/performance.md). */
     const uint bits_moved = lane_bits(moved), bits_one = lane_bits(one);
-    const lanes_mask cell = {r->pend_cell}, rw = {row};
-    const lanes_real pv = {r->pend}, sv = {s}, tt = {tv};
-    const lanes_uint pl = {r->p_lo};
+    IREAL cell[WARPE_LANES], rw[WARPE_LANES];
+    REAL pv[WARPE_LANES], sv[WARPE_LANES], tt[WARPE_LANES];
+    uint pl[WARPE_LANES];
+    VSTORE(r->pend_cell, cell);
+    VSTORE(row, rw);
+    VSTORE(r->pend, pv);
+    VSTORE(s, sv);
+    VSTORE(tv, tt);
+    VSTORE(r->p_lo, pl);
     VMASK new_cell = r->pend_cell;
     VREAL new_lo = r->pend_lo, new_hi = r->pend_hi;
     uint bits = bits_moved | bits_one;
@@ -1025,14 +1031,14 @@ WALK_STEP void nadir_add(VMASK m, VREAL s, VREAL tv, VMASK row, VMASK first, ray
         const int j = lowest_lane(bits);
         bits &= bits - 1u;
         REAL a, b;
-        const int col = nadir_column(tt.s[j], tally, &a, &b);
+        const int col = nadir_column(tt[j], tally, &a, &b);
         if (bits_one >> j & 1u)
-            nadir_flush(tally, pl.s[j], NADIR_ROW_ORDER_1 * cols + col, sv.s[j]);
+            nadir_flush(tally, pl[j], NADIR_ROW_ORDER_1 * cols + col, sv[j]);
         if (bits_moved >> j & 1u) {
-            if (cell.s[j] >= 0)
-                nadir_flush(tally, pl.s[j], (int)cell.s[j], pv.s[j]);
+            if (cell[j] >= 0)
+                nadir_flush(tally, pl[j], (int)cell[j], pv[j]);
             const VMASK lane = LANE_INDEX == (VMASK)j;
-            new_cell = SEL(new_cell, (VMASK)(IREAL)((int)rw.s[j] * cols + col), lane);
+            new_cell = SEL(new_cell, (VMASK)(IREAL)((int)rw[j] * cols + col), lane);
             new_lo = SEL(new_lo, (VREAL)a, lane);
             new_hi = SEL(new_hi, (VREAL)b, lane);
         }
