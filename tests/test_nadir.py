@@ -153,7 +153,10 @@ def test_sums_do_not_depend_on_launches_or_work_items(engine):
     """A ray's pending score is parked with it (walk.md §5), and the sums are exact integers:
     the same bits for an event budget of 1 per launch, another global size, two halves, and
     the GPUs' form of the sums (one slice for every work-item, 64-bit atomics), here on the
-    CPU device, in a slab over a gap (its mirror paths) and in a stack."""
+    CPU device, in a slab over a gap (its mirror paths) and in a stack. The runs follow one
+    another on one engine, which keeps the sums' buffers of a shape from run to run
+    (Engine._nadir_buffers): each run must zero them first, or a run would add its
+    predecessor's sums to its own."""
     for name in ("stack_gap", "slab_gap_thin"):
         params = _cases()[name]
         whole = engine.run(params, 3000)

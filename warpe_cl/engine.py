@@ -347,6 +347,7 @@ class Engine:
         self.last_walk_s = None
         self._kernels = {}
         self._folds = {}      # the nadir_fold kernel of each nadir build (same keys)
+        self._nadir_sums = None   # (shape, sums, visits) of the last nadir walk, kept
         self._warmed = set()
         self.qualifier = None
         if qualify:
@@ -461,6 +462,22 @@ class Engine:
         self._kernels.pop(key, None)
         self._folds.pop(key, None)
 
+    def _nadir_buffers(self, shape: tuple) -> tuple:
+        """The ``nadir_sum`` and ``nadir_visits`` buffers of ``shape`` (slices, NADIR_BATCHES,
+        rows, columns), kept from the last nadir walk of the same shape: a CPU walk has a
+        slice per work-item (10 MB on 2 cores), and the pages of a new buffer fault in at its
+        first fill, which cost 5-8 times the fill of a kept one (docs/performance.md). Every
+        run zeroes them before its first launch."""
+        import pyopencl as cl
+        if self._nadir_sums is None or self._nadir_sums[0] != shape:
+            mf = cl.mem_flags
+            cells, visit_cells = int(np.prod(shape)), shape[0] * int(np.prod(shape[2:]))
+            self._nadir_sums = (
+                shape,
+                cl.Buffer(self.context, mf.READ_WRITE, size=8 * FIXED_WORDS * cells),
+                cl.Buffer(self.context, mf.READ_WRITE, size=8 * visit_cells))
+        return self._nadir_sums[1:]
+
     def run(self, params: WalkParams, photons: int, precision: str = "single",
             first_photon: int = 0, records: bool = False, batch: int | None = None,
             global_size: int | None = None, local_size: int | None = None,
@@ -574,10 +591,7 @@ class Engine:
                                           hostbuf=padded.astype(real))
             buffers["n_mirror"] = len(mirror)
             buffers.update(zip(("bin_log", "bin_a", "bin_b"), bin_guess(params.time_edges)))
-            buffers["nadir_sum"] = cl.Buffer(ctx, mf.READ_WRITE,
-                                             size=8 * FIXED_WORDS * int(np.prod(nadir_shape)))
-            buffers["nadir_visits"] = cl.Buffer(
-                ctx, mf.READ_WRITE, size=8 * slices * int(np.prod(nadir_shape[2:])))
+            buffers["nadir_sum"], buffers["nadir_visits"] = self._nadir_buffers(nadir_shape)
             buffers["nadir_slices"] = slices
         zeroed = [buffers[k] for k in (*hist, *weights, *counters)]
         # parked rays, in two buffers that swap roles each launch (written, then resumed)
