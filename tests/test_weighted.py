@@ -30,6 +30,25 @@ def test_fixed_point_is_exact_and_ordered():
     assert total - fixed_point(1.0) == fixed_point(w) or abs(total - 2 ** 150 - fixed_point(w)) <= 2
 
 
+
+def test_fixed_to_float_is_correctly_rounded():
+    """Every sum, as an (n,) or (b, r, c) array of Python ints, becomes the float64 nearest to
+    sum 2^-150 (ties to even): against Fraction, on ints of 1 to 200 bits, halfway cases, and
+    one beyond float64's range (the shifted fallback)."""
+    from fractions import Fraction
+    from warpe_cl.params import FIXED_SHIFT
+    rng = np.random.default_rng(5)
+    values = [0, 1, 2 ** 53 + 1, 2 ** 54 + 2, 2 ** 54 + 6, (2 ** 53 + 1) << 120,
+              (2 ** 52 + 1) << 139 | (1 << 139) - 1]
+    values += [int(rng.integers(1, 2 ** 62)) << int(rng.integers(0, 140))
+               | int(rng.integers(0, 2 ** 40)) for _ in range(500)]
+    got = fixed_to_float(np.array(values, dtype=object).reshape(-1))
+    want = [float(Fraction(v, 2 ** FIXED_SHIFT)) for v in values]
+    assert np.array_equal(got, np.array(want))
+    assert fixed_to_float(np.array(values[:6], dtype=object).reshape(2, 3, 1)).shape == (2, 3, 1)
+    huge = fixed_to_float([2 ** 1100, 3])
+    assert huge[0] == float(2 ** (1100 - FIXED_SHIFT)) and huge[1] == 3 * 2.0 ** -FIXED_SHIFT
+
 @pytest.mark.parametrize("lanes", [1, 8])
 @pytest.mark.parametrize("kw", [dict(texture="slab"), dict(texture="slab", bottom_interface="none"),
                                 dict(texture="granular")])
