@@ -30,7 +30,6 @@ def test_fixed_point_is_exact_and_ordered():
     assert total - fixed_point(1.0) == fixed_point(w) or abs(total - 2 ** 150 - fixed_point(w)) <= 2
 
 
-
 def test_fixed_to_float_is_correctly_rounded():
     """Every sum, as an (n,) or (b, r, c) array of Python ints, becomes the float64 nearest to
     sum 2^-150 (ties to even): against Fraction, on ints of 1 to 200 bits, halfway cases, and
@@ -48,6 +47,7 @@ def test_fixed_to_float_is_correctly_rounded():
     assert fixed_to_float(np.array(values[:6], dtype=object).reshape(2, 3, 1)).shape == (2, 3, 1)
     huge = fixed_to_float([2 ** 1100, 3])
     assert huge[0] == float(2 ** (1100 - FIXED_SHIFT)) and huge[1] == 3 * 2.0 ** -FIXED_SHIFT
+
 
 @pytest.mark.parametrize("lanes", [1, 8])
 @pytest.mark.parametrize("kw", [dict(texture="slab"), dict(texture="slab", bottom_interface="none"),
