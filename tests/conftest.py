@@ -55,6 +55,25 @@ def selftest(engine):
     return progs
 
 
+def walk_with_options(engine, structure: tuple, options: tuple, params: WalkParams,
+                      photons: int, **run_kw):
+    """Walk ``params`` with a walk program built from ``options`` in place of the engine's own
+    for ``structure`` (a :func:`~warpe_cl.engine.kernel_key`'s fields), check that the engine
+    walked with it, and give the engine back its own build (``Engine.forget``): the other form
+    of a kernel that a test compares with the engine's, bit for bit. Returns the Counts."""
+    from warpe_cl.device import build_program
+    from warpe_cl.engine import WALK_FILES, kernel_key
+    key = kernel_key(*structure)
+    program = build_program(engine.device, WALK_FILES, options)
+    try:
+        kernel = engine.use_program(program, key)
+        counts = engine.run(params, photons, **run_kw)
+        assert engine.kernel(*structure) is kernel         # it walked with `program`
+    finally:
+        engine.forget(key)                                  # the engine builds its own again
+    return counts
+
+
 def medium(**kw) -> WalkParams:
     """A WalkParams with readable defaults (slab, 10 mm, tau0 = 1, omega = 0.9, ...)."""
     base = dict(texture="slab", thickness=0.01, extinction=100.0, omega=0.9, g=0.8, n=1.3,

@@ -6,6 +6,7 @@ vector form of the walk and in the GPUs' one-lane form."""
 import numpy as np
 import pytest
 
+from conftest import walk_with_options
 from warpe_cl.engine import driver_options, kernel_key
 from warpe_cl.params import WalkParams
 
@@ -34,8 +35,7 @@ def test_driver_options_keep_the_builtins_for_intel_cpu_only():
                                              (4, "double")])
 @pytest.mark.parametrize("texture", ["granular", "slab"])
 def test_builtins_and_inline_forms_give_the_same_bits(engine, texture, lanes, precision):
-    from warpe_cl.device import build_program
-    from warpe_cl.engine import WALK_FILES, build_options
+    from warpe_cl.engine import build_options
     if precision == "double" and not engine.info.fp64:
         pytest.skip("no double precision on this device")
     params = _params(texture)
@@ -45,14 +45,9 @@ def test_builtins_and_inline_forms_give_the_same_bits(engine, texture, lanes, pr
     key = kernel_key(*structure)
     assert engine.program_options(key) == build_options(*structure) + driver_options(engine.info)
     other = (() if driver_options(engine.info) else ("-DWARPE_BUILTINS",))
-    program = build_program(engine.device, WALK_FILES, build_options(*structure) + other)
-    try:
-        kernel = engine.use_program(program, key)
-        swapped = engine.run(params, 2000, records=True, lanes=lanes, qualified=True,
-                             precision=precision)
-        assert engine.kernel(*structure) is kernel         # it walked with the other form
-    finally:
-        engine.forget(key)                                  # the engine builds its own again
+    swapped = walk_with_options(engine, structure, build_options(*structure) + other, params,
+                                2000, records=True, lanes=lanes, qualified=True,
+                                precision=precision)
     assert own.scattering_events > 40_000                  # 20 scatterings a ray and more
     assert np.count_nonzero(own.records["nadir"]) > 1000
     assert own.same_as(swapped)

@@ -218,22 +218,16 @@ def test_skipped_scores_change_no_bit(engine, texture, lanes):
     each ray's total score included, is the same bits as with every score computed
     (-DWARPE_NO_SCORE_SKIP), in a medium deep enough (tau0 = 200) that most events are left
     out, in the vector form and in the GPUs' one-lane form."""
-    from warpe_cl.device import build_program
-    from warpe_cl.engine import WALK_FILES, kernel_key
+    from conftest import walk_with_options
+    from warpe_cl.engine import kernel_key
     params = WalkParams(texture=texture, thickness=0.05, extinction=4000.0, omega=0.999, g=0.8,
                         n=1.3, k=0.0, albedo=0.15, bottom_interface="none", time_edges=EDGES,
                         nadir=True, nadir_roulette=0.1, view_zenith=20.0)
     structure = (texture, "single", True, lanes, False, True)
     skipping = engine.run(params, 2000, records=True, lanes=lanes, qualified=True)
-    key = kernel_key(*structure)
-    every = build_program(engine.device, WALK_FILES,
-                          engine.program_options(key) + ("-DWARPE_NO_SCORE_SKIP",))
-    try:
-        kernel = engine.use_program(every, key)
-        computed = engine.run(params, 2000, records=True, lanes=lanes, qualified=True)
-        assert engine.kernel(*structure) is kernel         # it walked with `every`
-    finally:
-        engine.forget(key)                                  # the engine builds its own again
+    every = engine.program_options(kernel_key(*structure)) + ("-DWARPE_NO_SCORE_SKIP",)
+    computed = walk_with_options(engine, structure, every, params, 2000, records=True,
+                                 lanes=lanes, qualified=True)
     assert np.count_nonzero(computed.records["nadir"]) > 1000
     assert skipping.same_as(computed)
     assert np.array_equal(skipping.records["nadir"], computed.records["nadir"])
