@@ -143,3 +143,33 @@ def test_paired_ratios_of_the_rounds():
     assert p["median"] == pytest.approx(1.1)
     assert (p["min"], p["max"]) == (pytest.approx(0.9), pytest.approx(1.1))
     assert p["q1"] == pytest.approx(1.1) and len(p["values"]) == 5
+
+
+def test_nadir_vs_tree_scene_and_order(monkeypatch):
+    """tools/nadir_vs_tree.py: B1 with simulation.nadir as asked; an older tree whose loader
+    rejects the key walks B1 without it, but only for the walk without the estimate, and this
+    tree never; each configuration comes first, second and third in turn."""
+    import nadir_vs_tree as nvt
+
+    import warpe_cl
+    from warpe_cl.errors import ConfigError
+    for nadir in (False, True):
+        assert nvt.b1_config(nadir, older=False).data["simulation"]["nadir"] is nadir
+    loaded = []
+
+    def before_the_key(scene):
+        if "nadir" in scene["simulation"]:
+            raise ConfigError("simulation.nadir: unknown key")
+        loaded.append(scene)
+        return scene
+    monkeypatch.setattr(warpe_cl, "load_preset", before_the_key)
+    nvt.b1_config(False, older=True)
+    assert len(loaded) == 1 and "nadir" not in loaded[0]["simulation"]
+    b1 = {k: v for k, v in bench.SCENES["B1"].items() if k != "simulation"}
+    assert {k: v for k, v in loaded[0].items() if k != "simulation"} == b1
+    for nadir, older in ((True, True), (False, False)):
+        with pytest.raises(ConfigError):
+            nvt.b1_config(nadir, older)
+    orders = [nvt.round_order(r) for r in range(3)]
+    assert orders == [[0, 1, 2], [1, 2, 0], [2, 0, 1]]
+    assert all(sorted(o[k] for o in orders) == [0, 1, 2] for k in range(3))

@@ -38,25 +38,32 @@ RATIOS = (("this tree with the estimate / older tree without", 2, 0),
           ("this tree with the estimate / without", 2, 1))
 
 
-def child(device: str | None, photons: int, nadir: bool, older: bool) -> dict:
-    """One timed walk of B1 in this process (run with the tree's ``PYTHONPATH``)."""
+def b1_config(nadir: bool, older: bool):
+    """B1's configuration with ``simulation.nadir`` set; for an older tree that does not know
+    the key (a ``ConfigError``) and a walk without the estimate, B1 without the key."""
     import copy
 
     import warpe_cl
     from bench import SCENES
-    from warpe_cl.api import get_engine, walk_params
     from warpe_cl.errors import ConfigError
 
     scene = copy.deepcopy(SCENES["B1"])
     scene["simulation"]["nadir"] = nadir
     try:
-        cfg = warpe_cl.load_preset(scene)
+        return warpe_cl.load_preset(scene)
     except ConfigError:
         if nadir or not older:
             raise
         del scene["simulation"]["nadir"]     # a tree from before the estimate: no such key
-        cfg = warpe_cl.load_preset(scene)
-    params, _ = walk_params(cfg)
+        return warpe_cl.load_preset(scene)
+
+
+def child(device: str | None, photons: int, nadir: bool, older: bool) -> dict:
+    """One timed walk of B1 in this process (run with the tree's ``PYTHONPATH``)."""
+    import warpe_cl
+    from warpe_cl.api import get_engine, walk_params
+
+    params, _ = walk_params(b1_config(nadir, older))
     engine = get_engine(device)
     engine.run(params, 20_000)
     t0 = time.perf_counter()
@@ -79,6 +86,13 @@ def run_child(tree: Path, device: str | None, photons: int, nadir: bool, older: 
     if out.returncode:
         raise SystemExit(f"{tree}: {out.stderr.strip().splitlines()[-1]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def round_order(r: int) -> list:
+    """The configurations' order in round r: turned by one each round, so that each comes
+    first, second and third alike."""
+    order = list(range(len(CONFIGS)))
+    return order[r % len(order):] + order[:r % len(order)]
 
 
 def quartiles(numerators: list, denominators: list) -> str:
@@ -115,9 +129,7 @@ def main(argv=None) -> int:
              f"# load average at the start {loadavg()}"]
     runs = [[] for _ in CONFIGS]
     for r in range(args.rounds):
-        order = list(range(len(CONFIGS)))
-        order = order[r % 3:] + order[:r % 3]
-        for i in order:
+        for i in round_order(r):
             _, tree, nadir = CONFIGS[i]
             runs[i].append(run_child(trees[tree], args.device, photons, nadir, tree == "older"))
         print(f"round {r + 1}/{args.rounds}: " + ", ".join(
