@@ -131,6 +131,24 @@ def test_verdicts_are_cached_and_invalidated_by_any_key(engine, cache, monkeypat
         qualify.Qualifier(engine.info, cache=cache).verdicts(1, [combo], measure=False)
 
 
+def test_a_verdict_is_keyed_by_the_options_its_walk_is_built_with(engine):
+    """The key of a verdict holds the build options of the walk it judged, as every build of
+    that walk makes them (warpe_cl.engine.walk_options, Engine.program_options): a change of a
+    driver's options (WARPE_BUILTINS) is a new check."""
+    from warpe_cl.engine import kernel_key
+    for combo, lanes in ((qualify.Combo("slab", "single", False), 4),
+                         (qualify.Combo("granular", "double", True), 1)):
+        key = qualify.combo_key(engine.info, lanes, combo)
+        structure = kernel_key(combo.texture, combo.precision, False, lanes, combo.weighted)
+        assert key["options"] == list(engine.program_options(structure))
+    other = dataclasses.replace(engine.info, platform="Intel(R) OpenCL", kind="cpu") \
+        if not engine.info.platform.startswith("Intel") \
+        else dataclasses.replace(engine.info, platform="Portable Computing Language")
+    combo = qualify.Combo("slab", "single", False)
+    assert qualify.combo_key(other, 4, combo)["options"] != \
+        qualify.combo_key(engine.info, 4, combo)["options"]
+
+
 def _put_many(folder, tag, n):
     c = qualify.VerdictCache(folder)
     for i in range(n):

@@ -89,6 +89,15 @@ def driver_options(info) -> tuple:
     return ()
 
 
+def walk_options(info, key: tuple) -> tuple:
+    """The build options of the walk kernel of structure ``key`` (:func:`kernel_key`) on the
+    device ``info`` (a :class:`~warpe_cl.device.DeviceInfo`): :func:`build_options` of the
+    structure, then :func:`driver_options` of the driver. Every build of a walk, and the
+    qualification's key of its verdict (warpe_cl/qualify.py ``combo_key``), takes them from
+    here."""
+    return build_options(*key) + driver_options(info)
+
+
 def kernel_key(texture: str, precision: str, records: bool, lanes: int,
                weighted: bool = False, nadir: bool = False) -> tuple:
     """The key of one walk kernel in an :class:`Engine`: the structure :func:`build_options`
@@ -439,10 +448,9 @@ class Engine:
 
     def program_options(self, key: tuple) -> tuple:
         """The build options of the walk kernel of structure ``key`` (:func:`kernel_key`) on
-        this engine's device: :func:`build_options` of the structure, then
-        :func:`driver_options` of the driver. Every build of a walk to be timed or compared
-        with the engine's own takes them from here."""
-        return build_options(*key) + driver_options(self.info)
+        this engine's device (:func:`walk_options`). Every build of a walk to be timed or
+        compared with the engine's own takes them from here."""
+        return walk_options(self.info, key)
 
     def use_program(self, program, key: tuple):
         """Walk the structure ``key`` (:func:`kernel_key`) with ``program``'s kernels from now

@@ -291,14 +291,13 @@ def _source_digest() -> str:
 
 def combo_key(info, lanes: int, combo: Combo) -> dict:
     """Everything a verdict depends on."""
-    from .engine import build_options, driver_options
+    from .engine import kernel_key, walk_options
     fault = _fault(lanes)
     key = {"fault": fault} if fault else {}
+    structure = kernel_key(combo.texture, combo.precision, False, lanes, combo.weighted)
     return {**key, "platform": f"{info.platform} {info.platform_version}", "device": info.device,
             "driver": info.driver, "sources": _source_digest(), "version": QUALIFY_VERSION,
-            "options": list(build_options(combo.texture, combo.precision, False, lanes,
-                                          combo.weighted) + driver_options(info)),
-            "lanes": lanes, "combo": combo.label}
+            "options": list(walk_options(info, structure)), "lanes": lanes, "combo": combo.label}
 
 
 def _key_id(key: dict) -> str:
