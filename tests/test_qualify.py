@@ -141,12 +141,13 @@ def test_a_verdict_is_keyed_by_the_options_its_walk_is_built_with(engine):
         key = qualify.combo_key(engine.info, lanes, combo)
         structure = kernel_key(combo.texture, combo.precision, False, lanes, combo.weighted)
         assert key["options"] == list(engine.program_options(structure))
-    other = dataclasses.replace(engine.info, platform="Intel(R) OpenCL", kind="cpu") \
-        if not engine.info.platform.startswith("Intel") \
-        else dataclasses.replace(engine.info, platform="Portable Computing Language")
+    if engine.info.platform.startswith("Intel"):
+        other = dataclasses.replace(engine.info, platform="Portable Computing Language")
+    else:
+        other = dataclasses.replace(engine.info, platform="Intel(R) OpenCL", kind="cpu")
     combo = qualify.Combo("slab", "single", False)
-    assert qualify.combo_key(other, 4, combo)["options"] != \
-        qualify.combo_key(engine.info, 4, combo)["options"]
+    options = [qualify.combo_key(info, 4, combo)["options"] for info in (engine.info, other)]
+    assert options[0] != options[1]
 
 
 def _put_many(folder, tag, n):
