@@ -74,9 +74,10 @@ typedef struct {
     int n_mirror;
     /* the gap's row: a floor reflection below a Fresnel bottom (walk.md §8) */
     REAL vg_mu, vg_tau, vg_path, vg_factor;
-    /* analog: scores below s_min play a roulette (walk.md §8.3); inv_omega_words and
-     * inv_albedo_words turn a surviving word x < T into a uniform (x + 1/2) / T */
-    REAL s_min, inv_omega_words, inv_albedo_words;
+    /* analog: scores below s_min, or s_new where they would open a new pending cell, play a
+     * roulette (walk.md §8.3); inv_omega_words and inv_albedo_words turn a surviving word
+     * x < T into a uniform (x + 1/2) / T, the roulette's v (nothing else uses it) */
+    REAL s_min, s_new, inv_omega_words, inv_albedo_words;
 #ifndef WARPE_TEXTURE_LAYERS
     REAL s_cap;                  /* a scattering's score <= s_cap exp_neg_bound(tau) (score.h) */
 #endif
@@ -987,20 +988,30 @@ WALK_STEP VMASK nadir_row(VMASK lamb, VREAL tv, const tallies_t *tally)
     return SEL((VMASK)NADIR_ROW_SCATTERING, (VMASK)NADIR_ROW_BF_DIFFUSE, bf);
 }
 
-/* The scores s (at times tv, in rows row) of the lanes in m: added to each lane's pending
- * cell while it stays in it, else the pending cell goes to the sums and the score starts a new
- * one; the lanes in `first` (order 1) add theirs to the order-1 row at once. A ray's pending
- * sums depend on its own scores only, so the tallies do not depend on lanes or launches. */
-WALK_STEP void nadir_add(VMASK m, VREAL s, VREAL tv, VMASK row, VMASK first, rays_t *r,
-                         const tallies_t *tally)
+/* The scores s (at times tv, in rows row) of the lanes in m, after the analog walk's roulette
+ * of small scores (walk.md §8.3): a score s below the threshold S becomes S with probability
+ * s / S, else 0 (unbiased for any S fixed before the uniform v is drawn). S is s_new for a
+ * score that would open a new pending cell (an exact add and a time column: the estimate's
+ * dearest work), s_min for one that adds to the ray's pending cell and for the ray's first
+ * score (order 1, which opens its cells anyway). A surviving score is added to its lane's
+ * pending cell while the lane stays in it, else the pending cell goes to the sums and the
+ * score starts a new one; the lanes in `first` add theirs to the order-1 row at once. A ray's
+ * pending sums depend on its own scores only, so the tallies do not depend on lanes or
+ * launches. */
+WALK_STEP void nadir_add(VMASK m, VREAL s, VREAL v, const scene_t *sc, VREAL tv, VMASK row,
+                         VMASK first, rays_t *r, const tallies_t *tally)
 {
-    m &= s > (REAL)0;            /* nothing to add where exp(-tau) underflowed, or lost the
-                                  * roulette */
-
     const int cols = tally->nadir_cols;
     const VMASK cell0 = row * (VMASK)cols;
-    const VMASK same = m & (r->pend_cell >= cell0) & (r->pend_cell < cell0 + (VMASK)cols)
-                     & (tv >= r->pend_lo) & (tv < r->pend_hi);
+    VMASK same = (r->pend_cell >= cell0) & (r->pend_cell < cell0 + (VMASK)cols)
+               & (tv >= r->pend_lo) & (tv < r->pend_hi);
+#ifndef WARPE_WEIGHTED
+    const VREAL thr = SEL((VREAL)sc->s_min, (VREAL)sc->s_new, !same & !first);
+    s = SEL(s, SEL((VREAL)0, thr, v * thr < s), s < thr);
+#endif
+    m &= s > (REAL)0;            /* nothing to add where exp(-tau) underflowed, or lost the
+                                  * roulette */
+    same &= m;
     r->pend = SEL(r->pend, r->pend + s, same);
 #ifdef WARPE_RECORD
     r->nadir_total = SEL(r->nadir_total, r->nadir_total + s, m);
@@ -1049,19 +1060,6 @@ WALK_STEP void nadir_add(VMASK m, VREAL s, VREAL tv, VMASK row, VMASK first, ray
     r->pend_hi = new_hi;
 }
 
-/* The analog walk's roulette of small scores (walk.md §8.3): a score s < s_min becomes s_min
- * with probability s / s_min, else 0 (unbiased); v is a uniform of the event that nothing
- * else uses once the ray survived: (x + 1/2) / T of the word x < T that decided it. */
-WALK_STEP VREAL nadir_roulette(VREAL s, VREAL v, const scene_t *sc)
-{
-#ifdef WARPE_WEIGHTED
-    return s;
-#else
-    const VMASK small = s < sc->s_min;
-    return SEL(s, SEL((VREAL)0, (VREAL)sc->s_min, v * sc->s_min < s), small);
-#endif
-}
-
 /* The mirror rows (mirror_table, walk.md §8.5) of a slab over a vacuum gap or of a stack for
  * the lanes in m, each from its own layer: an up row multiplies s, the straight score, and
  * arrives its row path after the straight path `up`; a down row multiplies sd, the score of
@@ -1083,7 +1081,7 @@ WALK_STEP void mirror_scores(VMASK m, VREAL s, VREAL up, VREAL sd, VREAL down, V
         const VREAL si = (kind == MIRROR_UP ? s : sd) * row[MIRROR_FACTOR];
         const VREAL tvi = (r->Ls + ((kind == MIRROR_UP ? up : down) + row[MIRROR_PATH]))
                         * tally->ns_per_m;
-        nadir_add(in, nadir_roulette(si, v, sc), tvi,
+        nadir_add(in, si, v, sc, tvi,
                   nadir_row(r->n_lamb > (VMASK)0, tvi, tally), first, r, tally);
     }
 }
@@ -1129,7 +1127,7 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
 #endif
     const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)0);
     const VREAL tv = (r->Ls + path) * tally->ns_per_m;
-    nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+    nadir_add(m, s, v, sc, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
               first, r, tally);
     if (sc->n_mirror > 0) {
         /* the mirror paths of a slab over a gap or of the lanes' layers of a stack
@@ -1176,7 +1174,7 @@ WALK_STEP void nadir_contact(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
 #endif
     const VREAL tv = (r->Ls + path) * tally->ns_per_m;
     const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1);
-    nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+    nadir_add(m, s, v, sc, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
               first, r, tally);
     /* a stack: the up rows of the last layer, whose bottom the floor is (walk.md §8.5); no
      * down rows (nothing but the floor lies below; a single layer on a floor has no rows) */
@@ -1200,7 +1198,7 @@ WALK_STEP void nadir_gap(VMASK m, VUINT x0, const scene_t *sc, rays_t *r,
 #endif
     const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)1);
     const VREAL tv = (r->Ls + sc->vg_path) * tally->ns_per_m;
-    nadir_add(m, nadir_roulette(s, v, sc), tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
+    nadir_add(m, s, v, sc, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
               first, r, tally);
     /* the paths that the faces above reflect back down and up again (walk.md §8.5): in a slab
      * over the gap, k round trips between its faces after the crossing */
@@ -1209,7 +1207,7 @@ WALK_STEP void nadir_gap(VMASK m, VUINT x0, const scene_t *sc, rays_t *r,
         if ((int)row[MIRROR_KIND] != MIRROR_GAP)
             continue;
         const VREAL tvi = (r->Ls + (sc->vg_path + row[MIRROR_PATH])) * tally->ns_per_m;
-        nadir_add(m, nadir_roulette(s * row[MIRROR_FACTOR], v, sc), tvi,
+        nadir_add(m, s * row[MIRROR_FACTOR], v, sc, tvi,
                   nadir_row(r->n_lamb > (VMASK)0, tvi, tally), first, r, tally);
     }
 }
@@ -1424,6 +1422,7 @@ __kernel void walk(const uint seed, const ulong scenario,
                    , __global const REAL *mirror /* [max(n_mirror, 1)][N_MIRROR] */
                    , const int n_mirror          /* its rows: 0 without a Fresnel face below */
                    , const REAL nadir_min        /* s_min of the score roulette (walk.md §8.3) */
+                   , const REAL nadir_min_new    /* its s_new, for scores that open a cell */
                    , const int bin_log, const REAL bin_a, const REAL bin_b  /* bin guess */
                    , const uint nadir_slices     /* work-item i writes slice i mod nadir_slices */
                    , __global ulong *nadir_sum   /* [slices][NADIR_BATCHES][N_NADIR_ROWS][n_edges + 1][FIXED_WORDS] */
@@ -1468,7 +1467,7 @@ __kernel void walk(const uint seed, const ulong scenario,
                         .vg_mu = view[GAP_ROW + VIEW_MU], .vg_tau = view[GAP_ROW + VIEW_TAU_ABOVE],
                         .vg_path = view[GAP_ROW + VIEW_PATH_ABOVE],
                         .vg_factor = view[GAP_ROW + VIEW_FACTOR],
-                        .s_min = nadir_min,
+                        .s_min = nadir_min, .s_new = nadir_min_new,
                         .inv_omega_words = (REAL)(1.0 / (double)omega_words),
                         .inv_albedo_words = (REAL)(1.0 / (double)albedo_words),
 #ifndef WARPE_TEXTURE_LAYERS

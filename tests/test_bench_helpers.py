@@ -173,3 +173,25 @@ def test_nadir_vs_tree_scene_and_order(monkeypatch):
     orders = [nvt.round_order(r) for r in range(3)]
     assert orders == [[0, 1, 2], [1, 2, 0], [2, 0, 1]]
     assert all(sorted(o[k] for o in orders) == [0, 1, 2] for k in range(3))
+
+
+def test_nadir_variance_ab_ratios():
+    """tools/nadir_variance_ab.py: variance ratios after / before, per bin over the bins where
+    both errors are positive, and of the time-integrated estimate; cells opened as counted."""
+    import nadir_variance_ab as nv
+    before = {"walk_s": 1.0,
+              "scattering": {"brdf_stderr": 2.0, "stderr": [1.0, 2.0, 0.0, 4.0], "cells": 10},
+              "bf_diffuse": {"brdf_stderr": 0.0, "stderr": [0.0, 0.0, 0.0, 0.0], "cells": 0}}
+    after = {"walk_s": 1.0,
+             "scattering": {"brdf_stderr": 3.0, "stderr": [1.0, 3.0, 5.0, 2.0], "cells": 6},
+             "bf_diffuse": {"brdf_stderr": 0.0, "stderr": [0.0, 0.0, 0.0, 0.0], "cells": 0}}
+    r = nv.variance_ratios(before, after)
+    s = r["scattering"]
+    assert s["cells"] == (10, 6) and s["bins"] == 3
+    assert s["whole"] == pytest.approx(2.25)
+    assert list(s["ratio"]) == pytest.approx([1.0, 2.25, 0.25])
+    assert s["above"] == [(1, pytest.approx(2.25))]
+    assert r["bf_diffuse"]["bins"] == 0
+    lines = nv.report("B1", before, after)
+    assert "cells opened 10 -> 6 (0.600)" in lines[1] and "bins above 1.05: 1: 2.25" in lines[2]
+    assert "no bin with an error in both" in lines[3]

@@ -251,6 +251,64 @@ def test_roulette_threshold(g, view, texture):
     assert dataclasses.replace(p, mode="weighted").nadir_min_score == 0.0
 
 
+@pytest.mark.parametrize("g", [0.0, 0.3, 0.8, -0.3])
+@pytest.mark.parametrize("roulette", [0.05, 0.1, 0.5, 1.0])
+def test_new_cell_roulette_threshold(g, roulette):
+    """s_new of the roulette for a score that would open a new pending cell (walk.md §8.3): r
+    times the score of a scattering at the top into the phase function's mean, F / (4 pi),
+    kept between s_min (r F p(pi)) and F p(pi) (the score straight back up); the host's value,
+    which the kernel gets, and the reference's agree; 0 without the roulette."""
+    from warpe_cl.reference import _nadir_scorer
+    p = WalkParams(texture="slab", thickness=1e-3, extinction=1e3, omega=0.9, g=g, n=1.3,
+                   k=0.0, albedo=0.0, time_edges=EDGES, nadir=True, nadir_roulette=roulette,
+                   view_zenith=20.0)
+    top = view_table(p)[0, -1] * henyey_greenstein_phase(g, -1.0)
+    mean = view_table(p)[0, -1] / (4.0 * math.pi)
+    expected = min(max(roulette * mean, roulette * top), top)
+    assert p.nadir_new_cell_score == pytest.approx(expected, rel=1e-12)
+    assert _nadir_scorer(p, None, list(EDGES)).s_new == pytest.approx(expected, rel=1e-12)
+    assert p.nadir_new_cell_score >= p.nadir_min_score
+    if g <= 0.0 or roulette == 1.0:
+        assert p.nadir_new_cell_score == pytest.approx(p.nadir_min_score, rel=1e-12)
+    if g == 0.8 and roulette == 0.1:        # r (1 + g)^2 / (1 - g) = 1.62: the cap
+        assert p.nadir_new_cell_score == pytest.approx(top, rel=1e-12)
+    assert dataclasses.replace(p, nadir_roulette=0.0).nadir_new_cell_score == 0.0
+    assert dataclasses.replace(p, mode="weighted").nadir_new_cell_score == 0.0
+
+
+def test_roulettes_are_unbiased_on_the_same_rays(engine):
+    """The roulette of small scores, at s_min and at the higher s_new of the scores that open a
+    new cell (walk.md §8.3), adds zero on average: the estimator draws no random number, so
+    with and without the roulette the rays are the same and the difference of their nadir
+    sums is the roulettes' noise alone. Its mean over the photons, per row and in the early and
+    late halves of the bins, lies within 5 sigma of 0, sigma the spread of the difference's
+    batch means. g = 0.8, where s_new is 10 s_min; r = 0.1 lowers the cells opened by a
+    third or more."""
+    p = WalkParams(texture="slab", thickness=0.01, extinction=1000.0, omega=0.99, g=0.8,
+                   n=1.3, k=0.0, albedo=0.15, time_edges=EDGES, bottom_interface="none",
+                   nadir=True, nadir_roulette=0.1)
+    n = 20_000
+    played = engine.run(p, n)
+    every = engine.run(dataclasses.replace(p, nadir_roulette=0.0), n)
+    assert played.scattering_events == every.scattering_events
+    assert p.nadir_new_cell_score == pytest.approx(10.0 * p.nadir_min_score, rel=1e-12)
+    assert played.nadir_visits.sum() < 0.67 * every.nadir_visits.sum()
+    diff = fixed_to_float(played.nadir_sum) - fixed_to_float(every.nadir_sum)   # (B, rows, cols)
+    half = diff.shape[-1] // 2
+    s, b, o = (NADIR_ROWS.index(r) for r in ("scattering", "bf_diffuse", "order_1"))
+    for part in (diff[:, s, :half], diff[:, s, half:], diff[:, b, :half], diff[:, b, half:],
+                 diff[:, o, :]):
+        sums = part.sum(axis=-1)
+        value = sums.sum() / n
+        err = float(_batch_error(sums, played.nadir_batch_photons))
+        assert err > 0.0                    # the roulettes played in this part
+        # 5 sigma of the roulettes' own noise (the same rays: no ray-to-ray spread)
+        assert abs(value) < 5.0 * err, (value, err)
+    total = fixed_to_float(every.nadir_sum)[:, s].sum() / n
+    noise = float(_batch_error(diff[:, s].sum(axis=-1), played.nadir_batch_photons))
+    assert noise < 1e-3 * total             # a sharp test: 5 sigma is within 0.5 % of the value
+
+
 def test_view_table_granular_and_slab():
     """The factor T / (m^2 mu): 1 / mu_v for a granular layer (no interface, m = 1); for a
     slab at nadir (1 - R_int(1)) / n^2, the gap row (1 - R_ext) T_top / 1."""

@@ -210,6 +210,7 @@ WALK_ARGS = (
     KernelArg("mirror", "__global const REAL *", only="nadir"),
     KernelArg("n_mirror", "int", only="nadir"),
     KernelArg("nadir_min", "REAL", lambda p: p.nadir_min_score, only="nadir"),
+    KernelArg("nadir_min_new", "REAL", lambda p: p.nadir_new_cell_score, only="nadir"),
     KernelArg("bin_log", "int", only="nadir"),
     KernelArg("bin_a", "REAL", only="nadir"),
     KernelArg("bin_b", "REAL", only="nadir"),

@@ -343,7 +343,8 @@ class WalkParams:
     nadir_roulette : float
         Analog walk: nadir scores below this fraction of the score of a scattering at the
         top straight back up (:attr:`nadir_min_score`) play an unbiased roulette
-        (docs/walk.md §8.3); 0: every score counts.
+        (docs/walk.md §8.3), those that would open a new pending cell against
+        :attr:`nadir_new_cell_score`; 0: every score counts.
     """
 
     texture: str
@@ -445,6 +446,19 @@ class WalkParams:
         g = float(self.stack[0].g)
         back = (1.0 - g * g) / (4.0 * np.pi * (1.0 + g) ** 3)      # p(pi)
         return float(self.nadir_roulette) * float(view_table(self)[0, -1]) * back
+
+    @property
+    def nadir_new_cell_score(self) -> float:
+        """s_new of the roulette for a nadir score that would open a new pending cell (docs/walk.md
+        §8.3), sr^-1: s_min times the ratio of the HG phase function's mean 1/(4 pi) to its
+        backscatter p(pi), (1 + g)^2 / (1 - g), kept between s_min and s_min / nadir_roulette
+        (the score of a scattering at the top straight back up); 0 where s_min is 0."""
+        s_min = self.nadir_min_score
+        if not s_min > 0:
+            return 0.0
+        g = float(self.stack[0].g)
+        r = float(self.nadir_roulette)
+        return s_min * min(max((1.0 + g) ** 2 / (1.0 - g), 1.0), 1.0 / r)
 
     @property
     def cos_fov(self) -> np.ndarray:

@@ -255,6 +255,10 @@ class NadirScorer:
                * henyey_greenstein_phase(layers[0][5], -1.0))
         self.s_min = (0.0 if self.weighted or not params.nadir_roulette > 0
                       else float(params.nadir_roulette) * top)
+        # s_new, for a score that would open a new pending cell: s_min times the phase
+        # function's mean over its backscatter, 1 / (4 pi p(pi)), within [s_min, top]
+        ratio = 1.0 / (4.0 * math.pi * henyey_greenstein_phase(layers[0][5], -1.0))
+        self.s_new = min(max(self.s_min * ratio, self.s_min), top) if self.s_min > 0 else 0.0
         self.sums = [[[0] * self.cols for _ in NADIR_ROWS] for _ in range(NADIR_BATCHES)]
         self.visits = [[0] * self.cols for _ in NADIR_ROWS]
         # the mirror paths of a slab over a vacuum gap or of a stack, (kind, layer, factor,
@@ -299,15 +303,6 @@ class NadirScorer:
         return 0 if i < 0 else (self.cols - 1 if i >= self.n_time else i + 1)
 
     def _add(self, s: float, t: float, lamb: bool, order_1: bool, word: int, words: int):
-        if not self.weighted and s < self.s_min:
-            # roulette (walk.md §8.3): the uniform (x + 1/2) / T of the surviving word x < T
-            if ((word + 0.5) / words) * self.s_min < s:
-                s = self.s_min
-            else:
-                return
-        if not s > 0.0:
-            return
-        self.total += s
         if self.history_rule:
             row = ROW_BF_DIFFUSE if lamb else ROW_SCATTERING
         else:
@@ -316,10 +311,21 @@ class NadirScorer:
             row = ROW_BF_DIFFUSE if (lamb or t >= self.t1 * (1.0 - 2.0 ** -16)) \
                 else ROW_SCATTERING
         col = self._column(t)
+        cell = row * self.cols + col
+        # roulette (walk.md §8.3) against s_new where the score would open a new cell (not the
+        # ray's first), else s_min; the uniform (x + 1/2) / T of the surviving word x < T
+        threshold = self.s_new if (cell != self.cell and not order_1) else self.s_min
+        if not self.weighted and s < threshold:
+            if ((word + 0.5) / words) * threshold < s:
+                s = threshold
+            else:
+                return
+        if not s > 0.0:
+            return
+        self.total += s
         if order_1:
             self.sums[self.batch][ROW_ORDER_1][col] += fixed_point(s)
             self.visits[ROW_ORDER_1][col] += 1
-        cell = row * self.cols + col
         if cell == self.cell:
             self.pending += s
         else:

@@ -296,7 +296,9 @@ SCHEMA: list[Field] = [
     _F("simulation.nadir_roulette", "float", 0.1, low=0.0, high=1.0,
        help="Analog walk: nadir scores below this fraction of the score of a scattering at "
             "the top straight back up play an unbiased roulette (docs/walk.md §8.3), which "
-            "trades a little variance of deep events for speed; 0: every score counts."),
+            "trades a little variance of deep events for speed; a score that would open a new "
+            "time cell of its ray plays against a higher threshold where the phase function "
+            "is forward (g > 0), at most that score itself; 0: every score counts."),
     _F("simulation.min_rays", "int", 3, low=0,
        help="Time bins holding fewer rays than this are flagged as under-sampled "
             "(the specular is exempt)."),
