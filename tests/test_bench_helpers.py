@@ -195,3 +195,22 @@ def test_nadir_variance_ab_ratios():
     lines = nv.report("B1", before, after)
     assert "cells opened 10 -> 6 (0.600)" in lines[1] and "bins above 1.05: 1: 2.25" in lines[2]
     assert "no bin with an error in both" in lines[3]
+
+
+def test_run_in_tree(tmp_path):
+    """tools/_common.py run_in_tree: the child sees the tree first on PYTHONPATH and its last
+    line of output comes back as JSON; a failing child, or a folder that is no checkout, ends
+    the tool with one line naming the tree."""
+    from _common import run_in_tree
+    tree = tmp_path / "tree"
+    (tree / "warpe_cl").mkdir(parents=True)
+    script = tmp_path / "child.py"
+    script.write_text("import json, os, sys\n"
+                      "if sys.argv[1] == 'fail':\n    raise ValueError('no such key')\n"
+                      "print('noise')\n"
+                      "print(json.dumps({'path': os.environ['PYTHONPATH'], 'n': sys.argv[2]}))\n")
+    assert run_in_tree(script, tree, ["ok", 3]) == {"path": str(tree), "n": "3"}
+    with pytest.raises(SystemExit, match=r"tree: ValueError: no such key$"):
+        run_in_tree(script, tree, ["fail", 0])
+    with pytest.raises(SystemExit, match="not a warpe-cl checkout"):
+        run_in_tree(script, tmp_path / "nowhere", ["ok", 1])

@@ -6,6 +6,12 @@ The tools run as scripts (``python tools/bench.py``), so their folder is first o
 """
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 
 def loadavg():
     """The 1, 5 and 15 min load averages (None where /proc/loadavg is missing)."""
@@ -14,3 +20,18 @@ def loadavg():
             return [float(v) for v in fh.read().split()[:3]]
     except OSError:
         return None
+
+
+def run_in_tree(script, tree, args, cwd=None) -> dict:
+    """Run ``python script *args`` in a new process whose ``warpe_cl`` (and so ``cl/``) is
+    ``tree``'s (``PYTHONPATH``), and return the JSON of the last line it prints. A failure
+    ends the tool with one line: the tree and the child's last line of stderr."""
+    if not (Path(tree) / "warpe_cl").is_dir():
+        raise SystemExit(f"{tree}: not a warpe-cl checkout (no warpe_cl/ folder in it)")
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    out = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True,
+                         text=True, env=env, cwd=str(cwd or tree))
+    if out.returncode:
+        last = (out.stderr.strip().splitlines() or ["no message"])[-1]
+        raise SystemExit(f"{tree}: {last}")
+    return json.loads(out.stdout.strip().splitlines()[-1])

@@ -20,12 +20,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from _common import run_in_tree  # tools/ is first on sys.path when run as a script
 
 ROWS = ("scattering", "bf_diffuse")
 
@@ -57,13 +57,9 @@ def child(scene: str, photons: int, device: str | None, sets: list) -> dict:
 
 def run_child(tree: Path, scene: str, photons: int, device: str | None, sets: list) -> dict:
     """``child`` in a new process whose warpe_cl and cl/ are ``tree``'s."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), str(tree / "tools")]))
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", scene, "--photons",
-           str(photons), *(["--device", device] if device else []),
-           *(x for s in sets for x in ("--set", s))]
-    done = subprocess.run(cmd, env=env, cwd=str(tree), capture_output=True, text=True,
-                          check=True)
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    args = ["--child", scene, "--photons", photons, *(["--device", device] if device else []),
+            *(x for s in sets for x in ("--set", s))]
+    return run_in_tree(Path(__file__).resolve(), tree, args)
 
 
 def variance_ratios(before: dict, after: dict) -> dict:

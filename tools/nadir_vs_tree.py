@@ -24,7 +24,6 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -77,15 +76,10 @@ def child(device: str | None, photons: int, nadir: bool, older: bool) -> dict:
 
 def run_child(tree: Path, device: str | None, photons: int, nadir: bool, older: bool) -> dict:
     """:func:`child` in a new process with ``tree`` first on ``PYTHONPATH``."""
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", "--photons", str(photons)]
-    cmd += ["--device", device] if device else []
-    cmd += ["--nadir"] if nadir else []
-    cmd += ["--older"] if older else []
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    out = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=str(HERE))
-    if out.returncode:
-        raise SystemExit(f"{tree}: {out.stderr.strip().splitlines()[-1]}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    from _common import run_in_tree
+    args = ["--child", "--photons", photons, *(["--device", device] if device else []),
+            *(["--nadir"] if nadir else []), *(["--older"] if older else [])]
+    return run_in_tree(Path(__file__).resolve(), tree, args, cwd=HERE)
 
 
 def round_order(r: int) -> list:
