@@ -20,15 +20,27 @@ SCORE_STEP VREAL exp_neg_score(VREAL tau)
 #ifdef WARPE_DOUBLE
     return exp(-tau);
 #else
+#ifdef WARPE_BUILTINS
     const VREAL y = -tau * (REAL)1.4426950408889634;
-    const VREAL n = rint_lanes(y);
+    const VREAL n = rint(y);
+#else
+    /* rint(y) as (y + 1.5 2^23) - 1.5 2^23, exact and ties to even for |y| < 2^22: y is at
+     * most 1/2 (tau >= 0 but for a rounding), and held at -150, below which e^-tau is 0 all
+     * the same */
+    VREAL y = -tau * (REAL)1.4426950408889634;
+    y = SEL(y, (VREAL)-150, y < (REAL)-150);
+    const VREAL n = (y + (REAL)0x1.8p23f) - (REAL)0x1.8p23f;
+#endif
     const VREAL f = y - n;
     VREAL p = f * (REAL)0.0012915669940412045f + (REAL)0.009668530896306038f;
     p = f * p + (REAL)0.055516887456178665f;
     p = f * p + (REAL)0.24022264778614044f;
     p = f * p + (REAL)0.6931464672088623f;
     p = f * p + (REAL)1.0f;
-    return times_pow2(p, n);
+    /* times 2^n, n <= 0: times_pow2 without its test for n > 127 (0 below n = -125) */
+    const VREAL e = SEL(n, (VREAL)-126, n < (REAL)-126);
+    const VREAL scale = AS_VREAL((CONVERT_VMASK(e) + (VMASK)127) << 23);
+    return SEL(p * scale, (VREAL)0, n < (REAL)-125);
 #endif
 }
 

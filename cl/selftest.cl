@@ -88,13 +88,16 @@ __kernel void word_events(const ulong T, __global const uint *x, __global int *o
 }
 #endif
 
-/* lanes.h lane_bits of the mask whose lane j is set where bit j of pattern[i] is (the lanes of
- * the width this program is built with; the test builds it at each width). */
+/* lanes.h lane_bits, ANY and ALL of the mask whose lane j is set where bit j of pattern[i] is
+ * (the lanes of the width this program is built with; the test builds it at each width), in
+ * out[3i], out[3i + 1] and out[3i + 2] */
 __kernel void lane_bits_of(__global const uint *pattern, __global uint *out)
 {
     size_t i = get_global_id(0);
     const VMASK m = (((VMASK)(IREAL)pattern[i] >> LANE_INDEX) & (VMASK)1) != (VMASK)0;
-    out[i] = lane_bits(m);
+    out[3 * i] = lane_bits(m);
+    out[3 * i + 1] = ANY(m) ? 1u : 0u;
+    out[3 * i + 2] = ALL(m) ? 1u : 0u;
 }
 
 /* lanes.h lowest_lane of pattern[i] (never 0) */

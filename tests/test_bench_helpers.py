@@ -214,3 +214,27 @@ def test_run_in_tree(tmp_path):
         run_in_tree(script, tree, ["fail", 0])
     with pytest.raises(SystemExit, match="not a warpe-cl checkout"):
         run_in_tree(script, tmp_path / "nowhere", ["ok", 1])
+
+
+def test_kernel_icount_reads_the_walk_kernel_only():
+    """tools/kernel_icount.py: the instructions of a cachegrind file counted in the walk
+    kernel's functions only (every line of each, nothing from a file's other functions or from
+    another kernel), and its ratios: nadir on / off per tree, each tree / the first."""
+    import kernel_icount
+    text = "\n".join([
+        "events: Ir", "fl=???", "fn=_pocl_kernel_walk_workgroup", "0 1000", "12 234",
+        "fn=_pocl_kernel_nadir_fold_workgroup", "0 77", "fn=_pocl_kernel_walk", "0 5",
+        "fl=/usr/lib/libc.so", "fn=memcpy", "0 999", "fn=_pocl_kernel_walk_workgroup_fast",
+        "3 10", "summary: 2560"])
+    assert kernel_icount.kernel_instructions(text) == 1000 + 234 + 5 + 10
+
+    def walk(per_event):
+        return {"per_event": per_event, "per_photon": 89 * per_event, "lanes": 8,
+                "kernel_instructions": int(per_event * 1000), "scattering_events": 1000}
+    results = {("A", "B1", False): walk(100.0), ("A", "B1", True): walk(140.0),
+               ("B", "B1", False): walk(100.0), ("B", "B1", True): walk(133.0)}
+    lines = kernel_icount.report(results, ["A", "B"], ["B1"], [False, True])
+    assert "A B1 nadir on / off: 1.4000" in lines
+    assert "B B1 nadir on / off: 1.3300" in lines
+    assert "B1 nadir on: B / A: 0.9500" in lines
+    assert "B1 nadir off: B / A: 1.0000" in lines

@@ -204,19 +204,23 @@ def test_walk_math_accuracy(engine, selftest):
 
 @pytest.mark.parametrize("lanes", [1, 2, 4, 8, 16])
 def test_lane_bits_at_every_width(engine, lanes):
-    """lanes.h lane_bits (one bit per true lane, from the mask's bytes by one multiply per 8
-    lanes), which the nadir estimate's flushes use to find their lanes: every mask of every
-    lane width gives its own bits, lane j on bit j."""
+    """lanes.h lane_bits (one bit per true lane: an OR reduction of the lanes' bits, or from
+    the mask's bytes by one multiply per 8 lanes), which the nadir estimate's flushes use to
+    find their lanes, and ANY and ALL, which every step of the walk tests: every mask of every
+    lane width gives its own bits, lane j on bit j, ANY iff some lane is set, ALL iff every
+    lane is."""
     from warpe_cl.device import SELFTEST_FILES, build_program
     prog = build_program(engine.device, SELFTEST_FILES, (f"-DWARPE_LANES={lanes}",))
     pattern = np.arange(2 ** lanes, dtype=np.uint32)
-    out = np.zeros_like(pattern)
+    out = np.zeros((len(pattern), 3), dtype=np.uint32)
     mf = cl.mem_flags
     d_p = cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pattern)
     d_out = cl.Buffer(engine.context, mf.WRITE_ONLY, out.nbytes)
     _run(engine, prog.lane_bits_of, len(pattern), d_p, d_out)
     cl.enqueue_copy(engine.queue, out, d_out)
-    np.testing.assert_array_equal(out, pattern)
+    np.testing.assert_array_equal(out[:, 0], pattern)
+    np.testing.assert_array_equal(out[:, 1], pattern != 0)
+    np.testing.assert_array_equal(out[:, 2], pattern == 2 ** lanes - 1)
 
 
 def test_lowest_lane_of_every_bit(engine):

@@ -22,15 +22,16 @@ def loadavg():
         return None
 
 
-def run_in_tree(script, tree, args, cwd=None) -> dict:
+def run_in_tree(script, tree, args, cwd=None, prefix=()) -> dict:
     """Run ``python script *args`` in a new process whose ``warpe_cl`` (and so ``cl/``) is
     ``tree``'s (``PYTHONPATH``), and return the JSON of the last line it prints. A failure
-    ends the tool with one line: the tree and the child's last line of stderr."""
+    ends the tool with one line: the tree and the child's last line of stderr. ``prefix``:
+    a command that runs the interpreter (``valgrind ...``, tools/kernel_icount.py)."""
     if not (Path(tree) / "warpe_cl").is_dir():
         raise SystemExit(f"{tree}: not a warpe-cl checkout (no warpe_cl/ folder in it)")
     env = dict(os.environ, PYTHONPATH=str(tree))
-    out = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True,
-                         text=True, env=env, cwd=str(cwd or tree))
+    out = subprocess.run([*map(str, prefix), sys.executable, str(script), *map(str, args)],
+                         capture_output=True, text=True, env=env, cwd=str(cwd or tree))
     if out.returncode:
         last = (out.stderr.strip().splitlines() or ["no message"])[-1]
         raise SystemExit(f"{tree}: {last}")
