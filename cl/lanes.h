@@ -164,11 +164,11 @@ typedef WARPE_CAT(ulong, WARPE_LANES) VULONG;
 #define LANE_INDEX ((VMASK)(0, 1))
 #endif
 
-/* ANY: clang's OR reduction of the lanes where the compiler has it, which x86's LLVM turns into
- * one vptest (pip's PoCL 3.0 and Intel's CPU runtime both do), where the bytes took five
- * shuffles and moves: 4.5 % fewer instructions per event in B1's walk with the nadir estimate
- * and 5 % more events per second, the walk without it unchanged (docs/performance.md). Both
- * give the same answer for every mask. */
+/* ANY: clang's OR reduction of the lanes where the compiler has it (pip's PoCL 3.0 and Intel's
+ * CPU runtime both do), which x86's LLVM turns into one vptest where the bytes took five
+ * shuffles and moves: 4.4 % fewer instructions per event in B1's walk with the nadir estimate
+ * on pip's PoCL, 1 % without it, and 1.03-1.06x its speed there (docs/performance.md). Both
+ * give the same answer for every mask (tests/test_kernel_blocks.py). */
 #if defined(__has_builtin)
 #if __has_builtin(__builtin_reduce_or)
 #define WARPE_REDUCE_OR

@@ -13,8 +13,8 @@
  * precision: exp. Single precision: 2^n 2^f with y = -tau log2(e) = n + f, n = rint(y),
  * |f| <= 1/2, and 2^f by a degree-5 polynomial, each product and sum rounded (a weighted
  * least-squares fit of 2^f on [-1/2, 1/2]: 3.5e-7 relative at most, 6 ulp), times 2^n
- * (times_pow2, scatter.h). exp_neg in its place cost B1 with the estimate 4 %
- * (docs/performance.md). */
+ * (as times_pow2, scatter.h, for n <= 0: 0 below n = -125). exp_neg in its place cost B1 with
+ * the estimate 4 % (docs/performance.md). */
 SCORE_STEP VREAL exp_neg_score(VREAL tau)
 {
 #ifdef WARPE_DOUBLE
