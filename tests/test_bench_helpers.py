@@ -238,3 +238,15 @@ def test_kernel_icount_reads_the_walk_kernel_only():
     assert "B B1 nadir on / off: 1.3300" in lines
     assert "B1 nadir on: B / A: 0.9500" in lines
     assert "B1 nadir off: B / A: 1.0000" in lines
+
+
+def test_print_report_prints_and_writes(tmp_path, capsys):
+    """tools/_common.py print_report: the lines printed, and the same lines written to the
+    file only when one is given."""
+    from _common import print_report
+    print_report(["a", "b"])
+    assert capsys.readouterr().out == "a\nb\n"
+    out = tmp_path / "r.txt"
+    print_report(["c"], out)
+    assert capsys.readouterr().out == "c\n"
+    assert out.read_text() == "c\n"

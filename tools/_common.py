@@ -36,3 +36,11 @@ def run_in_tree(script, tree, args, cwd=None, prefix=()) -> dict:
         last = (out.stderr.strip().splitlines() or ["no message"])[-1]
         raise SystemExit(f"{tree}: {last}")
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def print_report(lines, path=None) -> None:
+    """Print a tool's report, one line each, and write the same lines to ``path`` if given."""
+    text = "\n".join(lines)
+    print(text)
+    if path:
+        Path(path).write_text(text + "\n")

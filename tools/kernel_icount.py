@@ -27,7 +27,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from _common import run_in_tree  # tools/ is first on sys.path when run as a script
+from _common import print_report, run_in_tree  # tools/ is first on sys.path when run as a script
 
 HERE = Path(__file__).resolve()
 #: The walk kernel's functions in PoCL's machine code (the work-group loop and its variants).
@@ -158,9 +158,7 @@ def main(argv=None) -> int:
             for nadir in args.nadir_list:
                 results[(tree, scene, nadir)] = count(Path(tree), scene, nadir, args.photons)
     lines = report(results, trees, scenes, args.nadir_list)
-    print("\n".join(lines))
-    if args.out:
-        Path(args.out).write_text("\n".join(lines) + "\n")
+    print_report(lines, args.out)
     if args.json:
         Path(args.json).write_text(json.dumps(
             [{"tree": t, "scene": s, "nadir": n, **r} for (t, s, n), r in results.items()],

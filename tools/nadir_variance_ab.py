@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import run_in_tree  # tools/ is first on sys.path when run as a script
+from _common import print_report, run_in_tree  # tools/ is first on sys.path when run as a script
 
 ROWS = ("scattering", "bf_diffuse")
 
@@ -124,9 +124,7 @@ def main(argv=None) -> int:
         before = run_child(args.before.resolve(), scene, photons, args.device, args.set)
         after = run_child(args.after.resolve(), scene, photons, args.device, args.set)
         lines += report(scene + "".join(f" ({s})" for s in args.set), before, after)
-    print("\n".join(lines))
-    if args.out:
-        args.out.write_text("\n".join(lines) + "\n")
+    print_report(lines, args.out)
     return 0
 
 

@@ -115,7 +115,7 @@ def main(argv=None) -> int:
         return 0
     if args.tree is None:
         ap.error("--tree is required")
-    from _common import loadavg
+    from _common import loadavg, print_report
 
     trees = {"older": args.tree.resolve(), "this": HERE.parent}
     lines = [f"python tools/nadir_vs_tree.py --tree {args.tree} --device {args.device} "
@@ -140,9 +140,7 @@ def main(argv=None) -> int:
         seconds = [[x["seconds"] for x in runs[i]] for i in (a, b)]
         lines.append(f"time, {label}: {quartiles(*seconds)}")
     lines.append(f"# load average at the end {loadavg()}")
-    print("\n".join(lines))
-    if args.write:
-        args.write.write_text("\n".join(lines) + "\n")
+    print_report(lines, args.write)
     return 0
 
 
