@@ -61,9 +61,8 @@ def child(scene: str, nadir: bool, photons: int) -> dict:
     from bench import SCENES                              # tools/ is on sys.path
     from warpe_cl.api import get_engine, walk_params
     from warpe_cl.config import load_preset
-    cfg = copy.deepcopy(SCENES[scene])
-    cfg["simulation"] = dict(cfg["simulation"], nadir=nadir)
-    params, _ = walk_params(load_preset(cfg))
+    cfg = load_preset(copy.deepcopy(SCENES[scene]), overrides={"simulation.nadir": nadir})
+    params, _ = walk_params(cfg)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         engine = get_engine(DEVICE)

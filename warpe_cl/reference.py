@@ -251,13 +251,13 @@ class NadirScorer:
         # back up, p(pi) T_0 / (m_0^2 mu_0) (walk.md §8.3)
         top_m = layers[0][1][0]
         mu0 = math.sqrt(1.0 - (sin_v / top_m) ** 2)
-        top = (self._transmission(0, mu0) / (top_m * top_m * mu0)
-               * henyey_greenstein_phase(layers[0][5], -1.0))
+        back = henyey_greenstein_phase(layers[0][5], -1.0)          # p(pi)
+        top = self._transmission(0, mu0) / (top_m * top_m * mu0) * back
         self.s_min = (0.0 if self.weighted or not params.nadir_roulette > 0
                       else float(params.nadir_roulette) * top)
         # s_new, for a score that would open a new pending cell: s_min times the phase
         # function's mean over its backscatter, 1 / (4 pi p(pi)), within [s_min, top]
-        ratio = 1.0 / (4.0 * math.pi * henyey_greenstein_phase(layers[0][5], -1.0))
+        ratio = 1.0 / (4.0 * math.pi * back)
         self.s_new = min(max(self.s_min * ratio, self.s_min), top) if self.s_min > 0 else 0.0
         self.sums = [[[0] * self.cols for _ in NADIR_ROWS] for _ in range(NADIR_BATCHES)]
         self.visits = [[0] * self.cols for _ in NADIR_ROWS]
