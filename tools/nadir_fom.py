@@ -102,17 +102,20 @@ def one_run(overrides: dict, photons: int, cones, device=None, scene_name: str =
 
 
 def measure(args) -> dict:
-    """Warm-up, then --rounds interleaved rounds of every configuration."""
+    """Warm-up, then --rounds interleaved rounds of every configuration, in turn in one order
+    and the reverse (as tools/bench_ab.py), so that a drift of the machine's speed within a
+    round weighs on every configuration alike."""
     configs = configurations(args.roulettes)
     for _, over in configs:                     # builds each kernel, untimed
         one_run(over, min(args.photons, 10_000), args.cones, args.device, args.scene_name)
     runs = {label: [] for label, _ in configs}
     for i in range(args.rounds):
-        line = []
-        for label, over in configs:
+        line = {}
+        for label, over in (configs if i % 2 == 0 else configs[::-1]):
             row = one_run(over, args.photons, args.cones, args.device, args.scene_name)
             runs[label].append(row)
-            line.append(f"{label} {row['events_per_s']:.3g}")
+            line[label] = f"{label} {row['events_per_s']:.3g}"
+        line = [line[label] for label, _ in configs]
         print(f"round {i + 1}/{args.rounds}: scattering events/s: " + ", ".join(line),
               flush=True)
     return runs
