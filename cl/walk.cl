@@ -1086,12 +1086,15 @@ WALK_STEP void mirror_scores(VMASK m, VREAL s, VREAL up, VREAL sd, VREAL down, V
     }
 }
 
-/* A scattering of the lanes in m, with their direction before it (walk.md §8): q = p(Theta),
- * the HG phase function normalised to 1 over the sphere,
+/* A scattering of the lanes in m, with ux, uz of their direction before it (walk.md §8):
+ * q = p(Theta), the HG phase function normalised to 1 over the sphere,
  *   p = (1 - g^2) / (4 pi (1 + g^2 - 2 g cos Theta)^(3/2)),
- * cos Theta = u . (sin_l, 0, -mu_l); tau and the path from its depth in layer l up. */
-WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
-                             const tallies_t *tally)
+ * cos Theta = u . (sin_l, 0, -mu_l); tau and the path from its depth in layer l up. Called at
+ * the end of the event, where the walk's own temporaries are dead (fewer vectors spilled to
+ * the stack than in the middle of it, docs/performance.md): the lanes' position, time and
+ * weight are still those of the scattering, which has been counted (n_scat >= 1). */
+WALK_STEP void nadir_scatter(VMASK m, VUINT x1, VREAL ux, VREAL uz, const scene_t *sc,
+                             rays_t *r, const tallies_t *tally)
 {
 #ifdef WARPE_TEXTURE_LAYERS
     const VREAL g = r->g, sin_v = r->v_sin, mu_v = r->v_mu, depth = r->z - r->z_top;
@@ -1119,13 +1122,13 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
         return;
 #endif
 #endif
-    const VREAL c = r->ux * sin_v - r->uz * mu_v;
+    const VREAL c = ux * sin_v - uz * mu_v;
     const VREAL x = ((REAL)1 + g * g) - (REAL)2 * g * c;
     VREAL s = k * pow_m3_2(x) * exp_neg_score(tau);
 #ifdef WARPE_WEIGHTED
     s *= r->w;
 #endif
-    const VMASK first = (r->n_scat == (VMASK)0) & (r->n_lamb == (VMASK)0);
+    const VMASK first = (r->n_scat == (VMASK)1) & (r->n_lamb == (VMASK)0);
     const VREAL tv = (r->Ls + path) * tally->ns_per_m;
     nadir_add(m, s, v, sc, tv, nadir_row(r->n_lamb > (VMASK)0, tv, tally),
               first, r, tally);
@@ -1140,7 +1143,7 @@ WALK_STEP void nadir_scatter(VMASK m, VUINT x1, const scene_t *sc, rays_t *r,
         const VREAL below = (REAL)sc->h - r->z;
         const VREAL tau_down = sc->v_tau_per_m * below, path_down = sc->v_path_per_m * below;
 #endif
-        const VREAL xd = ((REAL)1 + g * g) - (REAL)2 * g * (r->ux * sin_v + r->uz * mu_v);
+        const VREAL xd = ((REAL)1 + g * g) - (REAL)2 * g * (ux * sin_v + uz * mu_v);
         VREAL sd = k * pow_m3_2(xd) * exp_neg_score(tau_down);
 #ifdef WARPE_WEIGHTED
         sd *= r->w;
@@ -1597,10 +1600,10 @@ __kernel void walk(const uint seed, const ulong scenario,
         /* collision (walk.md §3 step 3.4, docs/physics.md §5.4): the medium's toll, then the HG
          * deflection (u2) and the azimuth (u3) */
         coll = medium_toll(coll, u1, x1, &sc, &r, &e);
-#ifdef WARPE_NADIR
-        nadir_scatter(coll, x1, &sc, &r, &tally);     /* before the new direction (walk.md §8) */
-#endif
         r.n_scat += ONE(coll);
+#ifdef WARPE_NADIR
+        const VREAL ux_before = r.ux, uz_before = r.uz;   /* nadir_scatter's, below */
+#endif
         {   /* some lane collides in almost every event: no test */
             VREAL vx = r.ux, vy = r.uy, vz = r.uz;
             rotate_direction(&vx, &vy, &vz, hg_cos_theta(g_lanes, u2), cos_psi, sin_psi);
@@ -1634,6 +1637,10 @@ __kernel void walk(const uint seed, const ulong scenario,
 #endif
             }
         }
+        /* the scatterings of this event, with the direction before them (walk.md §8): no
+         * lane both scatters and reflects or ends in one event, so the order of the two
+         * leaves each ray's scores as they were */
+        nadir_scatter(coll, x1, ux_before, uz_before, &sc, &r, &tally);
 #endif
 
         if (ANY(e.done)) {
