@@ -450,6 +450,17 @@ def compare_mcxcl(engine, params, ours, counts, args, state) -> tuple:
 
 # ---------------------------------------------------------------- the run
 
+def scene_list(text: str) -> list:
+    """The scenes of a comma-separated ``--scenes``; ValueError naming the unknown ones and the
+    choices (tools/kernel_icount.py checks its own ``--scenes`` with it too)."""
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    unknown = [s for s in names if s not in SCENES]
+    if unknown:
+        raise ValueError(f"--scenes: unknown {', '.join(unknown)}; "
+                         f"choose from {', '.join(SCENES)}")
+    return names
+
+
 def parse_args(argv) -> argparse.Namespace:
     """The command line, checked; ``args.scene_list`` and ``args.mode_list`` are its lists."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -499,10 +510,10 @@ def parse_args(argv) -> argparse.Namespace:
     args.mode_list = [m.strip() for m in args.modes.split(",") if m.strip()]
     if not args.mode_list or any(m not in ("analog", "weighted") for m in args.mode_list):
         p.error(f"--modes: {args.modes!r}; choose from analog, weighted")
-    args.scene_list = [s.strip() for s in args.scenes.split(",") if s.strip()]
-    unknown = [s for s in args.scene_list if s not in SCENES]
-    if unknown:
-        p.error(f"--scenes: unknown {', '.join(unknown)}; choose from {', '.join(SCENES)}")
+    try:
+        args.scene_list = scene_list(args.scenes)
+    except ValueError as err:
+        p.error(str(err))
     if args.rounds < 1:
         p.error("--rounds: at least 1")
     if "toy" in args.compare and "B1" not in args.scene_list:

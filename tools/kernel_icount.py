@@ -130,6 +130,11 @@ def parse_args(argv):
     args.photons = int(args.photons)
     if args.photons < 1:
         p.error(f"--photons {args.photons}: at least 1 photon")
+    from bench import scene_list                          # tools/ is on sys.path
+    try:
+        args.scene_list = scene_list(args.scenes)
+    except ValueError as err:
+        p.error(str(err))
     choices = {"off": False, "on": True}
     try:
         args.nadir_list = [choices[v] for v in args.nadir.split(",")]
@@ -143,14 +148,10 @@ def main(argv=None) -> int:
     if args.child:
         print(json.dumps(child(args.child, args.nadir_list[0], args.photons)))
         return 0
-    from bench import SCENES
-    scenes = args.scenes.split(",")
-    unknown = [s for s in scenes if s not in SCENES]
-    if unknown:
-        raise SystemExit(f"--scenes: {','.join(unknown)} not among {', '.join(SCENES)}")
     if shutil.which("valgrind") is None:
         raise SystemExit("kernel_icount: valgrind is not installed (apt install valgrind)")
     trees = [str(Path(t).resolve()) for t in args.trees.split(",")]
+    scenes = args.scene_list
     results = {}
     for tree in trees:
         for scene in scenes:
