@@ -110,14 +110,12 @@ def measure(args) -> dict:
         one_run(over, min(args.photons, 10_000), args.cones, args.device, args.scene_name)
     runs = {label: [] for label, _ in configs}
     for i in range(args.rounds):
-        line = {}
         for label, over in (configs if i % 2 == 0 else configs[::-1]):
-            row = one_run(over, args.photons, args.cones, args.device, args.scene_name)
-            runs[label].append(row)
-            line[label] = f"{label} {row['events_per_s']:.3g}"
-        line = [line[label] for label, _ in configs]
-        print(f"round {i + 1}/{args.rounds}: scattering events/s: " + ", ".join(line),
-              flush=True)
+            runs[label].append(one_run(over, args.photons, args.cones, args.device,
+                                       args.scene_name))
+        print(f"round {i + 1}/{args.rounds}: scattering events/s: "
+              + ", ".join(f"{label} {runs[label][-1]['events_per_s']:.3g}"
+                          for label, _ in configs), flush=True)
     return runs
 
 
