@@ -347,6 +347,27 @@ def test_sigterm_flushes_the_manifest_and_names_resume(tmp_path):
     assert not list(folder.glob(".*")), "temporary files left behind"
 
 
+def test_a_stop_between_a_record_and_its_count_counts_it(tmp_path, monkeypatch):
+    """The one line after Ctrl-C or SIGTERM counts what the manifest lists: a stop raised
+    after a scenario's record is stored but before it is counted (here, in the progress text
+    made between the two) still counts it. The race that once printed "after 0 of 4" with one
+    file in the folder, made deterministic."""
+    import warpe_cl.sweep as sweep_module
+
+    def stop(point):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(sweep_module, "point_text", stop)
+    folder = tmp_path / "db"
+    with pytest.raises(KeyboardInterrupt) as caught:
+        sweep_module.run_sweep(_preset(tmp_path), folder, overrides={"simulation.photons": 300},
+                               quiet=True, say=lambda line: None)
+    summary = caught.value.summary
+    files = sorted(p.name for p in folder.glob("s*.nc"))
+    done = sorted(r["file"] for r in _manifest(folder)["scenarios"] if r["status"] == "done")
+    assert len(files) == 1 and done == files
+    assert (summary.done, summary.pending, summary.photons) == (1, 3, 300)
+
+
 # --------------------------------------------------------------------------- failures
 
 def test_a_bad_point_is_recorded_and_the_rest_completes(tmp_path, capsys):

@@ -370,6 +370,21 @@ def _triage(sweep: _Sweep, records: dict, summary: SweepSummary) -> list:
     return todo
 
 
+def _count_from_records(summary: SweepSummary, todo: list, records: dict) -> None:
+    """Recount this run's done and failed scenarios and its rays from ``records``.
+
+    The loop of :func:`_run` stores a record and then counts it; a signal raised between the
+    two (Ctrl-C, SIGTERM) would leave the count one short of the manifest. After a stop, the
+    records are the truth: the counts are made again from them.
+    """
+    computed = [(s, records[s.index]) for s in todo]
+    summary.done = sum(r["status"] == "done" for _, r in computed)
+    summary.photons = sum(r.get("photons") or 0 for _, r in computed if r["status"] == "done")
+    known = {index for index, _, _ in summary.failed}
+    summary.failed += [(s.index, s.point, r["error"]) for s, r in computed
+                       if r["status"] == "failed" and s.index not in known]
+
+
 def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
     """The body of :func:`run_sweep` once the workers are open: manifest, tasks, progress."""
     folder = sweep.folder
@@ -417,7 +432,7 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
                 records[s.index] = {"status": "done", "error": None, "this_run": "computed",
                                     "finished_utc": utc_now(),
                                     "note": "file in place when the run was stopped"}
-                summary.done += 1
+        _count_from_records(summary, todo, records)
         err.summary = summary          # the command line's one line counts the finished ones
         raise
     finally:
