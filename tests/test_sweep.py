@@ -345,6 +345,8 @@ def test_sigterm_flushes_the_manifest_and_names_resume(tmp_path):
     done = sorted(r["file"] for r in _manifest(folder)["scenarios"] if r["status"] == "done")
     assert done == files
     assert not list(folder.glob(".*")), "temporary files left behind"
+    assert all(r["photons"] == 2_000_000 for r in _manifest(folder)["scenarios"]
+               if r["status"] == "done")
 
 
 def test_a_stop_between_a_record_and_its_count_counts_it(tmp_path, monkeypatch):
@@ -365,6 +367,33 @@ def test_a_stop_between_a_record_and_its_count_counts_it(tmp_path, monkeypatch):
     files = sorted(p.name for p in folder.glob("s*.nc"))
     done = sorted(r["file"] for r in _manifest(folder)["scenarios"] if r["status"] == "done")
     assert len(files) == 1 and done == files
+    assert (summary.done, summary.pending, summary.photons) == (1, 3, 300)
+
+
+def test_a_stop_after_a_file_is_in_place_counts_it_with_its_rays(tmp_path, monkeypatch):
+    """A stop raised after a scenario's file is renamed into place but before its record
+    comes back (here, at the record's time stamp) counts that scenario as done, with its
+    rays, in the one line and in the manifest: --resume will skip its file."""
+    import warpe_cl.sweep as sweep_module
+    folder = tmp_path / "db"
+    real_now = sweep_module.utc_now
+    stopped = []
+
+    def now():
+        if not stopped and list(folder.glob("s*.nc")):
+            stopped.append(True)
+            raise KeyboardInterrupt
+        return real_now()
+    monkeypatch.setattr(sweep_module, "utc_now", now)
+    with pytest.raises(KeyboardInterrupt) as caught:
+        sweep_module.run_sweep(_preset(tmp_path), folder, overrides={"simulation.photons": 300},
+                               quiet=True, say=lambda line: None)
+    summary = caught.value.summary
+    files = sorted(p.name for p in folder.glob("s*.nc"))
+    rows = [r for r in _manifest(folder)["scenarios"] if r["status"] == "done"]
+    assert len(files) == 1 and [r["file"] for r in rows] == files
+    assert rows[0]["note"] == "file in place when the run was stopped"
+    assert rows[0]["photons"] == 300
     assert (summary.done, summary.pending, summary.photons) == (1, 3, 300)
 
 

@@ -430,6 +430,7 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
         for s in todo:
             if records[s.index]["status"] == "pending" and (folder / s.file).is_file():
                 records[s.index] = {"status": "done", "error": None, "this_run": "computed",
+                                    "photons": int(s.cfg.get("simulation.photons")),
                                     "finished_utc": utc_now(),
                                     "note": "file in place when the run was stopped"}
         _count_from_records(summary, todo, records)
