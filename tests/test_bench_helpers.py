@@ -185,7 +185,7 @@ def test_nadir_fom_rounds_alternate(monkeypatch, capsys):
 
     def fake_run(overrides, photons, cones, device=None, scene_name="B1"):
         walked.append((photons, overrides.get("simulation.nadir_roulette", "off")))
-        return {"events_per_s": float(len(walked))}
+        return {"events_per_s": float(len(walked)), "walk_s": float(len(walked))}
     monkeypatch.setattr(nadir_fom, "one_run", fake_run)
     args = SimpleNamespace(roulettes=[0.1, 1.0], photons=50_000, cones=[12], device=None,
                            scene_name="B1", rounds=3)
@@ -198,7 +198,8 @@ def test_nadir_fom_rounds_alternate(monkeypatch, capsys):
     assert [row["events_per_s"] for row in runs["nadir off"]] == [4.0, 9.0, 10.0]
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("round")]
     assert lines[1] == ("round 2/3: scattering events/s: nadir off 9, "
-                        "nadir, roulette 0.1 8, nadir, roulette 1 7")
+                        "nadir, roulette 0.1 8, nadir, roulette 1 7; "
+                        "T / T(off): nadir, roulette 0.1 0.8889, nadir, roulette 1 0.7778")
 
 
 def test_nadir_variance_ab_ratios():
@@ -276,3 +277,25 @@ def test_print_report_prints_and_writes(tmp_path, capsys):
     print_report(["c"], out)
     assert capsys.readouterr().out == "c\n"
     assert out.read_text() == "c\n"
+
+
+def test_pool_rounds_reads_both_round_lines_and_pools():
+    """tools/pool_rounds.py: a round's T / T(off) is the exact one where the line prints it,
+    else events/s off over on; labels hold commas and numbers; the pooled median is over
+    every round, its intervals hold it, and an unknown --config is named."""
+    import pool_rounds as pr
+    old = ("# vm | ...\n"
+           "round 1/2: scattering events/s: nadir off 1.5e+08, nadir, roulette 0.1 1e+08\n"
+           "round 2/2: scattering events/s: nadir off 1.2e+08, nadir, roulette 0.1 1e+08\n"
+           "# B1 (tools/bench.py) ...\n")
+    new = ("round 1/1: scattering events/s: nadir off 9, nadir, roulette 0.1 8, nadir, "
+           "roulette 1 7; T / T(off): nadir, roulette 0.1 1.1250, nadir, roulette 1 1.2857\n")
+    assert pr.round_ratios(old) == pytest.approx([1.5, 1.2])
+    assert pr.round_ratios(new) == [1.125]
+    assert pr.round_ratios(new, "nadir, roulette 1") == [1.2857]
+    with pytest.raises(ValueError, match="nadir, roulette 0.1, nadir, roulette 1"):
+        pr.round_ratios(new, "nadir, roulette 0.5")
+    p = pr.pooled([[1.0, 2.0, 3.0], [4.0, 5.0]], resamples=200, seed=3)
+    assert p["rounds"] == 5 and p["median"] == 3.0 and p["session_medians"] == [2.0, 4.5]
+    for lo, hi in (p["ci_rounds"], p["ci_sessions"]):
+        assert 1.0 <= lo <= 3.0 <= hi <= 5.0

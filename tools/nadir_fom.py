@@ -7,10 +7,12 @@
 Scene B1 of tools/bench.py (60 mm slab, tau0 = 60.3, omega = 0.99502, n = 1.3, g = 0.8,
 Lambertian floor A = 0.15, 5 ns cap) is walked with ``simulation.nadir: false`` and with the
 estimator at each ``simulation.nadir_roulette`` of --roulettes, in interleaved rounds: a round
-runs every configuration once, in the same order, after one untimed warm-up run of each
-configuration that builds its kernel, so that a drift of a shared machine's load falls on all
-alike. T is the engine's walk time (``get_engine().last_walk_s``: the launches, not the
-reduction). Per configuration, median [min-max] over rounds:
+runs every configuration once, in one order in even rounds and in the reverse in odd ones,
+after one untimed warm-up run of each configuration that builds its kernel, so that a drift
+of a shared machine's load falls on all alike. T is the engine's walk time
+(``get_engine().last_walk_s``: the launches, not the reduction). Each round prints its
+events/s and its exact T / T(off) per configuration (what tools/pool_rounds.py pools over
+sessions). Per configuration, median [min-max] over rounds:
 
 - scattering events/s, ``scattering_events`` / T, and the time ratio T / T(no estimator) of
   the same round;
@@ -113,9 +115,13 @@ def measure(args) -> dict:
         for label, over in (configs if i % 2 == 0 else configs[::-1]):
             runs[label].append(one_run(over, args.photons, args.cones, args.device,
                                        args.scene_name))
+        off = runs[configs[0][0]][-1]["walk_s"]
         print(f"round {i + 1}/{args.rounds}: scattering events/s: "
               + ", ".join(f"{label} {runs[label][-1]['events_per_s']:.3g}"
-                          for label, _ in configs), flush=True)
+                          for label, _ in configs)
+              + "; T / T(off): "
+              + ", ".join(f"{label} {runs[label][-1]['walk_s'] / off:.4f}"
+                          for label, _ in configs[1:]), flush=True)
     return runs
 
 
