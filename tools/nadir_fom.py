@@ -7,7 +7,7 @@
 Scene B1 of tools/bench.py (60 mm slab, tau0 = 60.3, omega = 0.99502, n = 1.3, g = 0.8,
 Lambertian floor A = 0.15, 5 ns cap) is walked with ``simulation.nadir: false`` and with the
 estimator at each ``simulation.nadir_roulette`` of --roulettes, in interleaved rounds: a round
-runs every configuration once, in one order in even rounds and in the reverse in odd ones,
+runs every configuration once, in one order, and the next round in the reverse order,
 after one untimed warm-up run of each configuration that builds its kernel, so that a drift
 of a shared machine's load falls on all alike. T is the engine's walk time
 (``get_engine().last_walk_s``: the launches, not the reduction). Each round prints its

@@ -87,6 +87,8 @@ def main(argv=None) -> int:
     ap.add_argument("--resamples", type=int, default=20000)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
+    if args.resamples < 1:
+        ap.error(f"--resamples {args.resamples}: at least 1")
     sessions = []
     for path in args.files:
         try:
