@@ -177,14 +177,15 @@ def test_nadir_vs_tree_scene_and_order(monkeypatch):
 
 def test_nadir_fom_rounds_alternate(monkeypatch, capsys):
     """tools/nadir_fom.py: after the warm-up, the rounds walk the configurations in one order,
-    then in the reverse, each configuration's runs kept under its own label, and each round's
-    line lists them in the usual order."""
+    then in the reverse, round i with seed i in all of them, each configuration's runs kept
+    under its own label, and each round's line lists them in the usual order."""
     import nadir_fom
 
-    walked = []
+    walked, seeds = [], []
 
     def fake_run(overrides, photons, cones, device=None, scene_name="B1"):
         walked.append((photons, overrides.get("simulation.nadir_roulette", "off")))
+        seeds.append(overrides.get("simulation.seed"))
         return {"events_per_s": float(len(walked)), "walk_s": float(len(walked))}
     monkeypatch.setattr(nadir_fom, "one_run", fake_run)
     args = SimpleNamespace(roulettes=[0.1, 1.0], photons=50_000, cones=[12], device=None,
@@ -194,6 +195,7 @@ def test_nadir_fom_rounds_alternate(monkeypatch, capsys):
     timed = [r for p, r in walked if p == 50_000]
     assert [p for p, _ in walked[:3]] == [10_000] * 3           # the warm-up, untimed
     assert timed == ["off", 0.1, 1.0, 1.0, 0.1, "off", "off", 0.1, 1.0]
+    assert seeds == [None] * 3 + [1, 1, 1, 2, 2, 2, 3, 3, 3]     # a round's rays, shared
     assert list(runs) == labels and all(len(runs[k]) == 3 for k in labels)
     assert [row["events_per_s"] for row in runs["nadir off"]] == [4.0, 9.0, 10.0]
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("round")]

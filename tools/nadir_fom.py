@@ -12,7 +12,10 @@ after one untimed warm-up run of each configuration that builds its kernel, so t
 of a shared machine's load falls on all alike. T is the engine's walk time
 (``get_engine().last_walk_s``: the launches, not the reduction). Each round prints its
 events/s and its exact T / T(off) per configuration (what tools/pool_rounds.py pools over
-sessions). Per configuration, median [min-max] over rounds:
+sessions). Round i walks seed i (from 1) in every configuration, so the ratios are paired on
+the same rays and the FOMs' ranges over rounds carry the noise of their standard errors (32
+batches: about 13 % each, 25 % on a FOM), not only the machine's. Per configuration, median
+[min-max] over rounds:
 
 - scattering events/s, ``scattering_events`` / T, and the time ratio T / T(no estimator) of
   the same round;
@@ -106,15 +109,16 @@ def one_run(overrides: dict, photons: int, cones, device=None, scene_name: str =
 def measure(args) -> dict:
     """Warm-up, then --rounds interleaved rounds of every configuration, in turn in one order
     and the reverse (as tools/bench_ab.py), so that a drift of the machine's speed within a
-    round weighs on every configuration alike."""
+    round weighs on every configuration alike. Round i walks seed i (from 1): the same rays
+    in every configuration of a round, other rays in the next."""
     configs = configurations(args.roulettes)
     for _, over in configs:                     # builds each kernel, untimed
         one_run(over, min(args.photons, 10_000), args.cones, args.device, args.scene_name)
     runs = {label: [] for label, _ in configs}
     for i in range(args.rounds):
         for label, over in (configs if i % 2 == 0 else configs[::-1]):
-            runs[label].append(one_run(over, args.photons, args.cones, args.device,
-                                       args.scene_name))
+            runs[label].append(one_run({**over, "simulation.seed": 1 + i}, args.photons,
+                                       args.cones, args.device, args.scene_name))
         off = runs[configs[0][0]][-1]["walk_s"]
         print(f"round {i + 1}/{args.rounds}: scattering events/s: "
               + ", ".join(f"{label} {runs[label][-1]['events_per_s']:.3g}"
