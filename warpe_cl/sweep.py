@@ -371,18 +371,17 @@ def _triage(sweep: _Sweep, records: dict, summary: SweepSummary) -> list:
 
 
 def _count_from_records(summary: SweepSummary, todo: list, records: dict) -> None:
-    """Recount this run's done and failed scenarios and its rays from ``records``.
+    """This run's done and failed scenarios, its rays and what is pending, from ``records``.
 
-    The loop of :func:`_run` stores a record and then counts it; a signal raised between the
-    two (Ctrl-C, SIGTERM) would leave the count one short of the manifest. After a stop, the
-    records are the truth: the counts are made again from them.
+    Counted once, when the run ends or stops, from the records the manifest writes: a count
+    kept beside them could miss the record that a signal (Ctrl-C, SIGTERM) interrupted.
     """
     computed = [(s, records[s.index]) for s in todo]
     summary.done = sum(r["status"] == "done" for _, r in computed)
     summary.photons = sum(r.get("photons") or 0 for _, r in computed if r["status"] == "done")
-    known = {index for index, _, _ in summary.failed}
     summary.failed += [(s.index, s.point, r["error"]) for s, r in computed
-                       if r["status"] == "failed" and s.index not in known]
+                       if r["status"] == "failed"]
+    summary.pending = sum(r["status"] == "pending" for r in records.values())
 
 
 def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
@@ -416,11 +415,8 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
             records[s.index] = {**rec, "this_run": "computed"}
             where = point_text(s.point) or "the preset"
             if rec["status"] == "done":
-                summary.done += 1
-                summary.photons += rec["photons"]
                 progress.advance(f"{s.file} done in {rec['wall_time_s']:.2f} s ({where})")
             else:
-                summary.failed.append((s.index, s.point, rec["error"]))
                 progress.advance(f"scenario {s.index} failed ({where}): {rec['error']}",
                                  error=True)
             manifest.write()
@@ -433,13 +429,12 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
                                     "photons": int(s.cfg.get("simulation.photons")),
                                     "finished_utc": utc_now(),
                                     "note": "file in place when the run was stopped"}
-        _count_from_records(summary, todo, records)
         err.summary = summary          # the command line's one line counts the finished ones
         raise
     finally:
         progress.close()
         summary.wall_time_s = time.perf_counter() - t0
-        summary.pending = sum(r["status"] == "pending" for r in records.values())
+        _count_from_records(summary, todo, records)
         manifest.write(force=True)
 
     summary.finished_in_folder = sum((folder / s.file).is_file()
