@@ -2,12 +2,15 @@
 gamma times, each number within 5 of its own standard errors of the exact value."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import xarray as xr
 
 import warpe_cl
 from warpe_cl.errors import ConfigError
+from conftest import REPO
 
 RAYS = 100_000
 EDGES = np.arange(0.0, 40.0 + 1e-9, 0.01)      # ns
@@ -336,6 +339,10 @@ def test_reproduce_paper_bela_figure_runs(tmp_path):
     assert rp.main(["--photons", "300", "--only", "bela_cases", "--out", str(out),
                     "--data", str(data)]) == 0
     assert (out / "bela_cases_instrument.png").is_file() and (out / "bela_cases.png").is_file()
+    record = json.loads((out / "provenance.json").read_text())
+    assert record["source_sha256"] == rp.source_digest(REPO)
+    assert record["presets"]["bela_cases"]["photons"] == 300
+    assert record["presets"]["bela_cases"]["command"].endswith("--only bela_cases")
     with xr.open_dataset(data / "bela_cases_instrument_0.01deg.nc") as ds:
         assert ds.attrs["instrument_diffuse_estimate"] == "nadir"
         assert list(ds["diffuse_estimate"].values) == ["nadir", "nadir"]
@@ -388,3 +395,26 @@ def test_reproduce_paper_without_the_nadir_estimate(tmp_path):
                     str(tmp_path / "fig"), "--data", str(data)]) == 0
     with xr.open_dataset(data / "fov_numerical.nc") as ds:
         assert "reflectance" in ds and "nadir_reflectance" not in ds
+
+
+def test_the_figures_were_made_by_these_sources():
+    """docs/figures/ (the paper's figures and metrics.csv) was made from the kernel, physics,
+    instrument and presets of this tree: its provenance.json names the same source digest as
+    the tree's, and every paper preset and every preset of metrics.csv has its entry. After a
+    change that moves a result: ``python tools/reproduce_paper.py --photons 1e6`` then
+    ``--only fov_numerical`` (docs/figures/README.md)."""
+    import csv
+    import sys
+
+    from conftest import TOOLS
+    sys.path.insert(0, str(TOOLS))
+    import reproduce_paper as rp
+    figures = REPO / "docs" / "figures"
+    record = json.loads((figures / "provenance.json").read_text())
+    assert record["source_sha256"] == rp.source_digest(REPO), (
+        "docs/figures/ was made from other sources: run python tools/reproduce_paper.py "
+        "--photons 1e6, then --only fov_numerical")
+    with open(figures / "metrics.csv", newline="", encoding="utf-8") as f:
+        in_table = {row["preset"] for row in csv.DictReader(f)}
+    paper = {p.stem for p in (REPO / "presets" / "paper").glob("*.yaml")}
+    assert paper | in_table <= set(record["presets"])
