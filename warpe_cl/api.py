@@ -23,6 +23,7 @@ import time
 
 from . import io, tally
 from .config import Config, load_preset, time_edges
+from .materials import table_attrs
 from .nadir import mirror_below
 from .params import Layer, WalkParams, stack_params
 from .progress import Progress
@@ -263,6 +264,7 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
         "engine": engine.name,
         "kernel_sha256": engine.kernel_hash or "",
         **_nadir_attrs(cfg, params),
+        **table_attrs(cfg),
         **engine.provenance,
     })
     if counts.nadir:

@@ -126,6 +126,8 @@ class PresetValidator:
                                       "table", f"{sub}.{extra[0]}")
                 path = check_scalar(FIELDS[prefix + ".table"], entry["table"], f"{sub}.table")
                 out[name] = {"table": self.table_path(path, f"{sub}.table")}
+                from ..materials import read_table   # materials imports the schema
+                read_table(out[name]["table"], name)  # every cell checked when loaded
             else:
                 if entry.get("n") is None:
                     raise ConfigError("missing; give the optical constants {n: ..., k: ...} "

@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 from ..units import unit_list
-from .schema import QUANTITY_KINDS, SCALAR_KINDS, SCHEMA
-from .validate import allowed
+from .schema import MAX_K, MAX_N, MAX_TIME_BINS, QUANTITY_KINDS, SCALAR_KINDS, SCHEMA
+from .validate import MAX_DEPTH, MAX_FILE_BYTES, MAX_NODES, MAX_TEXT, allowed
 
-__all__ = ["schema_markdown", "reference_markdown", "REFERENCE_PATH"]
+__all__ = ["schema_markdown", "reference_markdown", "limits_markdown", "REFERENCE_PATH"]
 
 
 def schema_markdown() -> str:
@@ -51,4 +51,28 @@ def reference_markdown() -> str:
             "Generated from the schema table in `warpe_cl/config/schema.py` by "
             "`python tools/config_docs.py` (do not edit by hand; a test fails when this file "
             "is out of date). Lengths are stored in metres, times in nanoseconds, angles in "
-            "degrees.\n\n" + schema_markdown())
+            "degrees.\n\n" + limits_markdown() + "\n## Keys\n\n" + schema_markdown())
+
+
+def limits_markdown() -> str:
+    """The limits every input file is read under (docs/config.md, "Limits")."""
+    return (
+        "## Limits\n\n"
+        "Every file is checked before it is used, and a file outside these limits is refused "
+        "with one line naming it (exit 2):\n\n"
+        "- a preset, an instrument preset (`--instrument FILE`) and a material table "
+        "(`materials.NAME.table`) are regular files (not a device such as `/dev/zero`, a "
+        f"pipe or a folder) of at most {MAX_FILE_BYTES} bytes (1 MiB), in UTF-8;\n"
+        f"- a YAML document nests mappings and lists at most {MAX_DEPTH} levels deep and "
+        f"holds at most {MAX_NODES} values once its aliases (`*name`) are expanded; the "
+        "value of a `--set KEY=VALUE` likewise;\n"
+        f"- a text value (`description`, `name`, a file path) has at most {MAX_TEXT} "
+        "characters;\n"
+        "- a real refractive index n (`materials.*.n`, `medium.substrate.n`, "
+        f"`medium.radiative.n`) is at most {MAX_N:g} and an extinction index k at most "
+        f"{MAX_K:g}; every cell of a material table is a finite number: wavelength_nm > 0 "
+        f"and strictly increasing, 0 < n <= {MAX_N:g}, 0 <= k <= {MAX_K:g} "
+        "(docs/materials.md §4);\n"
+        f"- the time bins (`simulation.time_bins`) number at most {MAX_TIME_BINS}, and fewer "
+        "where the device cannot hold the walk's buffers: a run is refused before its walk, "
+        "naming the largest count the device allows.\n")

@@ -7,7 +7,7 @@ import re
 import yaml
 
 from ..errors import ConfigError
-from .validate import show
+from .validate import MAX_DEPTH, _check_shape, show
 
 __all__ = ["split_key", "display_key", "schema_key", "set_path", "get_path",
            "parse_overrides", "apply_overrides"]
@@ -115,6 +115,10 @@ def parse_overrides(overrides) -> dict:
             value = yaml.safe_load(text) if text.strip() else None
         except yaml.YAMLError:
             value = text.strip()  # e.g. "a: b: c": take the text as it is
+        except RecursionError:
+            raise ConfigError(f"the value is nested too deeply; at most {MAX_DEPTH} levels of "
+                              "mappings and lists are allowed", key) from None
+        _check_shape(value, None, key)
         out[key] = value
     return out
 

@@ -17,8 +17,8 @@ from ..params import MAX_LAYERS
 from ..units import parse_quantity
 
 __all__ = ["Field", "SCHEMA", "FIELDS", "DEFAULTS", "SWEEPABLE", "QUANTITY_KINDS",
-           "SCALAR_KINDS", "MAX_PHOTONS", "MAX_TIME_BINS", "MIN_ROULETTE_SURVIVAL",
-           "MAX_FLIGHTS", "children"]
+           "SCALAR_KINDS", "MAX_PHOTONS", "MAX_TIME_BINS", "MAX_N", "MAX_K",
+           "MIN_ROULETTE_SURVIVAL", "MAX_FLIGHTS", "children"]
 
 
 @dataclass(frozen=True)
@@ -85,6 +85,13 @@ class Field:
 QUANTITY_KINDS = ("length", "time", "angle")
 SCALAR_KINDS = QUANTITY_KINDS + ("float", "int", "str", "choice", "bool")
 MAX_TIME_BINS = 1_000_000
+#: Largest real refractive index of a material, a substrate or a radiative medium: the
+#: highest indices of solids at laser wavelengths are about 4-6 (germanium, lead telluride);
+#: far beyond, the Fresnel and Hapke formulas overflow (n = 1e300 raised OverflowError).
+MAX_N = 20.0
+#: Largest extinction index k: metals reach a few tens in the near infrared (aluminium about
+#: 10 at 1064 nm, gold about 70 at 10 um); k = 1e300 gave NaN albedos and exits.
+MAX_K = 100.0
 #: Most rays a scenario may launch: 2^53, the largest count a YAML number (a float64) holds
 #: exactly. The kernel's photon index (the Philox counter) is 64-bit and the host tallies are
 #: int64 or exact integers, so every count up to here is walked and tallied exactly.
@@ -146,10 +153,10 @@ SCHEMA: list[Field] = [
        help="Total optical depth tau0 = E h of the layer (E: volume extinction, m^-1)."),
     _F("medium.radiative.omega", "float", required=True, low=0.0, high=1.0,
        help="Single-scattering albedo omega of the medium."),
-    _F("medium.radiative.n", "float", required=True, low=1.0,
+    _F("medium.radiative.n", "float", required=True, low=1.0, high=MAX_N,
        help="Effective refractive index: sets the speed of light in the layer and, for a "
             "slab, its Fresnel interfaces."),
-    _F("medium.radiative.k", "float", 0.0, low=0.0,
+    _F("medium.radiative.k", "float", 0.0, low=0.0, high=MAX_K,
        help="Effective extinction index (imaginary part), used in the Fresnel reflectance "
             "of a slab seen from vacuum."),
     _F("medium.compacity", "float", low=0.0, high=1.0, low_open=True,
@@ -194,9 +201,9 @@ SCHEMA: list[Field] = [
        help="Optical depth tau0 = E_i h_i of this layer."),
     _F("medium.layers[].radiative.omega", "float", required=True, low=0.0, high=1.0,
        help="Single-scattering albedo omega of this layer."),
-    _F("medium.layers[].radiative.n", "float", required=True, low=1.0,
+    _F("medium.layers[].radiative.n", "float", required=True, low=1.0, high=MAX_N,
        help="Effective refractive index of this layer."),
-    _F("medium.layers[].radiative.k", "float", 0.0, low=0.0,
+    _F("medium.layers[].radiative.k", "float", 0.0, low=0.0, high=MAX_K,
        help="Effective extinction index of this layer (imaginary part)."),
     _F("medium.layers[].compacity", "float", low=0.0, high=1.0, low_open=True,
        help="Physical form: compacity gamma_c of this layer, as medium.compacity."),
@@ -219,9 +226,9 @@ SCHEMA: list[Field] = [
             "allowed with medium.bottom_interface: none, nor with simulation.mode: weighted."),
     _F("medium.substrate.material", "str",
        help="The substrate's material: a built-in or a name defined under materials."),
-    _F("medium.substrate.n", "float", low=0.0, low_open=True,
+    _F("medium.substrate.n", "float", low=0.0, low_open=True, high=MAX_N,
        help="Real refractive index of the substrate (instead of material)."),
-    _F("medium.substrate.k", "float", low=0.0, default_doc="`0` (with n)",
+    _F("medium.substrate.k", "float", low=0.0, high=MAX_K, default_doc="`0` (with n)",
        help="Imaginary refractive index of the substrate (with n)."),
 
     _F("wavelength", "length", "1064 nm", low=0.0, low_open=True,
@@ -233,9 +240,9 @@ SCHEMA: list[Field] = [
     _F("materials", "names", {},
        help="Optional optical constants at the run's wavelength, added to or overriding "
             "the built-ins (names are case-insensitive): {n, k} or {table: FILE}."),
-    _F("materials.*.n", "float", low=0.0, low_open=True,
+    _F("materials.*.n", "float", low=0.0, low_open=True, high=MAX_N,
        help="Real refractive index of the material."),
-    _F("materials.*.k", "float", 0.0, low=0.0,
+    _F("materials.*.k", "float", 0.0, low=0.0, high=MAX_K,
        help="Imaginary refractive index (extinction index) of the material."),
     _F("materials.*.table", "str",
        help="CSV file with columns wavelength_nm, n, k, interpolated at the wavelength; "

@@ -24,7 +24,21 @@ from ..units import UNITS, UnitError, canonical_unit, format_attribute, parse_qu
     unit_list
 
 __all__ = ["check_scalar", "allowed", "show", "did_you_mean", "unknown_key", "read_yaml",
-           "load_yaml", "is_quantity"]
+           "load_yaml", "is_quantity", "read_input_bytes", "MAX_FILE_BYTES", "MAX_DEPTH",
+           "MAX_NODES", "MAX_TEXT"]
+
+#: Largest input file read (a preset, an instrument preset, a material table), bytes: the
+#: largest bundled preset is under 10 kB; a bigger file (or /dev/zero) is refused unread.
+MAX_FILE_BYTES = 1 << 20
+#: Deepest nesting of mappings and lists in a YAML document: a preset needs about 6 levels
+#: (sweep values that are lists of layers); 1000 levels raised RecursionError.
+MAX_DEPTH = 32
+#: Most mappings, lists and values in a YAML document, aliases expanded (``&a`` / ``*a``
+#: repeated so that a small file stands for billions of values is refused).
+MAX_NODES = 100_000
+#: Longest text value (``description``, ``name``, a path), characters: every output file
+#: keeps it, twice (as an attribute and in the resolved configuration).
+MAX_TEXT = 10_000
 
 #: Valid values shown in messages when a quantity has no default to show.
 EXAMPLES = {"length": "100 mm", "time": "12.5 ns", "angle": "12 deg", "energy": "50 mJ",
@@ -266,6 +280,9 @@ def check_scalar(field, value, where: str):
             raise ConfigError(f"{show(value)} is not allowed; give {allowed(field)}"
                               + (' (quote it: "...")' if isinstance(value, (int, float))
                                  else ""), where)
+        if len(value) > MAX_TEXT:
+            raise ConfigError(f"a text of {len(value)} characters is not allowed; give at "
+                              f"most {MAX_TEXT} characters", where)
         return value
     elif kind == "choice":
         return _choice(field, value, where)
@@ -312,12 +329,103 @@ def load_yaml(text: str, source: str | None = None):
         naming ``source``.
     """
     try:
-        return yaml.load(text, Loader=_Loader)
+        document = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or str(exc)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         raise ConfigError(f"not valid YAML ({where}{problem})", source=source) from None
+    except RecursionError:
+        raise ConfigError(f"mappings and lists nested too deeply; at most {MAX_DEPTH} levels "
+                          "are allowed", source=source) from None
+    _check_shape(document, source)
+    return document
+
+
+def _check_shape(document, source, key=None) -> None:
+    """Refuse a document nested more than :data:`MAX_DEPTH` levels, or holding more than
+    :data:`MAX_NODES` values once its aliases are expanded.
+
+    Iterative and memoised on the identity of each container (an alias is the same object
+    each time it appears), so that neither a deep nor an alias-bombed document costs more
+    than one visit per object.
+    """
+    depth, size = {}, {}            # id -> levels below it, values in it (expanded)
+    stack = [(document, False)]
+    on_path = set()
+    while stack:
+        node, done = stack.pop()
+        if not isinstance(node, (dict, list)):
+            continue
+        ident = id(node)
+        if done:
+            on_path.discard(ident)
+            items = list(node.keys()) + list(node.values()) if isinstance(node, dict) else node
+            below = [c for c in items if isinstance(c, (dict, list))]
+            depth[ident] = 1 + max((depth[id(c)] for c in below), default=0)
+            size[ident] = 1 + len(items) - len(below) + sum(size[id(c)] for c in below)
+            if depth[ident] > MAX_DEPTH:
+                raise ConfigError(f"mappings and lists nested {depth[ident]} levels deep or "
+                                  f"more; at most {MAX_DEPTH} levels are allowed",
+                                  key=key, source=source)
+            if size[ident] > MAX_NODES:
+                raise ConfigError(f"more than {MAX_NODES} values once its aliases (*name) "
+                                  f"are expanded; at most {MAX_NODES} are allowed",
+                                  key=key, source=source)
+            continue
+        if ident in depth:
+            continue
+        if ident in on_path:          # a recursive alias: a list that holds itself
+            raise ConfigError("a mapping or list that contains itself (a recursive alias) is "
+                              "not allowed", key=key, source=source)
+        on_path.add(ident)
+        stack.append((node, True))
+        items = list(node.keys()) + list(node.values()) if isinstance(node, dict) else node
+        stack.extend((c, False) for c in items if isinstance(c, (dict, list)))
+
+
+def read_input_bytes(path, what: str = "a preset") -> bytes:
+    """The bytes of the input file ``path``: a regular file of at most
+    :data:`MAX_FILE_BYTES` bytes (a device such as /dev/zero, a pipe or a folder is refused
+    before any byte is read).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    what : str
+        What the file should be, for messages (``"a preset"``, ``"a material table"``).
+
+    Raises
+    ------
+    ConfigError
+        No such file, not a regular file, larger than the cap, or unreadable; one line
+        naming the file.
+    """
+    import stat
+    path = os.fspath(path)
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise ConfigError("no such file", source=path) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot be read ({exc.strerror})", source=path) from None
+    if stat.S_ISDIR(info.st_mode):
+        raise ConfigError(f"is a folder, not {what} file", source=path)
+    if not stat.S_ISREG(info.st_mode):
+        raise ConfigError(f"is not a regular file (a device, a pipe or a socket); {what} is "
+                          "a regular file", source=path)
+    limit = f"{MAX_FILE_BYTES} bytes (1 MiB)"
+    if info.st_size > MAX_FILE_BYTES:
+        raise ConfigError(f"{info.st_size} bytes is too large for {what}; at most {limit} "
+                          "are read", source=path)
+    try:
+        with open(path, "rb") as stream:
+            data = stream.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError(f"cannot be read ({exc.strerror})", source=path) from None
+    if len(data) > MAX_FILE_BYTES:                # grew since the stat
+        raise ConfigError(f"more than {limit} is too large for {what}", source=path)
+    return data
 
 
 def read_yaml(path, what: str = "a preset", empty: str | None = None):
@@ -334,21 +442,18 @@ def read_yaml(path, what: str = "a preset", empty: str | None = None):
     Raises
     ------
     ConfigError
-        No such file, a folder, not UTF-8, unreadable, not valid YAML (a duplicate key
-        included), or empty when ``empty`` is given; one line naming the file.
+        No such file, a folder, not a regular file, larger than :data:`MAX_FILE_BYTES`,
+        not UTF-8, unreadable, not valid YAML (a duplicate key included), nested deeper than
+        :data:`MAX_DEPTH` or larger than :data:`MAX_NODES` values, or empty when ``empty``
+        is given; one line naming the file.
     """
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise ConfigError("no such file", source=path)
-    if os.path.isdir(path):
-        raise ConfigError(f"is a folder, not {what} file", source=path)
+    data = read_input_bytes(path, what)
     try:
-        with open(path, encoding="utf-8") as stream:
-            text = stream.read()
+        text = data.decode("utf-8")
     except UnicodeDecodeError:
         raise ConfigError(f"not UTF-8 text; {what} is a YAML text file", source=path) from None
-    except OSError as exc:
-        raise ConfigError(f"cannot be read ({exc.strerror})", source=path) from None
+    text = text.replace("\r\n", "\n").replace("\r", "\n")   # as open() in text mode
     document = load_yaml(text, path)
     if document is None and empty is not None:
         raise ConfigError(f"the file is empty; {empty}", source=path)

@@ -1,0 +1,163 @@
+"""Issue 39: bounded, checked inputs. Every input a user can give (a material table, a preset
+file, a ``--scenarios`` range, a time grid, a result or an observed waveform read back) is
+checked before use, and a bad one is refused with one line (ConfigError, exit 2) instead of
+a NaN result, a traceback or a run out of memory."""
+from __future__ import annotations
+
+import textwrap
+
+import numpy as np
+import pytest
+
+from warpe_cl.cli import main
+from warpe_cl.config import load_preset
+from warpe_cl.errors import ConfigError
+
+PRESET = textwrap.dedent("""\
+    name: t
+    wavelength: "1064 nm"
+    materials:
+      X: {table: t.csv}
+    medium:
+      texture: granular
+      thickness: "10 mm"
+      compacity: 0.5
+      inclusions:
+        - {material: X, proportion: 1.0, grain_size: "100 um"}
+    simulation:
+      photons: 200
+    """)
+GOOD_TABLE = "wavelength_nm, n, k\n1000, 1.3, 1e-6\n1100, 1.3, 2e-6\n"
+
+
+def _table_preset(tmp_path, table: str | bytes):
+    path = tmp_path / "t.csv"
+    if isinstance(table, bytes):
+        path.write_bytes(table)
+    else:
+        path.write_text(table)
+    preset = tmp_path / "p.yaml"
+    preset.write_text(PRESET)
+    return preset
+
+
+# --------------------------------------------------------------------------- 1. material tables
+
+@pytest.mark.parametrize("row, column, value", [
+    ("1100, 1.3, nan", "k", "nan"),            # ran to exit 0 with k_eff = nan
+    ("1100, inf, 1e-6", "n", "inf"),           # ZeroDivisionError
+    ("1100, 1.3, 1e300", "k", "1e300"),        # ZeroDivisionError
+    ("1100, 1.3, -1e-6", "k", "-1e-6"),
+    ("1100, 1e300, 1e-6", "n", "1e300"),
+    ("inf, 1.3, 1e-6", "wavelength_nm", "inf"),
+    ("-inf, 1.3, 1e-6", "wavelength_nm", "-inf"),
+    ("1000, 1.3, 1e-6", "wavelength_nm", "1000"),   # not increasing
+])
+def test_table_cells_are_checked(tmp_path, row, column, value):
+    preset = _table_preset(tmp_path, f"wavelength_nm, n, k\n1000, 1.3, 1e-6\n{row}\n")
+    with pytest.raises(ConfigError) as err:
+        load_preset(preset)
+    text = str(err.value)
+    assert "materials.X.table" in text and "t.csv" in text and "line 3" in text
+    assert f"column {column}: {value} is not allowed" in text
+
+
+def test_binary_table_is_refused(tmp_path, capsys):
+    preset = _table_preset(tmp_path, bytes(range(256)) * 4)
+    assert main(["show-config", str(preset)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not UTF-8 text" in err and "t.csv" in err
+
+
+def test_table_is_recorded_in_the_output(tmp_path):
+    """The output keeps the table's SHA-256 and the n, k used, not only its path."""
+    import hashlib
+
+    from warpe_cl.materials import optical_constants, table_attrs
+    preset = _table_preset(tmp_path, GOOD_TABLE)
+    cfg = load_preset(preset)
+    n, k = optical_constants(cfg)["X"]
+    assert (n, k) == (1.3, float(np.interp(1064, [1000, 1100], [1e-6, 2e-6])))
+    text = table_attrs(cfg)["material_tables"]
+    digest = hashlib.sha256(GOOD_TABLE.encode()).hexdigest()
+    assert digest in text and f"n = {n!r}, k = {k!r}" in text and "1064 nm" in text
+    assert table_attrs(load_preset(preset, ["materials.X={n: 1.3}"])) == {}
+
+
+def test_table_record_reaches_the_file(tmp_path):
+    import xarray as xr
+    preset = _table_preset(tmp_path, GOOD_TABLE)
+    out = tmp_path / "o.nc"
+    assert main(["run", str(preset), "--out", str(out), "--quiet"]) == 0
+    with xr.open_dataset(out) as ds:
+        assert "sha256" in ds.attrs["material_tables"]
+
+
+@pytest.mark.parametrize("override", ["materials.X={n: 1e300}", "materials.X={n: 1.3, k: 1e300}",
+                                      "medium.substrate={n: 1.5, k: 1e300}"])
+def test_constants_are_bounded(tmp_path, override):
+    preset = _table_preset(tmp_path, GOOD_TABLE)
+    with pytest.raises(ConfigError, match="is not"):
+        load_preset(preset, [override])
+
+
+# --------------------------------------------------------------------------- 3. preset files
+
+def test_preset_must_be_a_regular_file(capsys):
+    assert main(["show-config", "/dev/zero"]) == 2          # read until memory ran out
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not a regular file" in err
+
+
+def test_preset_size_is_capped(tmp_path, capsys):
+    from warpe_cl.config.validate import MAX_FILE_BYTES
+    big = tmp_path / "big.yaml"
+    big.write_text("name: big\n# " + "x" * MAX_FILE_BYTES + "\n")
+    assert main(["show-config", str(big)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "too large" in err and "1 MiB" in err
+
+
+def test_description_is_capped(tmp_path):
+    from warpe_cl.config.validate import MAX_TEXT
+    preset = _table_preset(tmp_path, GOOD_TABLE)
+    load_preset(preset, {"description": "d" * MAX_TEXT})
+    with pytest.raises(ConfigError, match=f"description: a text of {MAX_TEXT + 1} characters"):
+        load_preset(preset, {"description": "d" * (MAX_TEXT + 1)})
+
+
+@pytest.mark.parametrize("levels", [40, 1000])
+def test_deep_nesting_is_refused(tmp_path, capsys, levels):
+    deep = tmp_path / "deep.yaml"
+    deep.write_text("name: deep\ndescription: " + "[" * levels + "]" * levels + "\n")
+    assert main(["show-config", str(deep)]) == 2              # RecursionError, exit 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "nested" in err and "at most 32 levels" in err
+
+
+def test_alias_bomb_is_refused(tmp_path):
+    lines = ['a0: &a0 ["x", "x", "x", "x", "x", "x", "x", "x", "x", "x"]']
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 9)]
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ConfigError, match="aliases"):
+        load_preset(bomb)
+
+
+def test_deep_override_is_refused(tmp_path):
+    preset = _table_preset(tmp_path, GOOD_TABLE)
+    with pytest.raises(ConfigError, match="nested"):
+        load_preset(preset, ["description=" + "[" * 1000 + "]" * 1000])
+
+
+def test_instrument_file_is_capped(tmp_path, capsys):
+    from warpe_cl.instrument.params import resolve_instrument
+    from warpe_cl.config.validate import MAX_FILE_BYTES
+    big = tmp_path / "big.yaml"
+    big.write_text("name: big\n# " + "x" * MAX_FILE_BYTES + "\n")
+    with pytest.raises(ConfigError, match="too large for an instrument preset"):
+        resolve_instrument(str(big))
+    deep = tmp_path / "inst.yaml"
+    deep.write_text("name: i\nlaser: " + "[" * 1000 + "]" * 1000 + "\n")
+    with pytest.raises(ConfigError, match="nested"):
+        resolve_instrument(str(deep))
