@@ -161,3 +161,39 @@ def test_instrument_file_is_capped(tmp_path, capsys):
     deep.write_text("name: i\nlaser: " + "[" * 1000 + "]" * 1000 + "\n")
     with pytest.raises(ConfigError, match="nested"):
         resolve_instrument(str(deep))
+
+
+# --------------------------------------------------------------------------- 2. --scenarios
+
+_SELECT = """
+import numpy as np, xarray as xr
+from warpe_cl.plot import select_scenarios
+ds = xr.Dataset({"x": ("scenario", np.arange(12.0))}, coords={"scenario": np.arange(12)})
+try:
+    print(select_scenarios(ds, SELECTION)["scenario"].values.tolist())
+except Exception as err:
+    print(type(err).__name__, err)
+"""
+
+
+@pytest.mark.parametrize("selection, want", [
+    ("0:999999999", list(range(12))),                   # OOM-killed at 24 GB
+    ("-99999999999999999999:3, 10:99999999999999999999", [0, 1, 2, 10, 11]),
+    ("5, 99999999999999999999, 7:8", [5, 7]),
+    ("100:999999999999", "ConfigError --scenarios: '100:999999999999' selects no scenario "
+                         "(indices 0..11)"),
+])
+def test_scenario_ranges_are_not_expanded(selection, want):
+    """In a child process whose address space is capped at 2 GiB, so that a selection that
+    builds its range in memory fails there instead of taking the host down."""
+    import resource
+    import subprocess
+    import sys
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+    code = _SELECT.replace("SELECTION", repr(selection))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, preexec_fn=cap)
+    assert done.returncode == 0, done.stderr[-500:]
+    assert done.stdout.strip() == str(want)

@@ -161,9 +161,11 @@ def select_scenarios(ds, selection: str):
     selection : str
         Scenario indices (the ``scenario`` coordinate, which is the grid index of a database):
         a list ``"0,3,5"``, a range ``"0:4"`` (4 excluded, as in Python; ``"2:"`` to the end)
-        or both ``"0:2,7"``; or a swept value ``"medium.thickness=10mm"`` (the key in full or
-        its last part; a value with a unit is compared as a quantity, so ``10mm`` matches
-        ``10 mm``), several joined by ``,`` all holding.
+        or both ``"0:2,7"``, a range selecting the scenarios present within it (it may reach
+        beyond them: it is compared with the indices, never expanded into a list); or a swept
+        value ``"medium.thickness=10mm"`` (the key in full or its last part; a value with a
+        unit is compared as a quantity, so ``10mm`` matches ``10 mm``), several joined by
+        ``,`` all holding.
 
     Returns
     -------
@@ -194,20 +196,24 @@ def select_scenarios(ds, selection: str):
                                   key="--scenarios")
             keep &= np.array([_same_value(v, want) for v in _written(ds, found[0]).values])
     else:
-        picked = set()
+        # ranges are compared with the indices present, never expanded: "0:999999999" on a
+        # 12-scenario database once built a list of 1e9 indices (killed at 24 GB)
+        keep, singles = np.zeros(index.size, bool), set()
         for term in filter(None, (t.strip() for t in text.split(","))):
             try:
                 if ":" in term:
                     lo, hi = term.split(":", 1)
                     lo = int(lo) if lo.strip() else int(index.min())
                     hi = int(hi) if hi.strip() else int(index.max()) + 1
-                    picked.update(range(lo, hi))
+                    if lo < hi:
+                        keep |= (index >= max(lo, int(index.min()))) \
+                            & (index < min(hi, int(index.max()) + 1))
                 else:
-                    picked.add(int(term))
+                    singles.add(int(term))
             except ValueError:
                 raise ConfigError(f"'{term}' is not an index, a range I:J or KEY=VALUE",
                                   key="--scenarios") from None
-        keep = np.isin(index, sorted(picked))
+        keep |= np.isin(index, [i for i in singles if index.min() <= i <= index.max()])
     if not keep.any():
         raise ConfigError(f"'{text}' selects no scenario (indices {index.min()}..{index.max()})",
                           key="--scenarios")
