@@ -197,3 +197,49 @@ def test_scenario_ranges_are_not_expanded(selection, want):
                           timeout=120, preexec_fn=cap)
     assert done.returncode == 0, done.stderr[-500:]
     assert done.stdout.strip() == str(want)
+
+
+# --------------------------------------------------------------------------- 4. device buffers
+
+def _sizes(nadir_slices):
+    from warpe_cl.buffers import walk_buffer_bytes
+    return lambda n: walk_buffer_bytes(n, ["time_in_fov", "time_any"], [], 32, 32 * 80, 4,
+                                       nadir_slices)
+
+
+def test_time_bins_allowed_is_the_largest_that_fits():
+    from warpe_cl.buffers import time_bins_allowed
+    sizes = _sizes(32)                     # a CPU walk: a nadir slice per work-item
+    max_alloc, global_mem = 8 << 30, 21 << 30
+    n = time_bins_allowed(sizes, max_alloc, global_mem)
+    assert max(sizes(n).values()) <= max_alloc < max(sizes(n + 1).values())
+    assert sizes(n)["nadir_sum"] == max(sizes(n).values())
+    assert time_bins_allowed(_sizes(0), max_alloc, global_mem) > 10 * n   # nadir: false
+
+
+def test_buffer_check_names_the_key_and_the_limit():
+    from warpe_cl.buffers import check_walk_buffers, time_bins_allowed
+    sizes = _sizes(32)
+    limit = time_bins_allowed(sizes, 64 << 20, 1 << 30)    # a fake device of 64 MiB buffers
+    check_walk_buffers(sizes, limit, 64 << 20, 1 << 30, "fake")
+    with pytest.raises(ConfigError) as err:
+        check_walk_buffers(sizes, limit + 1, 64 << 20, 1 << 30, "fake")
+    text = str(err.value)
+    assert text.startswith(f"simulation.time_bins: {limit + 1} time bins is not allowed on fake")
+    assert f"give at most {limit} time bins here" in text and "nadir_sum" in text
+    with pytest.raises(ConfigError, match="more than the device's 2 MiB"):
+        check_walk_buffers(_sizes(0), 100_000, 64 << 20, 2 << 20, "fake")
+
+
+def test_engine_refuses_buffers_before_the_walk(engine):
+    """220,000 bins (under the 1e6 cap) failed with INVALID_BUFFER_SIZE from the nadir sums on
+    a CPU; here a grid of the cap's size with a nadir slice per work-item, which no device
+    holds, is refused before any buffer is made."""
+    import dataclasses
+
+    from conftest import medium
+    from warpe_cl.config import MAX_TIME_BINS
+    params = dataclasses.replace(medium(), nadir=True,
+                                 time_edges=np.linspace(0.0, 1e3, MAX_TIME_BINS + 1))
+    with pytest.raises(ConfigError, match=f"simulation.time_bins: {MAX_TIME_BINS} time bins"):
+        engine.run(params, 10, global_size=1 << 14, shared_nadir=False, qualified=True)

@@ -568,6 +568,14 @@ class Engine:
         # every lane of every work-item may park a ray at the end of a launch, and so may every
         # photon left in its pool
         capacity = gsize * (lanes + photon_pool(lanes))
+        # what the buffers below take, refused (exit 2) where the device cannot hold them
+        from .buffers import check_walk_buffers, walk_buffer_bytes
+        nadir_slices = 0 if not nadir else 1 if (self.info.kind == "gpu" if shared_nadir is None
+                                                 else shared_nadir) else gsize
+        check_walk_buffers(lambda n: walk_buffer_bytes(n, hist, weights, gsize, capacity,
+                                                       itemsize, nadir_slices),
+                           n_time, self.device.max_mem_alloc_size, self.device.global_mem_size,
+                           self.info.device)
         # the buffers, by kernel argument: uint32 histograms; weighted sums in FIXED_WORDS
         # uint64 words per cell (cl/tally.h); the statistics of every work-item; the counters
         counters = ("next_photon", "next_resume", "parked")
