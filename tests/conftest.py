@@ -7,16 +7,47 @@ ray by ray, or against another lane width that is checked so, passes ``qualified
 own check is the qualification's (docs/devices.md), and a qualification costs two builds of
 the nadir kernel in a child process (8-20 s each with Intel's compiler on 2 cores: about a
 third of the suite's time on a fresh machine, measured 2026-11-23). Every other test walks the
-widths a user gets, qualified as a user's run is."""
+widths a user gets, qualified as a user's run is.
+
+The session has a cache folder of its own (``$WARPE_CL_CACHE_DIR``, set here before warpe-cl
+reads it, so that every child process -- a qualification, a CLI run, a sweep's workers --
+inherits it): the verdicts of faults injected by tests, of devices monkeypatched or of checks
+on a loaded machine never reach the user's ``~/.cache/warpe-cl``. Intel's runtime is
+registered in that folder as in a user's (warpe_cl/drivers.py), so the devices keep their
+numbers. A fresh folder means the session qualifies the kernels it walks anew, as CI does with
+its empty cache; ``$WARPE_CL_TEST_CACHE_DIR`` names a folder to keep between sessions instead
+(never the user's own cache)."""
 from __future__ import annotations
 
+import atexit
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
-import numpy as np
-import pytest
-import xarray as xr
+#: set for the session's children (and pytest-xdist's workers, which then share the folder)
+SESSION_CACHE_ENV = "WARPE_CL_TEST_SESSION_CACHE"
 
-from warpe_cl.params import COMPONENTS, WalkParams
+
+def _session_cache_dir() -> str:
+    """The test session's cache folder: ``$WARPE_CL_TEST_CACHE_DIR`` if set, the one a parent
+    session made, else a new temporary folder removed when the session ends."""
+    for name in ("WARPE_CL_TEST_CACHE_DIR", SESSION_CACHE_ENV):
+        folder = os.environ.get(name, "").strip()
+        if folder:
+            return folder
+    folder = tempfile.mkdtemp(prefix="warpe-cl-test-cache-")
+    atexit.register(shutil.rmtree, folder, True)
+    return folder
+
+
+os.environ[SESSION_CACHE_ENV] = os.environ["WARPE_CL_CACHE_DIR"] = _session_cache_dir()
+
+import numpy as np  # noqa: E402 - after the cache folder is set
+import pytest  # noqa: E402
+import xarray as xr  # noqa: E402
+
+from warpe_cl.params import COMPONENTS, WalkParams  # noqa: E402
 
 #: The repository (for its presets/ and tools/ as a user's checkout has them).
 REPO = Path(__file__).resolve().parent.parent
