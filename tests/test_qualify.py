@@ -183,11 +183,16 @@ def test_auto_picks_the_fastest_qualified_device(monkeypatch):
 
 
 def test_devices_shows_the_verdicts(engine):
+    """`warpe-cl devices` (the session's own cache, conftest.py): each device's verdict, a
+    line for every kernel combination under a usable device (what the cache knows of it), and
+    the device `auto` picks."""
     out = subprocess.run([sys.executable, "-m", "warpe_cl", "devices"], capture_output=True,
                          text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert "qualified:" in out.stdout and "scattering events/s" in out.stdout
     assert "picks" in out.stdout
+    for combo in qualify.all_combos(engine.info.fp64):
+        assert f"        {combo.label}" in out.stdout, out.stdout
 
 
 class _TalkativeProgram:

@@ -255,8 +255,8 @@ def cmd_devices(args) -> int:
         status = qualification(info) if reason is None else None
         for line in report.device_status_lines(reason, status):
             print(line)
-        if args.all and status is not None and status.usable:
-            _print_all_verdicts(info)
+        if status is not None:
+            _print_all_verdicts(info, check=args.all and status.usable)
     spec = resolve_spec(args.device)
     try:
         info, _ = select_device(spec)
@@ -267,14 +267,17 @@ def cmd_devices(args) -> int:
     return EXIT_OK
 
 
-def _print_all_verdicts(info):
-    """Every kernel combination's widest qualified lane width (``devices --all``), each printed
-    as soon as it is known."""
+def _print_all_verdicts(info, check: bool = False):
+    """Every kernel combination's verdicts, one line each, printed as soon as it is known:
+    its widest qualified lane width, the widths that failed, those not checked yet. Plain
+    ``devices`` shows what is cached and checks nothing (it stays cheap); ``check``
+    (``devices --all``) checks the widths not known yet."""
     from .qualify import all_combos, qualifier_for
     q = qualifier_for(info)
     for combo in all_combos(info.fp64):
-        lanes, failures = q.best_lanes(combo)
-        print(report.verdict_line(combo, lanes, failures))
+        choice = q.choose(combo, check=check)
+        print(report.verdict_line(combo, choice.lanes, choice.failures, choice.unchecked),
+              flush=True)
 
 
 def cmd_show_config(args) -> int:

@@ -337,18 +337,32 @@ class Qualification:
     seconds: float | None = None     # wall time of the passing check (child process, builds,
                                      # known-answer walk, speed)
     date: str | None = None          # when it ran
+    #: widths above ``lanes`` (all, when none is usable) whose check came to no verdict --
+    #: timed out, or killed from outside -- as ``(lanes, reason)``: checked again next run
+    unchecked: tuple = ()
 
 
 def qualification(info, say=None) -> Qualification:
-    """Qualify ``info`` for the ranking kernel at its widest passing lane width (cached)."""
+    """Qualify ``info`` for the ranking kernel at its widest passing lane width (cached).
+
+    A width whose check came to no verdict (timed out on a busy machine) is no failure: the
+    next narrower qualified width is used and the width is listed in ``unchecked``; where no
+    width is usable because of it, the reason says "not checked yet".
+    """
     from .qualify import RANK_COMBO, qualifier_for
     q = qualifier_for(info, say=say)
-    lanes, failures = q.best_lanes(RANK_COMBO, measure=True)
-    if lanes is None:
+    choice = q.choose(RANK_COMBO, measure=True)
+    if choice.lanes is None:
+        unchecked_only = not choice.failures
         return Qualification(False, None, None,
-                             "failed the known-answer walk at every lane width: "
-                             + "; ".join(f"{w} lanes: {r}" for w, r in failures),
-                             tuple(failures))
-    entry = q.verdicts(lanes, [RANK_COMBO], measure=True)[RANK_COMBO]
-    return Qualification(True, lanes, entry.get("events_per_s"), None, tuple(failures),
-                         entry.get("child_wall_s", entry.get("seconds")), entry.get("date"))
+                             ("not checked yet at any lane width (checked again next run): "
+                              if unchecked_only else
+                              "failed the known-answer walk at every lane width: ")
+                             + "; ".join(f"{w} lanes: {r}" for w, r in
+                                         sorted(choice.failures + choice.unchecked,
+                                                reverse=True)),
+                             choice.failures, unchecked=choice.unchecked)
+    entry = q.verdicts(choice.lanes, [RANK_COMBO], measure=True)[RANK_COMBO]
+    return Qualification(True, choice.lanes, entry.get("events_per_s"), None, choice.failures,
+                         entry.get("child_wall_s", entry.get("seconds")), entry.get("date"),
+                         choice.unchecked)

@@ -13,11 +13,21 @@ needed; the system's drivers stay visible. ``WARPE_CL_PIP_DRIVERS=0`` turns it o
 
 It must run before the first OpenCL call of the process: :func:`warpe_cl.device._cl` calls it
 before importing pyopencl, and child processes inherit the variable.
+
+The folder lives in the cache folder (:func:`cache_dir`). Where that cannot be written (a
+read-only home, ``$WARPE_CL_CACHE_DIR`` naming a file), dropping the registration would drop
+Intel's runtime and renumber the devices, so that a job's ``--device 0:0`` lands on another
+driver: :func:`usable_cache_dir` then makes a private temporary folder for this run (and its
+child processes, through ``$WARPE_CL_CACHE_DIR``), says so in one warning line, and removes
+it when the process that made it ends. The device numbering stays the same; the price is
+that no verdict is kept from one run to the next.
 """
 from __future__ import annotations
 
+import atexit
 import hashlib
 import os
+import shutil
 import tempfile
 from functools import lru_cache
 from pathlib import Path
@@ -36,6 +46,59 @@ def cache_dir() -> Path:
         return Path(env)
     base = os.environ.get("XDG_CACHE_HOME", "").strip() or os.path.join(Path.home(), ".cache")
     return Path(base) / "warpe-cl"
+
+
+#: folders found writable (or made as a fallback) by this process: ``{asked: used}``
+_usable: dict = {}
+
+
+def _writable(folder: Path) -> str | None:
+    """``None`` where ``folder`` exists or can be made, and a file can be made in it; else
+    why not (one line)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".write-test-"):
+            pass
+    except OSError as err:
+        return f"{type(err).__name__}: {err.strerror or err}"
+    return None
+
+
+def usable_cache_dir() -> Path:
+    """The cache folder (:func:`cache_dir`) where it can be written, else a private temporary
+    folder for this run.
+
+    The fallback folder is made once per process, named in one
+    :class:`~warpe_cl.errors.WarpeWarning` line (which folder failed, which is used, what it
+    costs), handed to child processes through ``$WARPE_CL_CACHE_DIR`` (so a sweep's workers
+    and the qualification's children share it and say nothing), and removed when this process
+    ends.
+
+    Returns
+    -------
+    Path
+    """
+    folder = cache_dir()
+    if str(folder) in _usable:
+        return _usable[str(folder)]
+    problem = _writable(folder)
+    if problem is None:
+        _usable[str(folder)] = folder
+        return folder
+    try:
+        private = Path(tempfile.mkdtemp(prefix="warpe-cl-cache-"))
+    except OSError:            # no temporary folder either: the verdicts are not stored
+        return folder
+    atexit.register(shutil.rmtree, private, True)
+    _usable[str(folder)] = _usable[str(private)] = private
+    os.environ["WARPE_CL_CACHE_DIR"] = str(private)
+    import warnings
+    from .errors import WarpeWarning
+    warnings.warn(f"the cache folder {folder} cannot be written ({problem}); using {private} "
+                  "for this run: the OpenCL drivers keep their numbers, but no qualification "
+                  "verdict is kept (each run checks its devices again, seconds to a minute); "
+                  "set $WARPE_CL_CACHE_DIR to a writable folder", WarpeWarning, stacklevel=2)
+    return private
 
 
 def pip_driver_libraries() -> dict:
@@ -73,7 +136,7 @@ def _icd_folder(entries: dict) -> Path:
     hash of its contents and created atomically (safe for concurrent processes)."""
     text = "".join(f"{k}\0{v}\n" for k, v in sorted(entries.items()))
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    root = cache_dir() / "icd"
+    root = usable_cache_dir() / "icd"
     folder = root / digest
     if folder.is_dir():
         return folder
@@ -98,7 +161,9 @@ def register() -> dict:
     -------
     dict
         ``{distribution: library path}`` of the drivers registered (empty when there is none,
-        when ``$WARPE_CL_PIP_DRIVERS`` is ``0``, or when the cache folder cannot be written).
+        or when ``$WARPE_CL_PIP_DRIVERS`` is ``0``). Where the cache folder cannot be
+        written, the registration goes to a private folder of this run
+        (:func:`usable_cache_dir`); empty only where no temporary folder can be made either.
     """
     if os.environ.get("WARPE_CL_PIP_DRIVERS", "1").strip() == "0":
         return {}

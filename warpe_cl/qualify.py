@@ -24,6 +24,14 @@ the reference walk and of this check; a changed key means a new check. A passing
 slab, analog kernel also measures the device's speed on scene B1 (events/s), which ``auto``
 uses to pick the fastest qualified device.
 
+The cache is trusted no further than it can be checked: an entry is used only if its fields
+have the types and ranges a check writes (:func:`entry_problem`), its stored key is the key
+looked up, and the SHA-256 stored with it matches its contents and key (:func:`entry_hash`);
+anything else is ignored and checked again. A check that did not come to a verdict -- it ran
+past its time limit, or its process was killed from outside (SIGKILL, SIGTERM, SIGINT,
+SIGHUP: the OOM killer, a Ctrl-C) -- is *not checked yet*: never cached, and a run walks the
+next narrower width that is already qualified, or checks the narrower ones.
+
 Run by hand: ``python -m warpe_cl.qualify --device P:D --lanes 16 --combos slab:single:analog``.
 """
 from __future__ import annotations
@@ -51,12 +59,21 @@ QUALIFY_VERSION = 1
 FALLBACK_LANES = (16, 8, 4, 1)
 #: rays per scene of the known-answer walk
 N_RAYS = 2000
-#: a check that takes longer than this is a failure, s (``$WARPE_CL_QUALIFY_TIMEOUT``): a
+#: a check that takes longer than this is stopped, s (``$WARPE_CL_QUALIFY_TIMEOUT``): a
 #: build takes seconds, the walk and the speed probe about one; a driver stuck in its compiler
 #: (pip's PoCL 3.0 at 16 lanes on Zen 4 spins for 2-3 minutes before it aborts) must not hold
-#: a user's first run for long; `warpe-cl devices --requalify` checks again
+#: a user's first run for long. A stopped check is *not checked yet*, not a failure: a loaded
+#: machine is no verdict on the driver; it is never cached, and the next run checks again
 CHILD_TIMEOUT_S = 60
 MARK = "WARPE-QUALIFY "
+#: signals that end a check's process from outside (the OOM killer, a Ctrl-C, a logout): they
+#: say nothing about the driver, so the check is not checked yet rather than failed. A driver
+#: that breaks ends its process with SIGABRT, SIGSEGV, SIGILL, SIGFPE or SIGBUS, a failure.
+EXTERNAL_SIGNALS = tuple(int(getattr(signal, name)) for name in
+                         ("SIGKILL", "SIGTERM", "SIGINT", "SIGHUP") if hasattr(signal, name))
+#: no device walks scene B1 faster than this, events/s (a 2-core CPU: ~1e8; the largest GPUs
+#: of 2026 below 1e11): a cached speed above it is not believed
+MAX_EVENTS_PER_S = 1e13
 
 
 @dataclass(frozen=True)
@@ -304,12 +321,119 @@ def _key_id(key: dict) -> str:
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:32]
 
 
+def _canonical(value) -> str:
+    """JSON text of ``value`` with sorted keys and no white space (NaN refused)."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def entry_hash(entry: dict, key: dict) -> str:
+    """SHA-256 of a verdict and its key: the canonical JSON of the entry without its own
+    ``sha256`` field, with ``key`` in its ``key`` field.
+
+    Parameters
+    ----------
+    entry : dict
+        The verdict (its ``sha256`` and ``key`` fields, if any, are replaced).
+    key : dict
+        The key it is stored under (:func:`combo_key`).
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+    """
+    body = {k: v for k, v in entry.items() if k != "sha256"}
+    body["key"] = key
+    return hashlib.sha256(_canonical(body).encode()).hexdigest()
+
+
+def is_unchecked(entry: dict) -> bool:
+    """True for the entry of a check that came to no verdict (it timed out, or its process was
+    killed from outside): *not checked yet*, never cached."""
+    return entry.get("checked") is False
+
+
+def _finite_number(value) -> bool:
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and bool(np.isfinite(value)))
+
+
+#: the fields of a stored verdict: name -> is it required
+ENTRY_FIELDS = {"passed": True, "reason": True, "events_per_s": True, "seconds": True,
+                "date": False, "child_wall_s": False, "key": True, "sha256": True}
+
+
+def entry_problem(entry, key: dict) -> str | None:
+    """What is wrong with a stored verdict of ``key``, or ``None`` where it can be believed.
+
+    A verdict is believed when it is a JSON object with exactly the fields a check stores
+    (:data:`ENTRY_FIELDS`), ``passed`` a boolean, ``reason`` a string or null, ``events_per_s``
+    null or (on a pass) a finite number in (0, :data:`MAX_EVENTS_PER_S`), ``seconds`` and
+    ``child_wall_s`` finite and >= 0, ``date`` a string, its ``key`` the key looked up, and its
+    ``sha256`` the :func:`entry_hash` of the rest.
+
+    Parameters
+    ----------
+    entry : object
+        What the cache file holds under the key's id.
+    key : dict
+        The key looked up (:func:`combo_key`).
+
+    Returns
+    -------
+    str or None
+        One phrase naming the first problem found.
+    """
+    if not isinstance(entry, dict):
+        return "not a JSON object"
+    missing = [f for f, required in ENTRY_FIELDS.items() if required and f not in entry]
+    if missing:
+        return f"no {', '.join(missing)}"
+    unknown = sorted(set(entry) - set(ENTRY_FIELDS))
+    if unknown:
+        return f"unknown field(s) {', '.join(unknown)}"
+    if not isinstance(entry["passed"], bool):
+        return f"passed is {entry['passed']!r}, not true or false"
+    if entry["reason"] is not None and not isinstance(entry["reason"], str):
+        return "reason is not a string"
+    speed = entry["events_per_s"]
+    if speed is not None:
+        if not entry["passed"]:
+            return "a failed check has a speed"
+        if not (_finite_number(speed) and 0 < speed < MAX_EVENTS_PER_S):
+            return f"events_per_s {speed!r} is not a speed in (0, {MAX_EVENTS_PER_S:g})"
+    for name in ("seconds", "child_wall_s"):
+        if name in entry and not (_finite_number(entry[name]) and entry[name] >= 0):
+            return f"{name} {entry[name]!r} is not a finite duration"
+    if "date" in entry and not isinstance(entry["date"], str):
+        return "date is not a string"
+    try:
+        if _canonical(entry["key"]) != _canonical(key):
+            return "its stored key is not the key looked up"
+        if entry["sha256"] != entry_hash(entry, key):
+            return "its sha256 does not match its contents"
+    except (TypeError, ValueError):
+        return "it cannot be written as JSON again"
+    return None
+
+
+#: cache files whose invalid entries were reported (one line per file and process)
+_warned_invalid: set = set()
+
+
 class VerdictCache:
-    """Verdicts on disk (JSON), shared by every process of the user under a file lock."""
+    """Verdicts on disk (JSON), shared by every process of the user under a file lock.
+
+    Parameters
+    ----------
+    folder : Path, optional
+        Where ``qualification.json`` is (default :func:`warpe_cl.drivers.usable_cache_dir`:
+        the cache folder, or this run's private folder where that cannot be written).
+    """
 
     def __init__(self, folder: Path | None = None):
-        from .drivers import cache_dir
-        self.folder = Path(folder) if folder else cache_dir()
+        from .drivers import usable_cache_dir
+        self.folder = Path(folder) if folder else usable_cache_dir()
         self.path = self.folder / "qualification.json"
 
     @contextlib.contextmanager
@@ -331,7 +455,24 @@ class VerdictCache:
             return {}
 
     def get(self, key: dict) -> dict | None:
-        return self._read().get(_key_id(key))
+        """The stored verdict of ``key`` if it can be believed (:func:`entry_problem`), else
+        ``None``: an invalid entry is checked again, and said once per file in one line."""
+        entry = self._read().get(_key_id(key))
+        if entry is None:
+            return None
+        problem = entry_problem(entry, key)
+        if problem is None:
+            return {k: v for k, v in entry.items() if k not in ("key", "sha256")}
+        if not (isinstance(entry, dict) and "sha256" not in entry and "key" in entry) \
+                and str(self.path) not in _warned_invalid:
+            # an entry of warpe-cl <= 0.x had no hash: replaced quietly; others are said
+            _warned_invalid.add(str(self.path))
+            import warnings
+            from .errors import WarpeWarning
+            warnings.warn(f"{self.path}: a cached verdict ({key.get('combo')} at "
+                          f"{key.get('lanes')} lanes) is not valid ({problem}): ignored, "
+                          "checked again", WarpeWarning, stacklevel=2)
+        return None
 
     def clear(self) -> None:
         """Forget every verdict (``warpe-cl devices --requalify``)."""
@@ -344,7 +485,9 @@ class VerdictCache:
             with self._locked():
                 data = self._read()
                 for key, entry in items:
-                    data[_key_id(key)] = {**entry, "key": key}
+                    stored = {**entry, "key": key}
+                    stored["sha256"] = entry_hash(stored, key)
+                    data[_key_id(key)] = stored
                 from .io import write_text
                 write_text(self.path, json.dumps(data, indent=1, sort_keys=True))
         except OSError:
@@ -373,8 +516,11 @@ def _crash_reason(proc: subprocess.CompletedProcess, lanes: int) -> str:
 def run_child(info, lanes: int, combos, measure: bool = True) -> dict:
     """Qualify ``combos`` at ``lanes`` on the device ``info`` in a child process.
 
-    Returns ``{combo: entry}``; a child that crashes, hangs or prints nothing fails every
-    combination it was given, with the reason.
+    Returns ``{combo: entry}``; a child that crashes or prints nothing fails every
+    combination it was given, with the reason. A child that runs past the time limit
+    (``$WARPE_CL_QUALIFY_TIMEOUT``, default :data:`CHILD_TIMEOUT_S`) or is killed from outside
+    (:data:`EXTERNAL_SIGNALS`) came to no verdict: its entries are *not checked yet*
+    (``"checked": False``, :func:`is_unchecked`), which the caller never caches.
     """
     cmd = [sys.executable, "-m", "warpe_cl.qualify", "--device", info.spec, "--lanes",
            str(lanes), "--combos", ",".join(c.label for c in combos), "--expect", info.device]
@@ -387,10 +533,16 @@ def run_child(info, lanes: int, combos, measure: bool = True) -> dict:
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired:
-        reason = (f"the check did not finish in {timeout:g} s at {lanes} lanes "
-                  "($WARPE_CL_QUALIFY_TIMEOUT)")
-        return {c: {"passed": False, "reason": reason, "events_per_s": None,
+        reason = (f"not checked yet: the check did not finish in {timeout:g} s at {lanes} "
+                  "lanes (a busy machine?; $WARPE_CL_QUALIFY_TIMEOUT)")
+        return {c: {"passed": False, "checked": False, "reason": reason, "events_per_s": None,
                     "seconds": timeout} for c in combos}
+    if proc.returncode < 0 and -proc.returncode in EXTERNAL_SIGNALS:
+        reason = (f"not checked yet: the check's process was killed by "
+                  f"{_signal_name(proc.returncode)} from outside at {lanes} lanes")
+        took = round(time.perf_counter() - t0, 3)
+        return {c: {"passed": False, "checked": False, "reason": reason, "events_per_s": None,
+                    "seconds": took} for c in combos}
     results = None
     for line in proc.stdout.splitlines():
         if line.startswith(MARK):
@@ -446,25 +598,127 @@ class Qualifier:
                 entry = {**fresh.get(c, {"passed": False, "reason": "no verdict returned",
                                          "events_per_s": None, "seconds": 0.0}),
                          "date": stamp, "child_wall_s": wall}
+                # a check with no verdict is remembered by this process only (it is not
+                # tried again in this run) and checked again by the next one
                 out[c] = self._memo[_key_id(keys[c])] = entry
-                items.append((keys[c], entry))
-            self.cache.put(items)
+                if not is_unchecked(entry):
+                    items.append((keys[c], entry))
+            if items:
+                self.cache.put(items)
         return out
 
+    def known(self, lanes: int, combo: Combo) -> dict | None:
+        """The verdict of ``combo`` at ``lanes`` if this process or the cache has one (a check
+        with no verdict included), else ``None``; never checks."""
+        key = combo_key(self.info, lanes, combo)
+        kid = _key_id(key)
+        if kid not in self._memo:
+            entry = self.cache.get(key)
+            if entry is None:
+                return None
+            self._memo[kid] = entry
+        return self._memo[kid]
+
+    def choose(self, combo: Combo, measure: bool = False, check: bool = True) -> "LaneChoice":
+        """The widest usable lane width for ``combo``, the widths that failed above it, and
+        those not checked yet.
+
+        The widths of :meth:`lane_chain` are taken widest first. A width that fails is a
+        failure. A width whose check came to no verdict (timed out, killed from outside) is
+        *not checked yet*: the next narrower width that is already qualified (cached) is used,
+        the failures cached on the way listed; where none is, the narrower widths are checked
+        in turn.
+
+        Parameters
+        ----------
+        combo : Combo
+        measure : bool
+            Measure the speed of the ranking kernel when checking it.
+        check : bool
+            ``False``: look only at the verdicts this process and the cache have (a width
+            never checked is *not checked yet*, with reason ``None``); nothing is checked.
+
+        Returns
+        -------
+        LaneChoice
+        """
+        chain = self.lane_chain(combo.precision)
+        failures, unchecked = [], []
+        i = 0
+        while i < len(chain):
+            lanes = chain[i]
+            entry = (self.verdicts(lanes, [combo], measure=measure)[combo] if check
+                     else self.known(lanes, combo))
+            i += 1
+            if entry is None:
+                unchecked.append((lanes, None))
+                continue
+            if entry["passed"]:
+                return LaneChoice(lanes, tuple(failures), tuple(unchecked))
+            if not is_unchecked(entry):
+                failures.append((lanes, entry["reason"]))
+                continue
+            unchecked.append((lanes, entry["reason"]))
+            # a busy machine: walk a narrower width already qualified rather than check more
+            for j in range(i, len(chain)):
+                known = self.known(chain[j], combo)
+                if known is not None and known["passed"]:
+                    for w in chain[i:j]:            # the widths skipped, as far as known
+                        e = self.known(w, combo)
+                        if e is None or is_unchecked(e):
+                            unchecked.append((w, None if e is None else e["reason"]))
+                        else:
+                            failures.append((w, e["reason"]))
+                    return LaneChoice(chain[j], tuple(failures), tuple(unchecked))
+        return LaneChoice(None, tuple(failures), tuple(unchecked))
+
     def best_lanes(self, combo: Combo, measure: bool = False):
-        """The widest qualified lane width for ``combo`` and the failures above it.
+        """The widest qualified lane width for ``combo`` and the failures above it
+        (:meth:`choose`, checking what is not known yet).
+
+        Widths whose check came to no verdict are not failures: where a narrower width is
+        walked instead, one :class:`~warpe_cl.errors.WarpeWarning` line says so; where no
+        width is usable, they are listed with the failures (their reasons say "not checked
+        yet").
 
         Returns
         -------
         (int or None, list of (lanes, reason))
         """
-        failures = []
-        for lanes in self.lane_chain(combo.precision):
-            entry = self.verdicts(lanes, [combo], measure=measure)[combo]
-            if entry["passed"]:
-                return lanes, failures
-            failures.append((lanes, entry["reason"]))
-        return None, failures
+        choice = self.choose(combo, measure=measure)
+        if choice.lanes is None:
+            return None, sorted(choice.failures + choice.unchecked, reverse=True)
+        if choice.unchecked:
+            import warnings
+            from .errors import WarpeWarning
+            first, why = choice.unchecked[0]
+            others = [str(w) for w, _ in choice.unchecked[1:]]
+            why = why or f"not checked yet at {first} lanes"
+            warnings.warn(f"{describe_short(self.info)}: {combo.label} {why}"
+                          + (f" (nor at {', '.join(others)} lanes)" if others else "")
+                          + f"; walking {choice.lanes} lanes, already qualified; checked "
+                          "again next run", WarpeWarning, stacklevel=3)
+        return choice.lanes, list(choice.failures)
+
+
+@dataclass(frozen=True)
+class LaneChoice:
+    """What :meth:`Qualifier.choose` found for one kernel combination.
+
+    Attributes
+    ----------
+    lanes : int or None
+        The widest usable (qualified) lane width, ``None`` when there is none.
+    failures : tuple of (int, str)
+        Widths above it (or all, when none) that failed, with why.
+    unchecked : tuple of (int, str or None)
+        Widths above it (or all) not checked yet: the check timed out or was killed (its
+        reason), or was never run (``None``, when only the cache is read).
+    """
+
+    lanes: int | None
+    failures: tuple = ()
+    unchecked: tuple = ()
 
 
 _qualifiers: dict = {}

@@ -184,14 +184,49 @@ def device_status_lines(reason: str | None, status=None) -> list:
              if status.events_per_s else "speed not measured")
     return ([f"      qualified: {status.lanes} lane{'s' if status.lanes > 1 else ''}, {speed} "
              f"(single precision; checked {status.date or '?'} in {status.seconds or 0:.1f} s)"]
-            + [f"      failed at {lanes} lanes: {why}" for lanes, why in status.failures])
+            + [f"      failed at {lanes} lanes: {why}" for lanes, why in status.failures]
+            + [f"      not checked yet at {lanes} lanes"
+               + (f": {why.removeprefix('not checked yet: ')}" if why else "")
+               + " (checked again next run)"
+               for lanes, why in getattr(status, "unchecked", ())])
 
 
-def verdict_line(combo, lanes: int, failures: list) -> str:
-    """One kernel combination of ``warpe-cl devices --all``: its widest qualified lane width
-    (0: none) and the widths that failed, with why."""
-    verdict = (f"{lanes} lanes" if lanes else "NOT usable") + "".join(
-        f"; failed at {w}: {r}" for w, r in failures)
+def verdict_line(combo, lanes: int | None, failures, unchecked=()) -> str:
+    """One kernel combination of ``warpe-cl devices``: its widest qualified lane width, the
+    widths that failed (with why) and those not checked yet.
+
+    Parameters
+    ----------
+    combo : warpe_cl.qualify.Combo
+    lanes : int or None
+        The widest qualified width (``None`` or 0: none).
+    failures : sequence of (int, str)
+        Widths that failed, with why.
+    unchecked : sequence of (int, str or None)
+        Widths not checked yet: never checked (``None``), or a check that came to no verdict
+        (timed out, killed from outside), with why.
+
+    Returns
+    -------
+    str
+        ``"        slab:double:weighted       4 lanes, qualified; failed at 8: ..."``; a
+        combination of which nothing is known reads ``not checked yet``.
+    """
+    never = [w for w, r in unchecked if r is None]
+    stopped = [(w, r) for w, r in unchecked if r is not None]
+    if lanes:
+        verdict = f"{lanes} lanes, qualified"
+    elif failures and not unchecked:
+        verdict = "NOT usable (failed at every lane width)"
+    elif failures or stopped:
+        verdict = "no lane width qualified yet"
+    else:
+        return f"        {combo.label:26s} not checked yet"
+    verdict += "".join(f"; failed at {w}: {r}" for w, r in failures)
+    verdict += "".join(f"; not checked yet at {w}: {r.removeprefix('not checked yet: ')}"
+                       for w, r in stopped)
+    if never:
+        verdict += f"; not checked yet at {', '.join(str(w) for w in never)}"
     return f"        {combo.label:26s} {verdict}"
 
 
