@@ -7,10 +7,20 @@ stacks the scenario files of one or several such folders along ``scenario``, rea
 them with h5py (:func:`_read_scenario`), which gives the same bits as xarray in a fraction of
 the time.
 
+A database defends itself (docs/cluster.md, "What defends a database"): every manifest is
+checked for its format, keys and types before it is used (:func:`check_manifest`); a row's file
+name must be the plan's name for its index (``sNNNNN_KEY.nc``, never a path elsewhere); each
+file's own ``sweep_index``, ``sweep_point`` and ``sweep_fingerprint`` must be those of its
+row; and a file whose manifest recorded its SHA-256 must still have it
+(:func:`file_sha256`). A file that fails any of these is named in one line (ConfigError, exit
+2) with the way out, ``warpe-cl sweep ... --resume``: :func:`open_database` never returns a
+mixture.
+
 xarray and h5py are imported only where they are used.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -18,9 +28,105 @@ from pathlib import Path
 
 from .errors import ConfigError, one_line
 
-__all__ = ["open_database", "database_folder", "manifest_name", "read_manifests"]
+__all__ = ["open_database", "database_folder", "manifest_name", "read_manifests",
+           "check_manifest", "scenario_file_name", "file_sha256", "FORMAT", "FORMAT_VERSION"]
 
 MANIFEST_RE = re.compile(r"^manifest(-shard-\d+-of-\d+)?\.json$")
+SCENARIO_FILE_RE = re.compile(r"^s\d{5,}_[0-9a-f]{16}\.nc$")
+FORMAT = "warpe-cl sweep database"
+FORMAT_VERSION = 2            # 2: each done row carries the sha256 of its file
+_STATUSES = ("done", "failed", "pending", "other shard")
+
+
+def scenario_file_name(index: int, key: str, total: int) -> str:
+    """The plan's file name of scenario ``index`` (scenario key ``key``) in a grid of
+    ``total`` points: ``s00003_1a2b3c4d5e6f7081.nc``, the index on at least five digits."""
+    width = max(5, len(str(total - 1)))
+    return f"s{index:0{width}d}_{key}.nc"
+
+
+def file_sha256(path) -> str:
+    """The SHA-256 of a file's bytes, hex (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _resume_hint(folder) -> str:
+    return (f"run `warpe-cl sweep PRESET --out {folder} --resume` (with the sweep's own "
+            f"options) to check every file and compute this one again")
+
+
+def check_manifest(path: Path, manifest) -> dict:
+    """Check a manifest's format, keys and types before anything follows it.
+
+    Parameters
+    ----------
+    path : Path
+        The manifest, for messages.
+    manifest : object
+        Its JSON content.
+
+    Returns
+    -------
+    dict
+        ``manifest``, unchanged.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file and the key: not a mapping, another format, a missing or
+        mistyped key, a row whose ``index`` is not its position, whose ``status`` is unknown,
+        or whose ``file`` is not the plan's name for its index and key (a path elsewhere,
+        another scenario's file).
+    """
+    def bad(key, what):
+        return ConfigError(f"{what}; it is not a valid warpe-cl sweep manifest (delete it "
+                           f"and run the sweep again with --resume)", key=f"{path}: {key}")
+
+    if not isinstance(manifest, dict):
+        raise bad("(top level)", f"a JSON {type(manifest).__name__}, not a mapping")
+    if manifest.get("format") != FORMAT:
+        raise bad("format", f"{manifest.get('format')!r}, not {FORMAT!r}")
+    version = manifest.get("format_version")
+    if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
+        raise bad("format_version", f"{version!r}; this warpe-cl reads 1 to {FORMAT_VERSION}")
+    fingerprint = manifest.get("fingerprint")
+    if not isinstance(fingerprint, str) or not re.fullmatch(r"[0-9a-f]{64}", fingerprint):
+        raise bad("fingerprint", f"{fingerprint!r}, not 64 hex digits")
+    for key, kind in (("preset_yaml", str), ("keys", list), ("scenarios", list)):
+        if not isinstance(manifest.get(key), kind):
+            raise bad(key, f"{manifest.get(key)!r:.60}, not a {kind.__name__}")
+    rows = manifest["scenarios"]
+    if not rows:
+        raise bad("scenarios", "an empty list")
+    for position, row in enumerate(rows):
+        where = f"scenarios[{position}]"
+        if not isinstance(row, dict):
+            raise bad(where, f"{row!r:.60}, not a mapping")
+        if type(row.get("index")) is not int or row["index"] != position:
+            raise bad(f"{where}.index", f"{row.get('index')!r}, not {position}")
+        if not isinstance(row.get("point"), dict):
+            raise bad(f"{where}.point", f"{row.get('point')!r:.60}, not a mapping")
+        if row.get("status") not in _STATUSES:
+            raise bad(f"{where}.status", f"{row.get('status')!r}, not one of "
+                                         f"{', '.join(_STATUSES)}")
+        key, name = row.get("key"), row.get("file")
+        if key is None and name is None:
+            continue                     # an invalid point: no key, no file
+        if not isinstance(key, str) or not re.fullmatch(r"[0-9a-f]{16}", key):
+            raise bad(f"{where}.key", f"{key!r}, not 16 hex digits")
+        if name != scenario_file_name(position, key, len(rows)):
+            raise bad(f"{where}.file", f"{name!r}, not the plan's name "
+                                       f"{scenario_file_name(position, key, len(rows))}")
+        sha = row.get("sha256")
+        if sha is not None and not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):
+            raise bad(f"{where}.sha256", f"{sha!r}, not 64 hex digits")
+        if version >= 2 and row["status"] == "done" and sha is None:
+            raise bad(f"{where}.sha256", "missing from a done row")
+    return manifest
 
 
 def manifest_name(shard: tuple | None) -> str:
@@ -49,17 +155,18 @@ def read_manifests(folder: Path) -> list:
     Raises
     ------
     ConfigError
-        A manifest that cannot be read or is not JSON.
+        A manifest that cannot be read, is not JSON, or fails :func:`check_manifest`.
     """
     out = []
     if folder.is_dir():
         for path in sorted(folder.iterdir()):
             if MANIFEST_RE.match(path.name):
                 try:
-                    out.append((path, json.loads(path.read_text(encoding="utf-8"))))
+                    manifest = json.loads(path.read_text(encoding="utf-8"))
                 except (OSError, ValueError) as err:
                     raise ConfigError(f"unreadable manifest ({one_line(err)}); it is not a "
                                       f"warpe-cl sweep database", key=str(path)) from None
+                out.append((path, check_manifest(path, manifest)))
     return out
 
 
@@ -103,7 +210,21 @@ def _read_scenario(path: Path, template):
 
 def _finished(folders: list) -> tuple:
     """What the manifests of ``folders`` say: (a manifest of the grid, its fingerprint, the
-    failed scenarios as index -> error, the finished ones as index -> file)."""
+    failed scenarios as index -> error, the finished ones as index -> (file, the SHA-256s its
+    folder's manifests recorded for it, or None for a version-1 database, which recorded
+    none)).
+
+    A scenario is finished when a manifest of its folder lists it as done (with its file's
+    SHA-256); a file no manifest lists yet (a sweep still writing, or killed before its
+    manifest caught up) is left out until ``--resume`` checks and records it. Version-1
+    manifests recorded no SHA-256: there, a file in place counts, as it always did.
+
+    Raises
+    ------
+    ConfigError
+        A folder without a manifest, folders of different grids, a file listed as done but
+        missing, or no finished scenario.
+    """
     grid = None
     fingerprint = None
     failed = {}
@@ -115,21 +236,68 @@ def _finished(folders: list) -> tuple:
         if not manifests:
             raise ConfigError("is not a warpe-cl sweep database (no manifest.json)",
                               key=str(folder))
+        recorded = {}             # index -> the SHA-256s this folder's manifests recorded
+        legacy = False
         for path, manifest in manifests:
             if fingerprint is None:
                 fingerprint, grid = manifest["fingerprint"], manifest
             elif manifest["fingerprint"] != fingerprint:
                 raise ConfigError(f"{path.name} belongs to another grid than "
                                   f"{folders[0]}; open them separately", key=str(folder))
+            legacy = legacy or manifest["format_version"] < 2
             for rec in manifest["scenarios"]:
-                if rec.get("status") == "failed":
+                if rec["status"] == "failed":
                     failed.setdefault(rec["index"], rec.get("error"))
+                elif rec["status"] == "done" and rec.get("sha256"):
+                    recorded.setdefault(rec["index"], set()).add(rec["sha256"])
         for rec in grid["scenarios"]:
-            if rec["file"] and rec["index"] not in found and (folder / rec["file"]).is_file():
-                found[rec["index"]] = folder / rec["file"]
+            index, name = rec["index"], rec["file"]
+            if not name or index in found:
+                continue
+            path = folder / name
+            if index in recorded:
+                if not path.is_file():
+                    raise ConfigError(f"is missing, though a manifest lists it as done; "
+                                      f"{_resume_hint(folder)}", key=str(path))
+                found[index] = (path, recorded[index])
+            elif legacy and path.is_file():
+                found[index] = (path, None)
     if not found:
         raise ConfigError("holds no finished scenario yet", key=", ".join(map(str, folders)))
     return grid, fingerprint, failed, found
+
+
+def _checked(path: Path, shas, read):
+    """``read()`` (a scenario file's Dataset) once the file's SHA-256 is one its manifests
+    recorded (``shas``; None: not recorded, version 1); any failure named in one line."""
+    try:
+        if shas is not None:
+            digest = file_sha256(path)
+            if digest not in shas:
+                raise ConfigError(
+                    f"its sha256 ({digest[:16]}...) is not the one its manifest recorded "
+                    f"({sorted(shas)[0][:16]}...): the file changed after it was written; "
+                    f"{_resume_hint(path.parent)}", key=str(path))
+        return read()
+    except ConfigError:
+        raise
+    except Exception as err:  # noqa: BLE001 - truncated, HDF5 errors, I/O: one line
+        raise ConfigError(f"unreadable ({type(err).__name__}: {one_line(err)}); "
+                          f"{_resume_hint(path.parent)}", key=str(path)) from None
+
+
+def _check_attributes(ds, path: Path, index: int, fingerprint: str, point: dict) -> None:
+    """A scenario file's own ``sweep_index``, ``sweep_fingerprint`` and ``sweep_point`` must
+    be those of the manifest row that names it (a swapped or edited row relabels no data)."""
+    want = {"sweep_index": index, "sweep_fingerprint": fingerprint,
+            "sweep_point": json.dumps(point, sort_keys=True, default=str)}
+    for name, value in want.items():
+        have = ds.attrs.get(name)
+        same = have is not None and (int(have) == value if name == "sweep_index"
+                                     else str(have) == value)
+        if not same:
+            raise ConfigError(f"its attribute {name} is {have!r:.80}, its manifest row says "
+                              f"{value!r:.80}; {_resume_hint(path.parent)}", key=str(path))
 
 
 def open_database(paths, grid: bool = False):
@@ -162,7 +330,11 @@ def open_database(paths, grid: bool = False):
     Raises
     ------
     ConfigError
-        A path that is not a database, folders of different grids, or no finished scenario.
+        A path that is not a database, a manifest that fails :func:`check_manifest`, folders
+        of different grids, no finished scenario; or a finished scenario's file that is
+        missing, unreadable (truncated), whose SHA-256 is not the one its manifest recorded,
+        or whose own index, point or fingerprint is not its row's. The message names the file
+        and says to run ``warpe-cl sweep ... --resume``; no Dataset of the others is returned.
     """
     import xarray as xr
     from .io import as_grid, combine_scenarios
@@ -172,8 +344,15 @@ def open_database(paths, grid: bool = False):
     grid, fingerprint, failed, found = _finished(folders)
     rows = {rec["index"]: rec for rec in grid["scenarios"]}
     indices = sorted(found)
-    template = xr.load_dataset(found[indices[0]], engine="h5netcdf")
-    datasets = [template] + [_read_scenario(found[i], template) for i in indices[1:]]
+    datasets = []
+    for i in indices:
+        path, shas = found[i]
+        if datasets:
+            ds = _checked(path, shas, lambda: _read_scenario(path, datasets[0]))
+        else:
+            ds = _checked(path, shas, lambda: xr.load_dataset(path, engine="h5netcdf"))
+        _check_attributes(ds, path, i, fingerprint, rows[i]["point"])
+        datasets.append(ds)
     points = [rows[i]["point"] for i in indices]
     out = combine_scenarios(datasets, points, {"config": grid.get("preset_yaml", "")})
     out = out.assign_coords(scenario=("scenario", indices, {

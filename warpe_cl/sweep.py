@@ -11,7 +11,17 @@
     The preset, the swept keys, every point with its key, file, configuration hash and status
     (``done``, ``failed`` with its one-line error, ``pending``, or ``other shard``), photons,
     wall time, device, versions; rewritten atomically as results come in. One manifest per
-    shard, so that shards sharing a folder never write the same file.
+    shard, so that shards sharing a folder never write the same file. Each done row records
+    the SHA-256 of its file, taken once the file is flushed to disk (``fsync``).
+``DIR/rejected/``
+    Files ``--resume`` found wrong (another seed or grid, a different SHA-256, unreadable),
+    moved aside with a ``.reason.txt`` beside each; never deleted.
+
+A run holds two locks (:class:`_Lock`, ``flock``): the folder's (``DIR/.warpe-cl.lock``) for
+the moment it checks its grid against the manifests there and writes its own, so that two
+runs cannot both find a folder free and claim it; and its manifest's
+(``DIR/.manifest.json.lock``) for the whole run, so that two runs of the same shard never
+write the same files: the second exits 2 naming the first (pid, host, start).
 
 A scenario's random numbers are keyed by (seed, scenario key), and its key is a hash of its own
 resolved configuration (seed and photons apart): the same point gives the same bits whichever
@@ -33,12 +43,16 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .database import database_folder, manifest_name, open_database, read_manifests
+from . import stops
+from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, SCENARIO_FILE_RE, database_folder,
+                       file_sha256, manifest_name, open_database, read_manifests,
+                       scenario_file_name)
 from .errors import ConfigError, one_line
 from .io import json_default, utc_now, versions, write_text
 from .progress import Progress
@@ -51,9 +65,14 @@ from .workers import CLUSTER_HINT, Workers, worker_environment
 __all__ = ["run_sweep", "open_database", "SweepSummary", "parse_shard", "worker_environment",
            "CLUSTER_HINT", "summary_lines"]
 
-FORMAT = "warpe-cl sweep database"
-FORMAT_VERSION = 1
 MANIFEST_INTERVAL_S = 2.0     # the manifest is rewritten at most this often (and at the end)
+FOLDER_LOCK = ".warpe-cl.lock"
+FOLDER_LOCK_WAIT_S = 60.0     # the folder lock is held for a moment: wait this long at most
+REJECTED = "rejected"
+# What a run's record of an earlier run may carry forward (never a file name or a point: those
+# come from the plan).
+RECORD_KEYS = ("host", "pid", "pocl_max_pthread_count", "pocl_cache_dir", "error", "photons",
+               "wall_time_s", "device", "finished_utc", "note")
 
 
 # --------------------------------------------------------------------------- small helpers
@@ -87,6 +106,98 @@ def _remove_partial(folder: Path, name: str) -> int:
     return removed
 
 
+def _durable(path: Path) -> str:
+    """Flush a finished result file and its folder to disk (``fsync``), then its SHA-256.
+
+    ``warpe_cl.io.write_netcdf`` renames a complete file into place; without the flush a node
+    crash can still leave a file of that name truncated, or the rename undone. A result counts
+    (its record says ``done``) only once this returns.
+    """
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    try:
+        fd = os.open(path.parent, os.O_RDONLY)
+    except OSError:           # a platform without directory handles (Windows)
+        return file_sha256(path)
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass                  # some file systems refuse fsync on a directory
+    finally:
+        os.close(fd)
+    return file_sha256(path)
+
+
+class _Lock:
+    """An exclusive lock on a file in a database folder (``fcntl.flock``).
+
+    On Linux, ``flock`` on NFS is carried out as a POSIX lock on the whole file (the same as
+    ``fcntl.lockf``), so it excludes runs on other nodes sharing the folder; on a local file
+    system it also excludes another ``open`` in the same process. The holder writes who it is
+    (pid, host, start) into the file, for the refusal message of the next comer. Releasing
+    removes the file while it is still locked; a comer that locked a file removed meanwhile
+    sees that its path no longer names it and tries again.
+    """
+
+    def __init__(self, path: Path, fd: int):
+        self.path, self.fd = path, fd
+
+    @classmethod
+    def take(cls, path: Path, wait_s: float = 0.0) -> "_Lock | None":
+        """Lock ``path`` (created if absent), waiting up to ``wait_s`` seconds; None if
+        another process holds it."""
+        import fcntl
+        deadline = time.monotonic() + wait_s
+        while True:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:                       # EWOULDBLOCK (EACCES on some NFS)
+                os.close(fd)
+                if time.monotonic() >= deadline:
+                    return None
+                time.sleep(0.05)
+                continue
+            try:
+                same = os.path.samestat(os.fstat(fd), os.stat(path))
+            except FileNotFoundError:
+                same = False
+            if same:
+                return cls(path, fd)
+            os.close(fd)                          # removed by its last holder: again
+
+    def claim(self, started_utc: str) -> None:
+        """Write who holds the lock: pid, host, start (read by :func:`_holder`)."""
+        import platform
+        text = json.dumps({"pid": os.getpid(), "host": platform.node(),
+                           "started_utc": started_utc})
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, text.encode(), 0)
+
+    def release(self) -> None:
+        """Remove the lock file and unlock it (idempotent)."""
+        if self.fd is None:
+            return
+        try:
+            os.unlink(self.path)
+        except OSError:
+            pass
+        os.close(self.fd)
+        self.fd = None
+
+
+def _holder(path: Path) -> str:
+    """``pid P on HOST, started T``: who holds a lock, as written by :meth:`_Lock.claim`."""
+    try:
+        who = json.loads(path.read_text(encoding="utf-8"))
+        return f"pid {who['pid']} on {who['host']}, started {who['started_utc']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "pid unknown, just starting"
+
+
 # --------------------------------------------------------------------------- one scenario
 
 def run_scenario(task: dict) -> dict:
@@ -103,8 +214,9 @@ def run_scenario(task: dict) -> dict:
     -------
     dict
         ``index``, ``status`` (``done`` or ``failed``), ``error``, ``photons``,
-        ``wall_time_s``, ``device``, ``host``, ``pid``, ``finished_utc``. Errors are
-        returned, never raised, so that one bad point does not stop the others.
+        ``wall_time_s``, ``device``, ``host``, ``pid``, ``finished_utc``, and for a done
+        one the ``sha256`` of its file, taken once file and folder are flushed to disk. Errors
+        are returned, never raised, so that one bad point does not stop the others.
     """
     worker_environment(task.get("threads"))
     import platform
@@ -121,6 +233,7 @@ def run_scenario(task: dict) -> dict:
             "sweep_fingerprint": task["fingerprint"],
         })
         io.write_netcdf(ds, task["path"])
+        record["sha256"] = _durable(Path(task["path"]))
         record.update(status="done", error=None, photons=int(ds["photons"]),
                       wall_time_s=float(ds["wall_time"]),
                       device=str(ds.attrs.get("opencl_device", "?")))
@@ -153,13 +266,12 @@ def plan(grid) -> tuple:
     """Scenarios of a :class:`~warpe_cl.config.Grid` with keys, file names, and the grid's
     fingerprint (a hash of every point's resolved configuration)."""
     from .api import format_key, scenario_key
-    width = max(5, len(str(len(grid.points) - 1)))
     scenarios = []
     for index, (point, cfg) in enumerate(grid.points):
         sc = Scenario(index, point, cfg)
         if sc.valid:
             sc.key = format_key(scenario_key(point, cfg))
-            sc.file = f"s{index:0{width}d}_{sc.key}.nc"
+            sc.file = scenario_file_name(index, sc.key, len(grid.points))
             sc.config_sha256 = _sha256(cfg.data)
         scenarios.append(sc)
     fingerprint = _sha256([[s.index, s.point, s.config_sha256] for s in scenarios])
@@ -178,8 +290,10 @@ class _Sweep:
     combined: Path | None           # X.nc for --out X.nc
     shard: tuple | None             # (I, N)
     owned: list                     # the Scenarios of this shard
-    present: set                    # indices whose result file is in the folder
-    previous: dict                  # index -> the record an earlier manifest holds
+    resume: bool = False
+    present: set = field(default_factory=set)      # indices whose result file is in the folder
+    previous: dict = field(default_factory=dict)   # index -> the record an earlier manifest holds
+    verified: dict = field(default_factory=dict)   # index -> (sha256, photons) checked on resume
     device: str | None = None
     scheduler: str | None = None
 
@@ -192,8 +306,6 @@ class _Sweep:
         """Scenarios of this shard still to compute."""
         return sum(s.valid and s.index not in self.present for s in self.owned)
 
-
-# --------------------------------------------------------------------------- the sweep
 
 @dataclass
 class SweepSummary:
@@ -218,7 +330,7 @@ class SweepSummary:
 
 
 def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume=False,
-              device=None, quiet=False, say=print) -> SweepSummary:
+              device=None, quiet=False, say=print, overwrite=False) -> SweepSummary:
     """Run (or resume) a sweep into a database folder.
 
     Parameters
@@ -235,8 +347,10 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
     scheduler : str, optional
         A Dask scheduler address, or ``local:N`` for a local cluster of N worker processes.
     resume : bool
-        Keep the scenarios already in the folder and compute the others. Without it, a folder
-        that already holds results for this run's scenarios is an error.
+        Keep the scenarios already in the folder and compute the others. Every file kept is
+        checked first (its seed, photons, index and grid fingerprint, its SHA-256 against the
+        manifest's); one that fails is moved into ``DIR/rejected/`` and computed again.
+        Without it, a folder that already holds results for this run's scenarios is an error.
     device : str, optional
         Device spec; a comma-separated list or ``all`` (every GPU) runs one worker process
         per device.
@@ -245,6 +359,9 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
     say : callable
         Prints the first line (``print``; the command line passes one that ``--quiet``
         silences).
+    overwrite : bool
+        ``--out X.nc`` where ``X.nc`` exists and is not the combined file of this grid: replace
+        it once the grid is complete (without it, that is an error).
 
     Returns
     -------
@@ -253,28 +370,38 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
     Raises
     ------
     ConfigError
-        Bad preset, ``--shard``, ``--scheduler``, or a folder that holds another grid.
+        Bad preset, ``--shard``, ``--scheduler``, a folder that holds another grid or that
+        is not a database, an ``X.nc`` of something else without ``overwrite``, or another
+        sweep writing the same manifest (its pid, host and start named).
     DeviceError
         No usable device (local engine), before anything is written.
     """
-    sweep = _prepare(preset, out, overrides, shard, resume)
+    sweep = _prepare(preset, out, overrides, shard, resume, overwrite)
     sweep.device, sweep.scheduler = device, scheduler
     # Where the scenarios run; device problems surface before anything is written.
     workers = Workers.open(scheduler, device, sweep.runnable)
+    lock = None
     try:
-        return _run(sweep, workers, quiet, say)
+        lock, manifest, summary, todo = _claim(sweep, workers.text)
+        if todo and workers.mode == "none":      # a file rejected on --resume: work after all
+            workers = Workers.open(scheduler, device, len(todo))
+            manifest.header["engine"] = workers.text
+        return _run(sweep, workers, manifest, summary, todo, quiet, say)
     finally:
         workers.close()
+        if lock is not None:
+            lock.release()
 
 
-def _prepare(preset, out, overrides, shard, resume) -> _Sweep:
+def _prepare(preset, out, overrides, shard, resume, overwrite=False) -> _Sweep:
     """The grid and the folder checked against each other, before anything is written.
 
     Raises
     ------
     ConfigError
         Every point invalid, ``--out`` not a folder or in a missing one, a folder holding
-        another grid, or results of these scenarios already there without ``resume``.
+        another grid or that is not a database, results of these scenarios already there
+        without ``resume``, ``X.nc`` of another grid without ``overwrite``.
     """
     from .config import load_grid
     grid = load_grid(preset, overrides)
@@ -288,27 +415,230 @@ def _prepare(preset, out, overrides, shard, resume) -> _Sweep:
                           key=str(folder))
     if not folder.resolve().parent.exists():
         raise ConfigError(f"folder {folder.resolve().parent} does not exist", key="--out")
+    if combined is not None and combined.exists() and not overwrite \
+            and _combined_fingerprint(combined) != fingerprint:
+        raise ConfigError(f"{combined} exists and is not the combined file of this grid; pass "
+                          f"--overwrite to replace it once the grid is complete, or give "
+                          f"another --out", key="--out")
     owned = [s for s in scenarios if shard is None or s.index % shard[1] == shard[0]]
+    sweep = _Sweep(grid, scenarios, fingerprint, folder, combined, shard, owned, resume)
+    _inspect(sweep)       # read-only now; again under the folder's lock before writing
+    return sweep
 
+
+def _combined_fingerprint(path: Path) -> str | None:
+    """The ``sweep_fingerprint`` of a combined file ``X.nc`` (None if unreadable or none)."""
+    try:
+        import h5py
+        with h5py.File(path, "r") as h5:
+            value = h5.attrs.get("sweep_fingerprint")
+        return value.decode() if isinstance(value, bytes) else (str(value) if value is not None
+                                                               else None)
+    except Exception:  # noqa: BLE001 - not an HDF5 file, a folder, unreadable: not ours
+        return None
+
+
+_OURS_RE = re.compile(r"^(s\d{5,}_[0-9a-f]{16}\.nc|\.warpe-cl\.lock|"
+                      r"\.(s\d{5,}_[0-9a-f]{16}\.nc|manifest(-shard-\d+-of-\d+)?\.json)"
+                      r"\.(lock|[0-9a-f]+\.tmp(\.nc|\.json)?))$")
+
+
+def _inspect(sweep: _Sweep) -> None:
+    """What the folder holds, checked against this run: sets ``present`` and ``previous``.
+
+    Raises
+    ------
+    ConfigError
+        A non-empty folder with no manifest holding something a sweep never writes, a
+        manifest of another grid (or one that fails its checks), or results of this run's
+        scenarios without ``resume``.
+    """
+    folder = sweep.folder
+    manifests = read_manifests(folder)
+    if folder.is_dir() and not manifests:
+        foreign = [p.name for p in sorted(folder.iterdir())
+                   if not (_OURS_RE.match(p.name) or MANIFEST_RE.match(p.name)
+                           or (p.name == REJECTED and p.is_dir()))]
+        if foreign:
+            more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+            raise ConfigError(f"is not empty and is not a warpe-cl sweep database (no "
+                              f"manifest; it holds {foreign[0]}{more}); give a new or empty "
+                              f"folder", key=str(folder))
     # A folder holds one grid: every manifest already there must share our fingerprint.
     previous = {}
-    for path, manifest in read_manifests(folder):
-        if manifest.get("fingerprint") != fingerprint:
+    for path, manifest in manifests:
+        if manifest["fingerprint"] != sweep.fingerprint:
             raise ConfigError(
                 f"holds a database of another grid ({path.name}: preset "
-                f"{manifest.get('preset')}); the preset, --set, --photons or --seed differ. "
+                f"{manifest.get('preset')}, seed {manifest.get('seed')}, photons "
+                f"{manifest.get('photons')}); the preset, --set, --photons or --seed differ. "
                 f"Give another --out", key=str(folder))
-        for rec in manifest.get("scenarios", []):
-            if rec.get("status") in ("done", "failed"):
+        _match_plan(path, manifest, sweep.scenarios)
+        for rec in manifest["scenarios"]:
+            if rec["status"] in ("done", "failed"):
                 previous.setdefault(rec["index"], rec)
-    present = {s.index for s in valid if (folder / s.file).is_file()}
-    if not resume and any(s.index in present for s in owned):
-        count = sum(s.index in present for s in owned)
+    sweep.previous = previous
+    sweep.present = {s.index for s in sweep.scenarios
+                     if s.valid and (folder / s.file).is_file()}
+    count = sum(s.index in sweep.present for s in sweep.owned)
+    if not sweep.resume and count:
         raise ConfigError(f"already holds {count} result(s) of these scenarios; pass --resume "
                           f"to keep them and compute the rest, or give another --out",
                           key=str(folder))
-    return _Sweep(grid, scenarios, fingerprint, folder, combined, shard, owned, present,
-                  previous)
+
+
+def _match_plan(path: Path, manifest: dict, scenarios: list) -> None:
+    """A manifest of this grid must list the plan's points and files, row by row.
+
+    Raises
+    ------
+    ConfigError
+        Naming the manifest and the first row whose ``point`` or ``file`` differs (an edited
+        or swapped row), or a manifest with another number of rows.
+    """
+    rows = manifest["scenarios"]
+    if len(rows) != len(scenarios):
+        raise ConfigError(f"lists {len(rows)} scenarios, the plan of this grid "
+                          f"{len(scenarios)}; delete it and run again with --resume",
+                          key=f"{path}: scenarios")
+    for row, s in zip(rows, scenarios):
+        for name, want in (("point", s.point), ("file", s.file)):
+            if json.dumps(row[name], sort_keys=True, default=str) != \
+                    json.dumps(want, sort_keys=True, default=str):
+                raise ConfigError(f"{json.dumps(row[name], default=str)} is not the plan's "
+                                  f"{json.dumps(want, default=str)}; delete the manifest and "
+                                  f"run again with --resume",
+                                  key=f"{path}: scenarios[{s.index}].{name}")
+
+
+def _claim(sweep: _Sweep, engine: str) -> tuple:
+    """Take the folder for this run: check and claim it atomically, then hold its manifest.
+
+    Under the folder's lock (a moment): check the folder again (:func:`_inspect`), take this
+    manifest's lock (held for the whole run), check the files ``--resume`` keeps
+    (:func:`_check_present`), sort the scenarios (:func:`_triage`) and write the first
+    manifest. A second run started at the same time then finds this run's manifest (another
+    grid: refused) or its lock (the same manifest: refused).
+
+    Returns
+    -------
+    tuple
+        (the manifest's :class:`_Lock`, the :class:`_Manifest`, the :class:`SweepSummary`,
+        the scenarios to compute).
+
+    Raises
+    ------
+    ConfigError
+        Another run holds this manifest, or the folder no longer passes :func:`_inspect`.
+    """
+    folder = sweep.folder
+    folder.mkdir(parents=True, exist_ok=True)
+    name = manifest_name(sweep.shard)
+    folder_lock = _Lock.take(folder / FOLDER_LOCK, FOLDER_LOCK_WAIT_S)
+    if folder_lock is None:
+        raise ConfigError(f"another sweep ({_holder(folder / FOLDER_LOCK)}) has held "
+                          f"{FOLDER_LOCK} for {FOLDER_LOCK_WAIT_S:.0f} s; if no sweep runs "
+                          f"here, delete that file", key=str(folder))
+    lock = None
+    try:
+        folder_lock.claim(utc_now())
+        _inspect(sweep)                    # another grid is named as such, running or not
+        lock = _Lock.take(folder / f".{name}.lock")
+        if lock is None:
+            raise ConfigError(f"another sweep ({_holder(folder / f'.{name}.lock')}) is "
+                              f"writing this database ({name}); wait for it to end or stop "
+                              f"it, then run again with --resume", key=str(folder))
+        lock.claim(utc_now())
+        if sweep.resume:
+            _check_present(sweep)
+        manifest = _Manifest(folder / name, sweep.grid, sweep.scenarios, sweep.fingerprint,
+                             {"shard": sweep.shard_text, "engine": engine,
+                              "device": sweep.device, "scheduler": sweep.scheduler})
+        summary = SweepSummary(folder=folder, total=len(sweep.scenarios),
+                               owned=len(sweep.owned))
+        todo = _triage(sweep, manifest.records, summary)
+        manifest.write(force=True)
+    except BaseException:
+        if lock is not None:
+            lock.release()
+        raise
+    finally:
+        folder_lock.release()
+    return lock, manifest, summary, todo
+
+
+def _file_problem(path: Path, scenario: Scenario, fingerprint: str, old: dict | None) -> tuple:
+    """Why a result file in the folder is not scenario ``scenario`` of this grid, or None.
+
+    Its attributes are read with h5py (a millisecond): seed, photons, ``sweep_index`` and
+    ``sweep_fingerprint`` must be this run's; its SHA-256 must be the one ``old`` (an earlier
+    manifest's record) recorded, if it recorded one.
+
+    Returns
+    -------
+    tuple
+        (reason or None, (sha256, photons) or None).
+    """
+    try:
+        import h5py
+        with h5py.File(path, "r") as h5:
+            attrs = {k: h5.attrs[k] for k in ("seed", "sweep_index", "sweep_fingerprint")
+                     if k in h5.attrs}
+            photons = int(h5["photons"][()]) if "photons" in h5 else None
+    except Exception as err:  # noqa: BLE001 - truncated, not HDF5, I/O error: rejected
+        return f"unreadable ({type(err).__name__}: {one_line(err)})", None
+
+    def scalar(value):
+        value = value.decode() if isinstance(value, bytes) else value
+        return value.reshape(-1)[0] if hasattr(value, "reshape") else value
+    attrs = {k: scalar(v) for k, v in attrs.items()}
+    seed, count = int(scenario.cfg.get("simulation.seed")), \
+        int(scenario.cfg.get("simulation.photons"))
+    if "seed" not in attrs or int(attrs["seed"]) != seed:
+        return f"holds seed {attrs.get('seed')}, this run has seed {seed}", None
+    if photons != count:
+        return f"holds {photons} photons, this run has {count}", None
+    if "sweep_index" not in attrs or int(attrs["sweep_index"]) != scenario.index:
+        return f"its sweep_index is {attrs.get('sweep_index')}, not {scenario.index}", None
+    if str(attrs.get("sweep_fingerprint")) != fingerprint:
+        return (f"its sweep_fingerprint {str(attrs.get('sweep_fingerprint'))[:16]}... is not "
+                f"this grid's {fingerprint[:16]}..."), None
+    sha = file_sha256(path)
+    if old and old.get("status") == "done" and old.get("sha256") not in (None, sha):
+        return (f"its sha256 {sha[:16]}... is not the {old['sha256'][:16]}... the manifest "
+                f"recorded: the file changed after it was written"), None
+    return None, (sha, photons)
+
+
+def _reject(folder: Path, name: str, reason: str) -> Path:
+    """Move ``folder/name`` into ``folder/rejected/`` (never deleted), with ``.reason.txt``
+    beside it; a name already there gets a numbered suffix."""
+    target_dir = folder / REJECTED
+    target_dir.mkdir(exist_ok=True)
+    target, n = target_dir / name, 1
+    while target.exists() or target.with_name(target.name + ".reason.txt").exists():
+        target, n = target_dir / f"{name}.{n}", n + 1
+    os.replace(folder / name, target)
+    target.with_name(target.name + ".reason.txt").write_text(
+        f"{utc_now()} {name}: {reason}\n", encoding="utf-8")
+    return target
+
+
+def _check_present(sweep: _Sweep) -> None:
+    """``--resume``: check every result file of this shard already in the folder; move aside
+    (:func:`_reject`) and count as to compute those that fail, one line each on stderr."""
+    for s in sweep.owned:
+        if not (s.valid and s.index in sweep.present):
+            continue
+        path = sweep.folder / s.file
+        reason, checked = _file_problem(path, s, sweep.fingerprint, sweep.previous.get(s.index))
+        if reason is None:
+            sweep.verified[s.index] = checked
+            continue
+        target = _reject(sweep.folder, s.file, reason)
+        sweep.present.discard(s.index)
+        print(f"warpe-cl: {path}: {reason}; moved to {target.parent.name}/{target.name}, "
+              f"computing it again", file=sys.stderr)
 
 
 class _Manifest:
@@ -359,9 +689,14 @@ def _triage(sweep: _Sweep, records: dict, summary: SweepSummary) -> list:
             records[s.index] = {"status": "failed", "error": str(s.cfg), "photons": 0}
             summary.failed.append((s.index, s.point, str(s.cfg)))
         elif s.index in sweep.present:
+            # What an earlier run recorded, the run's facts only: the file, point and key come
+            # from the plan, the SHA-256 and photons from the file checked now.
             old = sweep.previous.get(s.index, {})
-            records[s.index] = {**(old if old.get("status") == "done" else {}),
-                                "status": "done", "this_run": "skipped"}
+            carried = {k: old[k] for k in RECORD_KEYS if k in old} \
+                if old.get("status") == "done" else {}
+            sha, photons = sweep.verified[s.index]
+            records[s.index] = {**carried, "status": "done", "this_run": "skipped",
+                                "sha256": sha, "photons": photons}
             summary.skipped += 1
         else:
             _remove_partial(sweep.folder, s.file)          # what a killed writer left behind
@@ -384,18 +719,13 @@ def _count_from_records(summary: SweepSummary, todo: list, records: dict) -> Non
     summary.pending = sum(r["status"] == "pending" for r in records.values())
 
 
-def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
-    """The body of :func:`run_sweep` once the workers are open: manifest, tasks, progress."""
+def _run(sweep: _Sweep, workers: Workers, manifest: _Manifest, summary: SweepSummary,
+         todo: list, quiet: bool, say) -> SweepSummary:
+    """The body of :func:`run_sweep` once the folder is claimed (:func:`_claim`): tasks,
+    progress, the manifest kept up to date, and a stop (:func:`warpe_cl.stops.check`) looked
+    for between scenarios."""
     folder = sweep.folder
-    folder.mkdir(parents=True, exist_ok=True)
-    manifest = _Manifest(folder / manifest_name(sweep.shard), sweep.grid, sweep.scenarios,
-                         sweep.fingerprint,
-                         {"shard": sweep.shard_text, "engine": workers.text,
-                          "device": sweep.device, "scheduler": sweep.scheduler})
     records = manifest.records
-    summary = SweepSummary(folder=folder, total=len(sweep.scenarios), owned=len(sweep.owned))
-    todo = _triage(sweep, records, summary)
-    manifest.write(force=True)
     say(sweep_start_line(summary, manifest.header["name"], sweep.grid.source, sweep.shard,
                          len(todo), workers.text))
     for index, _, error in summary.failed:
@@ -410,6 +740,7 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
                         dynamic_ncols=True)
     t0 = time.perf_counter()
     try:
+        stops.check()
         for rec in workers.results(run_scenario, tasks, sweep.fingerprint, quiet):
             s = by_index[rec["index"]]
             records[s.index] = {**rec, "this_run": "computed"}
@@ -420,14 +751,21 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
                 progress.advance(f"scenario {s.index} failed ({where}): {rec['error']}",
                                  error=True)
             manifest.write()
+            stops.check()          # a SIGTERM whose exception was dropped stops here
     except KeyboardInterrupt as err:   # Ctrl-C or SIGTERM: the manifest is flushed below
         # A scenario whose file was put in place just before the signal, but whose record had
-        # not come back yet, is done: its file is complete (atomic rename), as --resume sees it.
+        # not come back yet, is done once its file is flushed: complete (atomic rename), as
+        # --resume sees it.
         for s in todo:
-            if records[s.index]["status"] == "pending" and (folder / s.file).is_file():
+            path = folder / s.file
+            if records[s.index]["status"] == "pending" and path.is_file():
+                try:
+                    sha = _durable(path)
+                except OSError:
+                    continue
                 records[s.index] = {"status": "done", "error": None, "this_run": "computed",
                                     "photons": int(s.cfg.get("simulation.photons")),
-                                    "finished_utc": utc_now(),
+                                    "sha256": sha, "finished_utc": utc_now(),
                                     "note": "file in place when the run was stopped"}
         err.summary = summary          # the command line's one line counts the finished ones
         raise
@@ -441,6 +779,10 @@ def _run(sweep: _Sweep, workers: Workers, quiet: bool, say) -> SweepSummary:
                                      for s in sweep.scenarios if s.valid)
     if sweep.combined is not None and summary.finished_in_folder == len(sweep.scenarios):
         from .io import write_netcdf
-        write_netcdf(open_database(folder), sweep.combined)
-        summary.combined = sweep.combined
+        combined = open_database(folder)
+        # Another shard's last files may be in place before its manifest lists them: the
+        # shard that records them writes X.nc then.
+        if combined.sizes["scenario"] == len(sweep.scenarios):
+            write_netcdf(combined, sweep.combined)
+            summary.combined = sweep.combined
     return summary

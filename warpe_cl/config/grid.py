@@ -19,9 +19,50 @@ from .check import sweep_field
 from .keys import apply_overrides, parse_overrides, schema_key, split_key
 from .preset import Config, read_source
 from .schema import FIELDS, SCALAR_KINDS, SWEEPABLE
-from .validate import allowed, show
+from .validate import allowed, check_scalar, show
 
-__all__ = ["Grid", "load_grid", "expand_points"]
+__all__ = ["Grid", "load_grid", "expand_points", "MAX_GRID_POINTS"]
+
+#: The most points a sweep grid may have (the product of its axes' lengths, checked before the
+#: outer product is built: 1e8 points ran out of memory after minutes).
+MAX_GRID_POINTS = 1_000_000
+
+
+def _check_axes(sweep: dict) -> None:
+    """Refuse a value given twice on one axis (after unit resolution: ``"10 mm"`` and
+    ``"1 cm"``), and a grid of more than :data:`MAX_GRID_POINTS` points.
+
+    A value that is invalid for its key is left to its point's own error.
+
+    Raises
+    ------
+    ConfigError
+        Naming the key and the two values, or the axes and their product.
+    """
+    import json
+    total = 1
+    for key, values in sweep.items():
+        target = sweep_field(key, f"sweep.{key}")
+        seen = {}
+        for value in values:
+            try:
+                if target.kind in SCALAR_KINDS:
+                    resolved = check_scalar(target, value, f"sweep.{key}")
+                else:
+                    resolved = json.dumps(value, sort_keys=True, default=str)
+            except ConfigError:
+                continue
+            marker = (type(resolved).__name__ if isinstance(resolved, str) else "",
+                      resolved)
+            if marker in seen:
+                raise ConfigError(f"{show(seen[marker])} and {show(value)} are the same value; "
+                                  f"give each value of a swept key once", f"sweep.{key}")
+            seen[marker] = value
+        total *= len(values)
+    if total > MAX_GRID_POINTS:
+        sizes = " x ".join(str(len(v)) for v in sweep.values())
+        raise ConfigError(f"{sizes} = {total} points is not allowed; a sweep grid has at most "
+                          f"{MAX_GRID_POINTS} points (split it into several sweeps)", "sweep")
 
 
 def expand_points(raw: dict, source: str, build, keep_errors: bool) -> list:
@@ -123,7 +164,8 @@ def load_grid(source, overrides=None) -> Grid:
     ------
     ConfigError
         For what no point can survive: an unreadable file, a malformed sweep block, an
-        unknown sweep key; or, without a sweep, the single point's error.
+        unknown sweep key, a value given twice on one axis (after unit resolution), more
+        than :data:`MAX_GRID_POINTS` points; or, without a sweep, the single point's error.
     """
     name, raw, base_dir, name_default = read_source(source)
     if not isinstance(raw, dict):
@@ -151,6 +193,7 @@ def load_grid(source, overrides=None) -> Grid:
             if not isinstance(values, list) or not values:
                 raise ConfigError(f"{show(values)} is not allowed; give a non-empty list of "
                                   f"values, each {allowed(target)}", f"sweep.{key}")
+        _check_axes(sweep)
     except ConfigError as exc:
         raise exc.with_source(name) from None
     points = expand_points(raw, name, lambda point_raw: Config(
