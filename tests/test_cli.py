@@ -198,9 +198,10 @@ def test_absurd_photon_counts_exit_2_with_one_line(tmp_path, capsys, verb, how):
     assert not list(tmp_path.iterdir())
 
 
-def test_error_while_writing_the_plot_leaves_no_file(tmp_path, capsys, monkeypatch):
-    """`run --out X.nc --plot X.png` writes both or neither: Ctrl-C (or an error) while the
-    figure is drawn used to leave X.nc without its figure, or a half-written PNG."""
+def test_ctrl_c_while_drawing_keeps_the_result_and_the_old_figure(tmp_path, capsys, monkeypatch):
+    """`run --out X.nc --plot X.png`: the result is written (renamed into place) before the
+    figure is drawn; Ctrl-C while drawing leaves X.nc, the older figure as it was and no
+    half-written PNG or temporary file, and its one line says what was written."""
     import warpe_cl.plot
 
     def interrupted(ds, path, title=None):
@@ -213,11 +214,15 @@ def test_error_while_writing_the_plot_leaves_no_file(tmp_path, capsys, monkeypat
     folder.mkdir()
     (folder / "x.png").write_bytes(b"an older figure")
     rc = main(["run", str(PRESET), "--out", str(folder / "x.nc"), "--plot",
-               str(folder / "x.png"), "--photons", "200", "--device", "numpy", "--quiet"])
+               str(folder / "x.png"), "--photons", "200", "--device", "numpy", "--quiet",
+               "--overwrite"])
     err = capsys.readouterr().err.strip()
-    assert rc == 130 and err == "warpe-cl: interrupted", err
-    assert sorted(p.name for p in folder.iterdir()) == ["x.png"]      # no X.nc, no temp file
+    assert rc == 130, err
+    assert err == f"warpe-cl: interrupted while drawing {folder / 'x.png'}; the result " \
+                  f"{folder / 'x.nc'} was written", err
+    assert sorted(p.name for p in folder.iterdir()) == ["x.nc", "x.png"]   # no temp file
     assert (folder / "x.png").read_bytes() == b"an older figure"       # left as it was
+    assert int(xr.load_dataset(folder / "x.nc").photons) == 200
 
 
 @pytest.mark.slow

@@ -1,28 +1,34 @@
 """The ``warpe-cl`` command line (docs/interface.md §2).
 
 Exit codes: 0 success; 2 bad input (configuration, units, files); 3 no usable OpenCL
-device; 1 anything else. Errors are one readable line on stderr, never a traceback
+device; 1 anything else; 130 Ctrl-C; 143 SIGTERM. Errors are one readable line on stderr,
+escaped and bounded (:func:`warpe_cl.errors.printable`), never a traceback
 (``WARPE_CL_DEBUG=1`` shows it).
+
+Every output is checked before any work: its format, its folder, that it is none of the inputs,
+and that it does not exist unless ``--overwrite`` is given. The NetCDF result is written (and
+renamed into place) before the figure is drawn, so a figure that fails never costs the result.
+
+Only light modules are imported here: NumPy, xarray and the package's own modules are
+imported inside :func:`main`, so that Ctrl-C while they load is one line and exit 130 too.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import time
 from pathlib import Path
 
-from . import report
-from .errors import ConfigError, DeviceError, WarpeError
-from .io import load_result
+from . import stops
+from .errors import ConfigError, DeviceError, WarpeError, printable
+from .stops import Terminated
 
 EXIT_OK, EXIT_OTHER, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
 EXIT_SIGINT, EXIT_SIGTERM = 130, 143
 
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (Slurm's time limit, ``kill``), handled as Ctrl-C is: outputs all or nothing,
-    a sweep's manifest flushed; exit 143 with one line."""
+__all__ = ["main", "make_parser", "Terminated"]
 
 
 class _Parser(argparse.ArgumentParser):
@@ -88,7 +94,7 @@ def _load(args):
 
 
 def _check_writable(path: Path, what: str):
-    folder = path.resolve().parent
+    folder = Path(os.path.realpath(path)).parent
     if path.is_dir():
         raise ConfigError(f"{path} is a folder; give a file name", key=what)
     if not folder.exists():
@@ -97,17 +103,83 @@ def _check_writable(path: Path, what: str):
         raise ConfigError(f"cannot write in {folder}", key=what)
 
 
-def _check_outputs(args) -> Path:
+def _figure_formats() -> list:
+    """The figure formats matplotlib writes here, by file extension (``png``, ``pdf``,
+    ``svg``, ...); ``pgf`` only where its TeX program is installed."""
+    import shutil
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    formats = set(FigureCanvasAgg.get_supported_filetypes())
+    if shutil.which(str(matplotlib.rcParams.get("pgf.texsystem", "xelatex"))) is None:
+        formats.discard("pgf")
+    return sorted(formats)
+
+
+def _check_figure_name(path: Path, what: str):
+    """Bad input (exit 2) when ``path``'s extension is no figure format matplotlib writes:
+    the format is taken from it."""
+    formats = _figure_formats()
+    ext = path.suffix.lower().removeprefix(".")
+    if ext not in formats:
+        said = f"'.{ext}' is not a figure format" if ext else "it has no extension"
+        raise ConfigError(f"{path}: {said}; give a name ending in "
+                          + ", ".join("." + f for f in formats)
+                          + " (the format is taken from the extension)", key=what)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name the same file (links and hard links followed)."""
+    try:
+        if os.path.samefile(a, b):
+            return True
+    except OSError:        # one of them does not exist (yet)
+        pass
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _check_new(path: Path, what: str, overwrite: bool, inputs=()):
+    """Bad input (exit 2) when ``path`` is one of ``inputs`` (always, ``--overwrite`` or not),
+    or exists without ``overwrite``."""
+    for source in inputs:
+        if source is not None and _same_file(path, Path(source)):
+            raise ConfigError(f"{path} is an input of this command ({source}); give another "
+                              "name (--overwrite never replaces an input)", key=what)
+    if (path.exists() or path.is_symlink()) and not overwrite:
+        raise ConfigError(f"{path} exists; give --overwrite to replace it, or another name",
+                          key=what)
+
+
+def _check_outputs(args, inputs=()) -> Path:
     """``--out`` (returned) and ``--plot``, if given, can be written: bad input (exit 2)
-    before any work."""
+    before any work.
+
+    Each must name a file of its format (``--out`` ending in .nc, ``--plot`` in an extension
+    matplotlib writes) in a folder that exists and can be written, must not be one of
+    ``inputs`` (the files the command reads), and must not exist unless ``--overwrite``.
+    """
     out = Path(args.out)
     if out.suffix.lower() != ".nc":
         raise ConfigError(f"{out} is not a NetCDF file name; give a name ending in .nc",
                           key="--out")
     _check_writable(out, "--out")
+    _check_new(out, "--out", args.overwrite, inputs)
     if args.plot:
-        _check_writable(Path(args.plot), "--plot")
+        plot = Path(args.plot)
+        _check_figure_name(plot, "--plot")
+        _check_writable(plot, "--plot")
+        _check_new(plot, "--plot", args.overwrite, [*inputs, out])
     return out
+
+
+def _inputs(*paths) -> list:
+    """The paths among ``paths`` (None, strings, lists of strings) that exist: the files a
+    command reads, which no output may replace."""
+    found = []
+    for p in paths:
+        for q in (p if isinstance(p, (list, tuple)) else [p]):
+            if q is not None and Path(q).exists():
+                found.append(Path(q))
+    return found
 
 
 def _say(args):
@@ -116,33 +188,54 @@ def _say(args):
     return (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
 
 
+class FigureError(WarpeError):
+    """The result was written, its figure could not be drawn (exit 1)."""
+
+
 def _write_outputs(ds, out: Path, plot, draw, say, started: float | None = None):
     """Write ``ds`` to ``out`` and, with ``plot``, ``draw(ds, path)`` to it; then say so.
 
-    The file and the figure are written all or nothing (:class:`warpe_cl.io.Outputs`): Ctrl-C
-    or an error while writing either leaves neither (nor a temporary file), and the
-    destinations as they were. ``started`` (``time.perf_counter()``) adds the time taken in
-    all, in s.
+    Each file is written whole or not at all (:class:`warpe_cl.io.Outputs`), the NetCDF file
+    first: a stop (Ctrl-C, SIGTERM, even one whose exception was dropped) before it is renamed
+    into place leaves no file, and the destinations as they were. The figure is drawn after,
+    so that its failure never costs the result: :class:`FigureError` (exit 1) says the NetCDF
+    file was written; a stop while drawing carries ``written`` (the NetCDF path) for the
+    line that reports it. ``started`` (``time.perf_counter()``) adds the time taken in all,
+    in s.
     """
     from .io import Outputs
     with Outputs() as outputs:
-        outputs.netcdf(ds, out)
-        if plot:
-            draw(ds, outputs.stage(plot))
+        outputs.netcdf(ds, out, key="--out")
+        stops.check()               # a stop whose exception was dropped: nothing written
     say(f"wrote {out}" + ("" if started is None else
                           f" ({time.perf_counter() - started:.2f} s in all)"))
-    if plot:
-        say(f"wrote {plot}")
+    if not plot:
+        return
+    try:
+        with Outputs() as outputs:
+            draw(ds, outputs.stage(plot))
+            stops.check()
+    except KeyboardInterrupt as err:
+        err.written = (out, plot)
+        raise
+    except Exception as err:  # noqa: BLE001 - the result is kept; one line says so
+        if os.environ.get("WARPE_CL_DEBUG"):
+            raise
+        from .errors import one_line
+        raise FigureError(f"--plot: the figure {plot} could not be drawn ({one_line(err)}); "
+                          f"the result {out} was written") from None
+    say(f"wrote {plot}")
 
 
 def cmd_run(args) -> int:
-    from . import api
+    from . import api, report
     from .plot import plot_waveform
     from .radiative import radiative_parameters
 
+    from .catalog import resolve_preset
     _not_an_instrument(args)
     cfg = _load(args)
-    out = _check_outputs(args)
+    out = _check_outputs(args, _inputs(resolve_preset(args.preset)))
     points = cfg.sweep_points()
     for _, pcfg in points:
         radiative_parameters(pcfg)    # bad input fails (exit 2) before a device is sought
@@ -172,7 +265,9 @@ def cmd_run(args) -> int:
 
 
 def cmd_instrument(args) -> int:
+    from . import report
     from .instrument import apply_instrument, check_parameter, load_instrument
+    from .io import load_result
     from .instrument.plot import plot_instrument
     overrides = _instrument_sets(args)
     if args.altitude is not None:
@@ -183,7 +278,7 @@ def cmd_instrument(args) -> int:
     # the instrument's own limits (shots in [1, 1e6], seed in [0, 2^63 - 1]), before reading
     shots = None if args.shots is None else check_parameter("shots", args.shots, where="--shots")
     seed = None if args.seed is None else check_parameter("seed", args.seed, where="--seed")
-    out = _check_outputs(args)
+    out = _check_outputs(args, _inputs(args.file, args.instrument))
     path = Path(args.file)
     ds = load_result(path)
     say = _say(args)
@@ -200,7 +295,8 @@ def cmd_invert(args) -> int:
     from .inversion.invert import invert
     from .inversion.observed import load_observed
     from .inversion.plot import plot_fit
-    out = _check_outputs(args)
+    from . import report
+    out = _check_outputs(args, _inputs(args.observed, args.database, args.instrument))
     scenario = None
     if args.scenario is not None:
         try:
@@ -227,6 +323,7 @@ def cmd_sweep(args) -> int:
     recorded in the manifest with its error) or did not finish; 2 bad input found before any
     scenario ran; 3 no usable device.
     """
+    from . import report
     from .sweep import parse_shard, run_sweep
     from .catalog import resolve_preset
     _not_an_instrument(args)
@@ -234,13 +331,15 @@ def cmd_sweep(args) -> int:
     say = _say(args)
     summary = run_sweep(resolve_preset(args.preset), args.out, overrides=_overrides(args),
                         shard=shard, scheduler=args.scheduler, resume=args.resume,
-                        device=args.device, quiet=args.quiet, say=say)
+                        device=args.device, quiet=args.quiet, say=say,
+                        overwrite=args.overwrite)
     for line in report.sweep_summary_lines(summary):
         say(line)
     return summary.exit_code
 
 
 def cmd_devices(args) -> int:
+    from . import report
     from .device import INSTALL_HINT, list_devices, probe, qualification, resolve_spec, select_device
     devices = list_devices()
     if not devices:
@@ -272,6 +371,7 @@ def _print_all_verdicts(info, check: bool = False):
     its widest qualified lane width, the widths that failed, those not checked yet. Plain
     ``devices`` shows what is cached and checks nothing (it stays cheap); ``check``
     (``devices --all``) checks the widths not known yet."""
+    from . import report
     from .qualify import all_combos, qualifier_for
     q = qualifier_for(info)
     for combo in all_combos(info.fp64):
@@ -281,6 +381,7 @@ def _print_all_verdicts(info, check: bool = False):
 
 
 def cmd_show_config(args) -> int:
+    from . import report
     from .radiative import radiative_parameters
     instrument = _instrument_preset(args.preset)
     if instrument is not None:     # its resolved parameters (a base: filled in), with units
@@ -360,9 +461,13 @@ def _metrics_drawer(args, path: Path):
 
 
 def cmd_plot(args) -> int:
-    from .io import Outputs
+    from .io import Outputs, load_result
     from .plot import plot_angular, plot_waveform
     path = Path(args.file)
+    out = Path(args.out)
+    _check_figure_name(out, "--out")
+    _check_writable(out, "--out")
+    _check_new(out, "--out", args.overwrite, _inputs(path))
     if args.after and not args.metrics:
         raise ConfigError("applies to --metrics only", key="--after")
     ds = load_result(path)           # a file, or a sweep database folder
@@ -382,10 +487,10 @@ def cmd_plot(args) -> int:
             raise ConfigError("has no reflectance variable; give a file written by "
                               "`warpe-cl run`", key=str(path))
         draw = plot_angular if kind == "angular" else plot_waveform
-    _check_writable(Path(args.out), "--out")
     with Outputs() as outputs:
-        draw(ds, outputs.stage(args.out))
-    print(f"wrote {args.out}")
+        draw(ds, outputs.stage(out))
+        stops.check()
+    print(f"wrote {out}")
     return EXIT_OK
 
 
@@ -410,7 +515,10 @@ def make_parser() -> argparse.ArgumentParser:
     r.add_argument("--photons", help="rays per scenario (simulation.photons)")
     r.add_argument("--seed", help="random seed (simulation.seed)")
     r.add_argument("--out", required=True, help="output NetCDF file")
-    r.add_argument("--plot", help="also draw the waveform to this PNG")
+    r.add_argument("--plot", help="also draw the waveform to this figure (PNG, PDF, SVG, ...: "
+                                  "the format is taken from the extension)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace --out and --plot files that exist (never an input)")
     r.add_argument("--quiet", action="store_true", help="print nothing but errors")
     r.set_defaults(func=cmd_run)
 
@@ -430,6 +538,8 @@ def make_parser() -> argparse.ArgumentParser:
                          "(needs pip install 'warpe-cl[cluster]')")
     sw.add_argument("--resume", action="store_true",
                     help="keep the scenarios already in the folder, compute the rest")
+    sw.add_argument("--overwrite", action="store_true",
+                    help="replace an existing X.nc, or a folder's scenarios, instead of refusing")
     sw.add_argument("--photons", help="rays per scenario (simulation.photons)")
     sw.add_argument("--seed", help="random seed (simulation.seed)")
     sw.add_argument("--quiet", action="store_true", help="print nothing but errors")
@@ -459,7 +569,10 @@ def make_parser() -> argparse.ArgumentParser:
     pl.add_argument("--scenarios", default=None, metavar="SEL",
                     help="draw only these scenarios: indices 0,3,5, a range 0:4 (4 excluded), "
                          "or a swept value medium.thickness=10mm")
-    pl.add_argument("--out", required=True, help="output PNG")
+    pl.add_argument("--out", required=True, help="output figure (PNG, PDF, SVG, ...: the "
+                                                 "format is taken from the extension)")
+    pl.add_argument("--overwrite", action="store_true",
+                    help="replace an --out file that exists (never the input)")
     pl.add_argument("--kind", choices=("waveform", "angular", "instrument"), default=None,
                     help="waveform: reflectance against time; angular: the FOV figure; "
                          "instrument: the paper's three-panel BELA figure (default for a file "
@@ -486,7 +599,10 @@ def make_parser() -> argparse.ArgumentParser:
     ins.add_argument("--shots", help="shots to simulate (default: the instrument's)")
     ins.add_argument("--seed", help="noise seed (default: the surface result's)")
     ins.add_argument("--out", required=True, help="output NetCDF file (surface + instrument)")
-    ins.add_argument("--plot", help="also draw the three-panel figure to this PNG")
+    ins.add_argument("--plot", help="also draw the three-panel figure to this figure file "
+                                    "(PNG, PDF, SVG, ...)")
+    ins.add_argument("--overwrite", action="store_true",
+                     help="replace --out and --plot files that exist (never the input)")
     ins.add_argument("--quiet", action="store_true", help="print nothing but errors")
     ins.set_defaults(func=cmd_instrument)
 
@@ -498,7 +614,10 @@ def make_parser() -> argparse.ArgumentParser:
     inv.add_argument("--database", required=True,
                      help="a `warpe-cl sweep` database folder (or sweep file)")
     inv.add_argument("--out", required=True, help="output NetCDF file (FIT.nc)")
-    inv.add_argument("--plot", help="also draw the fit and the pairwise posterior to this PNG")
+    inv.add_argument("--plot", help="also draw the fit and the pairwise posterior to this "
+                                    "figure file (PNG, PDF, SVG, ...)")
+    inv.add_argument("--overwrite", action="store_true",
+                     help="replace --out and --plot files that exist (never an input)")
     inv.add_argument("--instrument",
                      help="bela, gala, atlas, or an instrument YAML file (default: the observed "
                           "file's instrument)")
@@ -515,63 +634,73 @@ def make_parser() -> argparse.ArgumentParser:
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):
-    print(f"warpe-cl: warning: {message}", file=sys.stderr)
+    print(printable(f"warpe-cl: warning: {message}"), file=sys.stderr)
+
+
+def _error(text: str) -> None:
+    """Print ``warpe-cl: error: TEXT`` as one inert, bounded line on stderr."""
+    print(printable(f"warpe-cl: error: {text}"), file=sys.stderr)
+
+
+def _stopped(err: KeyboardInterrupt) -> int:
+    """The one line of a stop (Ctrl-C or SIGTERM) and its exit code; the stop is forgotten
+    (:func:`warpe_cl.stops.clear`) once said."""
+    term = isinstance(err, Terminated) or stops.pending() == signal.SIGTERM
+    summary = getattr(err, "summary", None)
+    written = getattr(err, "written", None)
+    line = "warpe-cl: stopped by SIGTERM" if term else "warpe-cl: interrupted"
+    if summary is not None:
+        line += (f" after {summary.done + summary.skipped} of {summary.owned} scenarios; run "
+                 "the same command with --resume to go on")
+    elif written is not None:
+        line += f" while drawing {written[1]}; the result {written[0]} was written"
+    print(printable(line), file=sys.stderr)
+    stops.clear()
+    return EXIT_SIGTERM if term else EXIT_SIGINT
+
 
 
 def main(argv=None) -> int:
-    import warnings
-    warnings.showwarning = _one_line_warning
-    parser = make_parser()
-    previous = _catch_sigterm()
+    """Run ``warpe-cl`` with ``argv`` (``sys.argv[1:]`` by default); returns the exit code.
+
+    Everything, the imports of the verb's modules included, runs with SIGINT and SIGTERM
+    routed through :mod:`warpe_cl.stops`, so that every stop, even one whose exception Python
+    dropped in a ``__del__``, ends the command with its one line and 130 or 143.
+    """
+    previous = {}
     try:
+        previous = stops.install()
+        import warnings
+        warnings.showwarning = _one_line_warning
+        parser = make_parser()
         args = parser.parse_args(argv)
         if not getattr(args, "verb", None):
             parser.print_help()
             return EXIT_INPUT
-        return args.func(args)
+        code = args.func(args)
+        stops.check()           # a stop whose exception was dropped on the way: said
+        return code
     except ConfigError as err:
-        print(f"warpe-cl: error: {err}", file=sys.stderr)
+        _error(err)
         return EXIT_INPUT
     except DeviceError as err:
-        print(f"warpe-cl: error: {err}", file=sys.stderr)
+        _error(err)
         return EXIT_DEVICE
-    except Terminated as err:
-        summary = getattr(err, "summary", None)
-        print("warpe-cl: stopped by SIGTERM" + (
-            "" if summary is None else
-            f" after {summary.done + summary.skipped} of {summary.owned} scenarios; run the "
-            "same command with --resume to go on"), file=sys.stderr)
-        return EXIT_SIGTERM
-    except KeyboardInterrupt:
-        print("warpe-cl: interrupted", file=sys.stderr)
-        return EXIT_SIGINT
+    except KeyboardInterrupt as err:    # Ctrl-C, or SIGTERM (Terminated)
+        return _stopped(err)
     except WarpeError as err:
-        print(f"warpe-cl: error: {err}", file=sys.stderr)
+        _error(err)
         return EXIT_OTHER
-    except Exception as err:  # noqa: BLE001 - one line, never a traceback
+    except SystemExit:                  # --help, --version
+        raise
+    except BaseException as err:  # noqa: BLE001 - one line, never a traceback
         if os.environ.get("WARPE_CL_DEBUG"):
             raise
-        print(f"warpe-cl: error: {type(err).__name__}: {err} (set WARPE_CL_DEBUG=1 for the traceback)",
-              file=sys.stderr)
+        _error(f"{type(err).__name__}: {' '.join(str(err).split())} "
+               "(set WARPE_CL_DEBUG=1 for the traceback)")
         return EXIT_OTHER
     finally:
-        if previous is not None:
-            import signal
-            signal.signal(signal.SIGTERM, previous)
-
-
-def _raise_terminated(signum, frame):
-    raise Terminated()
-
-
-def _catch_sigterm():
-    """SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main thread; returns the
-    handler it replaced (None where one cannot be set: not the main thread)."""
-    import signal
-    try:
-        return signal.signal(signal.SIGTERM, _raise_terminated)
-    except (ValueError, OSError):
-        return None
+        stops.restore(previous)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,16 @@ so the command line can turn it into one readable line and an exit code
 """
 from __future__ import annotations
 
-__all__ = ["WarpeError", "ConfigError", "DeviceError", "WeightError", "WarpeWarning", "one_line"]
+import re
+
+__all__ = ["WarpeError", "ConfigError", "DeviceError", "WeightError", "WarpeWarning", "one_line",
+           "printable", "LINE_LIMIT"]
+
+#: The longest line the command line prints for an error or a value read from a file.
+LINE_LIMIT = 500
+#: C0 and C1 control characters and DEL: an ESC sequence (colours, cursor moves, a terminal's
+#: title) starts with one, so escaping them leaves every sequence inert.
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
 
 class WarpeError(Exception):
@@ -82,3 +91,40 @@ def one_line(err: BaseException) -> str:
     if isinstance(err, WarpeError):
         return " ".join(str(err).split())
     return " ".join(f"{type(err).__name__}: {err}".split())
+
+
+def printable(text, limit: int = LINE_LIMIT) -> str:
+    """``text`` as one inert, bounded line for a terminal.
+
+    Control characters (``\\x00``-``\\x1f``, DEL, the C1 range; so every ANSI escape
+    sequence, which starts with ESC) are written as Python escapes (``\\x1b``, ``\\n``,
+    ``\\t``), and a line longer than ``limit`` characters keeps its beginning (the file and the
+    key) and its end (what is allowed) with ``… (N more characters) …`` in place of the middle.
+
+    Parameters
+    ----------
+    text : object
+        The line (``str(text)`` is used).
+    limit : int
+        The longest line returned, in characters (at least 80).
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> printable("name: \\x1b[31mred\\x1b[0m")
+    'name: \\\\x1b[31mred\\\\x1b[0m'
+    >>> line = printable("key: " + "x" * 10_000 + " allowed: 1 to 10")
+    >>> len(line) <= 500 and line.startswith("key: xx") and line.endswith("allowed: 1 to 10")
+    True
+    """
+    text = _CONTROL.sub(lambda m: repr(m.group())[1:-1], str(text))
+    limit = max(int(limit), 80)
+    if len(text) <= limit:
+        return text
+    tail = limit // 3
+    head = limit - tail - len(f" … ({len(text)} more characters) … ")
+    cut = len(text) - head - tail
+    return text[:head] + f" … ({cut} more characters) … " + text[len(text) - tail:]

@@ -4,18 +4,24 @@ writing.
 Every file warpe-cl writes (results, figures, the sweep manifest, the verdict cache) goes
 through a hidden temporary file in the destination folder, renamed over the destination only
 once complete (:func:`write_netcdf`, :func:`write_text`, :class:`Outputs`): an error, a crash or
-Ctrl-C never leaves a partial file, and the temporary file is removed on the way out.
+Ctrl-C never leaves a partial file, and the temporary file is removed on the way out. A file
+replaced keeps its permission bits, a symbolic link is written through to its target, and a
+NetCDF file that the folder has no room for is refused before HDF5 starts writing it.
 """
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import json
 import os
 import platform as _platform
 import secrets
+import shutil
 import signal
+import stat
 import sys
 import threading
+from io import BytesIO
 from pathlib import Path
 
 import numpy as np
@@ -512,12 +518,13 @@ def load_result(path):
                           key=str(path)) from None
 
 
-def write_netcdf(ds, path) -> Path:
+def write_netcdf(ds, path, key: str | None = None) -> Path:
     """Write ``ds`` as NetCDF-4 (h5netcdf) atomically: a temporary file in the same folder,
     renamed over ``path`` only once complete, so a crash or Ctrl-C never leaves a partial
-    file (nor the temporary one)."""
+    file (nor the temporary one). A full disk or a folder that cannot be written is one
+    :class:`~warpe_cl.errors.ConfigError` naming ``key`` (:meth:`Outputs.netcdf`)."""
     with Outputs() as outputs:
-        outputs.netcdf(ds, path)
+        outputs.netcdf(ds, path, key=key)
     return Path(path)
 
 
@@ -543,6 +550,63 @@ def _temporary_name(path: Path) -> Path:
             return tmp
         except FileExistsError:     # 2^32 names: another writer's, try the next
             continue
+
+
+def _keep_mode(tmp: Path, path: Path) -> None:
+    """Give ``tmp`` the permission bits of ``path`` when it exists, so that replacing a file
+    keeps them (a file made private, 600, stays private)."""
+    try:
+        mode = stat.S_IMODE(os.stat(path).st_mode)
+    except FileNotFoundError:
+        return
+    os.chmod(tmp, mode)
+
+
+#: The errno values that mean "this folder cannot take the file": said in one line.
+_STORAGE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
+
+
+def storage_error(err: BaseException) -> str | None:
+    """What the system said when a write failed for want of space or permission, else None.
+
+    h5py and h5netcdf raise an OSError with ``errno`` set, or an OSError or RuntimeError
+    whose message holds HDF5's ``errno = 28, error message = 'No space left on device'``;
+    the exception's causes are searched too.
+
+    Parameters
+    ----------
+    err : BaseException
+
+    Returns
+    -------
+    str or None
+        ``"No space left on device (ENOSPC)"`` and the like.
+    """
+    seen = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        number = getattr(err, "errno", None)
+        if number in _STORAGE_ERRNOS:
+            return f"{os.strerror(number)} ({errno.errorcode[number]})"
+        text = str(err)
+        for number in _STORAGE_ERRNOS:
+            if os.strerror(number) in text or f"errno = {number}," in text:
+                return f"{os.strerror(number)} ({errno.errorcode[number]})"
+        err = err.__cause__ or err.__context__
+    return None
+
+
+def netcdf_size(ds) -> int:
+    """The bytes a NetCDF file of ``ds`` takes, about and not less: its variables' bytes and
+    its attributes' text, 5 % more, and HDF5's metadata (2 KiB a variable, 64 KiB for the
+    file; a result of ``run`` takes 116 kB for 62 kB of variables and 45 variables)."""
+    attrs = sum(len(str(v)) for v in ds.attrs.values())
+    attrs += sum(len(str(v)) for var in ds.variables.values() for v in var.attrs.values())
+    return int(1.05 * (int(ds.nbytes) + attrs)) + 2048 * len(ds.variables) + 2 ** 16
+
+
+def _megabytes(n: int) -> str:
+    return f"{n / 1e6:.3g}" if n < 1e8 else f"{n / 1e6:.0f}"
 
 
 class Outputs:
@@ -572,17 +636,66 @@ class Outputs:
         return self
 
     def stage(self, path) -> Path:
-        """A temporary path to write ``path``'s content to; its folder is created."""
+        """A temporary path to write ``path``'s content to; its folder is created.
+
+        A ``path`` that is a symbolic link is written through: the temporary file is made
+        next to the link's target, which the rename replaces (the link stays a link).
+        """
         path = Path(path)
+        if path.is_symlink():
+            path = Path(os.path.realpath(path))
         path.parent.mkdir(parents=True, exist_ok=True)
         self._staged.append((None, path))  # remembered before it exists: Ctrl-C while creating it
         tmp = _temporary_name(path)
         self._staged[-1] = (tmp, path)
         return tmp
 
-    def netcdf(self, ds, path) -> None:
-        """Stage ``path`` and write ``ds`` to it as NetCDF-4 (h5netcdf)."""
-        ds.to_netcdf(self.stage(path), engine="h5netcdf", invalid_netcdf=False)
+    def netcdf(self, ds, path, key: str | None = None) -> None:
+        """Stage ``path`` and write ``ds`` to it as NetCDF-4 (h5netcdf).
+
+        Parameters
+        ----------
+        ds : xarray.Dataset
+        path : str or path
+        key : str, optional
+            The option or key naming the file in an error (``"--out"``); the path otherwise.
+
+        Raises
+        ------
+        ConfigError
+            Before writing, when the folder has less free space than the file needs (its
+            variables' bytes and a margin: :func:`netcdf_size`); while writing, when the
+            system refuses (no space left, quota, read-only file system, permission): one
+            line, the temporary file removed. HDF5 writes the file into memory, which Python
+            then writes to the disk: HDF5 never meets a full disk, on which it crashes.
+        """
+        from .errors import ConfigError
+        path = Path(path)
+        folder = Path(os.path.realpath(path)).parent
+        need = netcdf_size(ds)
+        try:
+            free = shutil.disk_usage(folder).free if folder.is_dir() else None
+        except OSError:
+            free = None
+        if free is not None and need > free:
+            raise ConfigError(f"not enough space in {folder}: the result needs about "
+                              f"{_megabytes(need)} MB, {_megabytes(free)} MB free; free some "
+                              "space or give a name in another folder", key=key or str(path))
+        # HDF5 writes into memory, and Python to the disk: HDF5 meeting a full disk itself
+        # prints hundreds of lines and crashes the interpreter on its way out
+        image = BytesIO()
+        ds.to_netcdf(image, engine="h5netcdf", invalid_netcdf=False)
+        try:
+            with open(self.stage(path), "wb") as stream:
+                stream.write(image.getbuffer())
+                stream.flush()
+                os.fsync(stream.fileno())
+        except OSError as err:
+            reason = storage_error(err)
+            if reason is None:
+                raise
+            raise ConfigError(f"cannot write {path}: {reason}; nothing was written",
+                              key=key or str(path)) from None
 
     def text(self, path, text: str) -> None:
         """Stage ``path`` and write ``text`` to it (UTF-8), flushed to disk."""
@@ -596,6 +709,7 @@ class Outputs:
             if kind is None:
                 with _stops_held():
                     for tmp, path in self._staged:
+                        _keep_mode(tmp, path)
                         os.replace(tmp, path)
         finally:
             for tmp, _ in self._staged:

@@ -9,11 +9,14 @@ Here the handler first records the signal, then raises as before. The long loops
 engine's launches, a sweep's scenarios, the instrument's shots) call :func:`check` between
 their steps: a stop whose exception was dropped is raised again there, so that every signal
 ends the run within one step. The command line clears the record (:func:`clear`) once it has
-reported the stop.
+reported the stop. While the handler is installed, the "Exception ignored in: ..." report of
+such a dropped stop is not printed: the stop is not ignored, and the command line says it in
+its one line.
 """
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 
 __all__ = ["Terminated", "install", "restore", "check", "clear", "pending"]
@@ -37,14 +40,26 @@ def _handler(signum, frame):
     raise _exception(signum)
 
 
+def _unraisable(hook):
+    """A ``sys.unraisablehook`` that says nothing of a stop raised by :func:`_handler` where
+    Python cannot raise it (a ``__del__``, a weakref callback): :func:`check` raises it again;
+    anything else goes to ``hook``."""
+    def quiet(unraisable):
+        if isinstance(unraisable.exc_value, KeyboardInterrupt) and _pending is not None:
+            return
+        hook(unraisable)
+    return quiet
+
+
 def install() -> dict:
-    """Route SIGINT and SIGTERM through the recording handler (main thread only).
+    """Route SIGINT and SIGTERM through the recording handler (main thread only), and keep
+    the stops it raises where Python drops exceptions from being printed.
 
     Returns
     -------
     dict
-        signal number -> the handler replaced, for :func:`restore`; empty where handlers
-        cannot be set (not the main thread).
+        What :func:`restore` puts back: signal number -> the handler replaced, and
+        ``"unraisablehook"``; empty where handlers cannot be set (not the main thread).
     """
     clear()
     previous = {}
@@ -55,12 +70,17 @@ def install() -> dict:
             previous[signum] = signal.signal(signum, _handler)
         except (ValueError, OSError):
             pass
+    previous["unraisablehook"] = sys.unraisablehook
+    sys.unraisablehook = _unraisable(sys.unraisablehook)
     return previous
 
 
 def restore(previous: dict) -> None:
-    """Put back the handlers :func:`install` replaced."""
+    """Put back the handlers (and the unraisable hook) :func:`install` replaced."""
     for signum, handler in previous.items():
+        if signum == "unraisablehook":
+            sys.unraisablehook = handler
+            continue
         try:
             signal.signal(signum, handler)
         except (ValueError, OSError, TypeError):
