@@ -243,3 +243,66 @@ def test_engine_refuses_buffers_before_the_walk(engine):
                                  time_edges=np.linspace(0.0, 1e3, MAX_TIME_BINS + 1))
     with pytest.raises(ConfigError, match=f"simulation.time_bins: {MAX_TIME_BINS} time bins"):
         engine.run(params, 10, global_size=1 << 14, shared_nadir=False, qualified=True)
+
+
+# --------------------------------------------------------------------------- 5. results read back
+
+def _surface():
+    from conftest import synthetic_surface
+    return synthetic_surface(0.05)
+
+
+@pytest.mark.parametrize("edit, name", [
+    (lambda ds: ds.assign(time_edges=ds["time_edges"][::-1]), "time_edges"),
+    (lambda ds: ds.assign(first_bf_time_ns=np.nan), "first_bf_time_ns"),
+    (lambda ds: ds.assign(ray_count=ds["ray_count"] * 0 - 5), "ray_count"),
+    (lambda ds: ds.assign(reflectance=ds["reflectance"] * np.nan), "reflectance"),
+    (lambda ds: ds.assign(photons=ds["photons"] * 0), "photons"),
+])
+def test_instrument_checks_the_surface_values(edit, name):
+    from warpe_cl.instrument import apply_instrument
+    ds = edit(_surface())
+    with pytest.raises(ConfigError) as err:
+        apply_instrument(ds, "bela", shots=2, seed=1, source="s.nc")
+    assert str(err.value).startswith(f"s.nc: {name}: ") and "is not allowed" in str(err.value) \
+        or "strictly increasing" in str(err.value)
+
+
+def _database():
+    from conftest import synthetic_surface
+    ds = synthetic_surface(0.05, scenarios=3)
+    key = {"sweep_key": "medium.thickness"}
+    return ds.assign_coords({"medium.thickness": ("scenario", [1e-3, 2e-3, 5e-3], key)})
+
+
+def _observed(instrument="bela", scale=1.0):
+    from warpe_cl.instrument import apply_instrument
+    from warpe_cl.inversion.observed import Observed
+    ds = apply_instrument(_surface(), "bela", shots=2, seed=3)
+    return Observed("mv", ds["sample_time"].values, ds["signal_mv"].values * scale, "obs.nc",
+                    instrument, {})
+
+
+def test_instrument_name_from_a_file_must_be_bundled():
+    """instrument_name: /etc/shadow made invert open that path and echo its first line."""
+    from warpe_cl.inversion.invert import invert
+    with pytest.raises(ConfigError) as err:
+        invert(_observed("/etc/shadow"), _database())
+    text = str(err.value)
+    assert "'/etc/shadow' is not a bundled instrument" in text and "--instrument FILE" in text
+
+
+def test_absurd_samples_are_refused():
+    """Samples at 1e30 mV printed confident intervals with chi2/dof nan (-44 dof)."""
+    from warpe_cl.inversion.invert import invert
+    with pytest.raises(ConfigError, match="at shot 0, sample .* is not allowed"):
+        invert(_observed(scale=1e30), _database())
+
+
+def test_unfit_results_are_refused():
+    from warpe_cl.inversion.result import _check_fit
+    _check_fit(10.0, -5.0, 3, 2, 1, "obs.nc")
+    with pytest.raises(ConfigError, match="chi2 nan"):
+        _check_fit(np.nan, -5.0, 3, 2, 1, "obs.nc")
+    with pytest.raises(ConfigError, match="-44 degrees of freedom"):
+        _check_fit(10.0, -5.0, -44, 2, 1, "obs.nc")

@@ -67,6 +67,86 @@ def check_variables(ds, source: str = "<dataset>"):
     lacking = [c for c in ("specular", "bf_direct") + DIFFUSE if c not in names]
     if lacking:
         raise ConfigError(f"component coordinate lacks {', '.join(lacking)}", key=source)
+    check_values(ds, source)
+
+
+def _refuse(ds, name: str, bad: np.ndarray, values: np.ndarray, allowed: str, source):
+    """ConfigError naming the first value of ``name`` where ``bad`` holds, and its place."""
+    where = np.argwhere(bad)[0]
+    dims = ds[name].dims if name in ds.variables else ()
+    place = ", ".join(f"{d} {i}" for d, i in zip(dims, where)) or "its value"
+    value = np.asarray(values)[tuple(where)].item()
+    raise ConfigError(f"{value!r} at {place} is not allowed; give {allowed} (a surface "
+                      "result written by `warpe-cl run`)", key=name, source=source)
+
+
+def check_values(ds, source: str = "<dataset>") -> None:
+    """ConfigError (exit 2) unless every value the instrument chain and the inversion read
+    from ``ds`` is in its range: a file edited or written by another tool must not give a
+    different waveform silently.
+
+    Checked: ``time_edges`` finite, >= 0 and strictly increasing; ``reflectance`` finite and
+    >= 0; ``nadir_reflectance`` >= 0 where given (NaN: not made for that scenario);
+    ``ray_count`` >= 0; ``photons`` > 0; ``fraction`` in [0, 1]; ``first_bf_time_ns`` (a
+    variable or an attribute) finite and >= 0.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A result of ``warpe-cl run`` or a sweep database, with the variables of
+        :func:`check_variables`.
+    source : str
+        The file, for messages.
+    """
+    edges = np.asarray(ds["time_edges"].values, float)
+    if edges.ndim != 1 or edges.size < 2:
+        raise ConfigError(f"holds {edges.size} value(s) of shape {edges.shape}; give at least "
+                          "two edges in one dimension", key="time_edges", source=source)
+    _within(ds, "time_edges", edges, ~np.isfinite(edges) | (edges < 0),
+            "finite edges >= 0 ns", source)
+    steps = np.diff(edges)
+    if np.any(steps <= 0):
+        j = int(np.argmax(steps <= 0))
+        raise ConfigError(f"{float(edges[j + 1])!r} at time_edge {j + 1} follows "
+                          f"{float(edges[j])!r}; give "
+                          "strictly increasing edges (a surface result written by "
+                          "`warpe-cl run`)", key="time_edges", source=source)
+    refl = np.asarray(ds["reflectance"].values, float)
+    _within(ds, "reflectance", refl, ~np.isfinite(refl) | (refl < 0), "finite values >= 0",
+            source)
+    if "nadir_reflectance" in ds.variables:
+        nadir = np.asarray(ds["nadir_reflectance"].values, float)
+        _within(ds, "nadir_reflectance", nadir, np.isinf(nadir) | (nadir < 0),
+                "values >= 0 (NaN where the estimate was not made)", source)
+    counts = np.asarray(ds["ray_count"].values)
+    if counts.dtype.kind not in "iu":
+        counts = counts.astype(float)
+        _within(ds, "ray_count", counts, ~np.isfinite(counts) | (counts != np.round(counts)),
+                "whole numbers of rays >= 0", source)
+    _within(ds, "ray_count", counts, counts < 0, "whole numbers of rays >= 0", source)
+    photons = np.asarray(ds["photons"].values, float)
+    _within(ds, "photons", photons, ~np.isfinite(photons) | (photons <= 0),
+            "a number of rays > 0", source)
+    if "fraction" in ds.variables:
+        frac = np.asarray(ds["fraction"].values, float)
+        _within(ds, "fraction", frac, ~np.isfinite(frac) | (frac < 0) | (frac > 1),
+                "fractions in [0, 1]", source)
+    if "first_bf_time_ns" in ds.variables:
+        t1 = np.asarray(ds["first_bf_time_ns"].values, float)
+    elif "first_bf_time_ns" in ds.attrs:
+        try:
+            t1 = np.asarray(float(ds.attrs["first_bf_time_ns"]))
+        except (TypeError, ValueError):
+            t1 = np.asarray(math.nan)
+    else:
+        return
+    _within(ds, "first_bf_time_ns", np.atleast_1d(t1), ~np.isfinite(np.atleast_1d(t1))
+            | (np.atleast_1d(t1) < 0), "a finite time >= 0 ns", source)
+
+
+def _within(ds, name, values, bad, allowed, source) -> None:
+    if np.any(bad):
+        _refuse(ds, name, bad, values, allowed, source)
 
 
 def diffuse_estimates(ds) -> list:

@@ -66,7 +66,7 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     obs = observed if isinstance(observed, Observed) else load_observed(observed)
     db, db_source = _database(database, database_source)
     params = instrument if isinstance(instrument, InstrumentParams) else \
-        load_instrument(instrument or obs.instrument or _no_instrument(obs))
+        load_instrument(instrument or _named_instrument(obs))
     counting = params["detector.type"] == "photon_counting"
     if counting != (obs.kind == "counts"):
         kind = "photon-counting" if counting else "linear-mode"
@@ -98,6 +98,7 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
                               f"{params['name']} works at {params['wavelength'] * 1e9:g} nm",
                               key=db_source)
     forward = Forward(params, pulse_range, broadening_max)
+    _check_samples(obs, forward)
     v_fixed = _fixed_v(nuisance, forward)
     if counting:
         used = np.ones(obs.shots.shape[0], bool)     # a shot without tags counts too
@@ -121,9 +122,51 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
                         db_source=db_source, db_attrs=dict(db.attrs))
 
 
-def _no_instrument(obs):
-    raise ConfigError("the observed file does not name its instrument: give --instrument",
-                      key=obs.source)
+#: How far beyond the receiver's clipped level (saturation or top ADC code) an observed sample
+#: may lie before it is refused as not recorded by that receiver.
+SAMPLE_MARGIN = 10.0
+
+
+def _check_samples(obs, forward) -> None:
+    """Refuse observed samples the receiver cannot have recorded: counts below 0 or not whole,
+    or samples in mV beyond ``SAMPLE_MARGIN`` times its clipped level (1e30 mV once gave
+    confident intervals from a fit with chi2/dof nan)."""
+    shots = np.asarray(obs.shots, float)
+    if obs.kind == "counts":
+        bad = (shots < 0) | (shots != np.round(shots))
+        allowed = "whole photon counts >= 0"
+    else:
+        level = max(abs(forward.ceiling), abs(forward.baseline)) \
+            if np.isfinite(forward.ceiling) else np.inf
+        limit = SAMPLE_MARGIN * level
+        bad = np.abs(shots) > limit
+        allowed = (f"samples within +-{limit:g} mV ({SAMPLE_MARGIN:g} times the receiver's "
+                   f"clipped level {level:g} mV)")
+    if np.any(bad):
+        s, k = np.argwhere(bad)[0]
+        raise ConfigError(f"{shots[s, k]:g} at shot {s}, sample {k} is not allowed; give "
+                          f"{allowed}, as recorded by the instrument", key=obs.source)
+
+
+def _named_instrument(obs) -> str:
+    """The bundled instrument the observed file names (attribute ``instrument_name``).
+
+    A name read from a file is data, not a path: only the bundled names
+    (:data:`warpe_cl.instrument.params.BUILTIN`) are taken from it, so that a file saying
+    ``instrument_name: /etc/shadow`` opens nothing. Any other instrument is given with
+    ``--instrument FILE``.
+    """
+    from ..instrument.params import BUILTIN
+    name = obs.instrument
+    if name is None:
+        raise ConfigError("the observed file does not name its instrument: give --instrument",
+                          key=obs.source)
+    if str(name).strip().lower() not in BUILTIN:
+        shown = str(name) if len(str(name)) <= 60 else str(name)[:57] + "..."
+        raise ConfigError(f"the file's instrument_name {shown!r} is not a bundled instrument "
+                          f"({', '.join(BUILTIN)}); pass the instrument explicitly with "
+                          "--instrument FILE", key=obs.source)
+    return str(name).strip().lower()
 
 
 def _database(database, source):

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
+from ..errors import ConfigError
 from ..instrument.footprint import C_M_PER_NS
 
 #: A parameter whose 95 % interval spans more than this fraction of its prior range (in its
@@ -43,6 +45,27 @@ def _curve(f, mu, amplitude):
     return f.baseline + amplitude * mu
 
 
+def _check_fit(chi2: float, loglike: float, dof: int, shots: int, free: int, source) -> None:
+    """Refuse a best fit that cannot be trusted, instead of printing intervals from it.
+
+    Raises
+    ------
+    ConfigError
+        The log-likelihood or chi2 of the best fit is not finite (samples far outside what the
+        receiver can record), or the fit has fewer samples than parameters (negative degrees
+        of freedom): one line saying which.
+    """
+    if not (math.isfinite(chi2) and math.isfinite(loglike)):
+        raise ConfigError(f"the best fit has chi2 {chi2:g} and log-likelihood {loglike:g}; "
+                          "both must be finite: the observed samples are not what the "
+                          "receiver records (check the file and --instrument)", key=source)
+    if dof < 0:
+        raise ConfigError(f"the fit has {dof} degrees of freedom: {shots} shot(s) hold fewer "
+                          f"samples than the fit's parameters (per shot and {free} free "
+                          "key(s)); give more samples or shots, or fix keys with --fix",
+                          key=source)
+
+
 def build_result(obs, params, space, problem, nodes, final, summary, used, *, db_source,
                  db_attrs):
     """The output Dataset (see the module docstring of :mod:`warpe_cl.inversion.invert`)."""
@@ -66,6 +89,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         unit, suffix = "mV", "mv"
         expected = f.baseline + fit.amplitude[:, None] * problem.shots._interp(mu, fit.arrival)
         expected = np.minimum(expected, f.ceiling)
+    _check_fit(fit.chi2, best.loglike, dof, n_shots, len(space.free_axes), obs.source)
     rows = [r for r in summary["rows"] if r["reported"]]
     names = [r["key"] for r in rows]
     data = {}
