@@ -1,6 +1,7 @@
 """The command line: exit codes, one-line errors, the output file of docs/interface.md §5."""
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 
@@ -431,3 +432,117 @@ def test_import_leaves_the_inversion_for_later():
             "assert warpe_cl.invert.__module__ == 'warpe_cl.inversion.invert'\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+# --------------------------------------------------------------------------- no signal lost
+
+class _Dropped:
+    """An object whose ``__del__`` receives ``signum``: Python drops the exception the
+    handler raises there ("Exception ignored in: ..."), as it does in weakref callbacks."""
+
+    def __init__(self, signum):
+        self.signum = signum
+
+    def __del__(self):
+        import signal
+        signal.raise_signal(self.signum)
+
+
+def _drop_a_signal_in_launch(monkeypatch, signum, launches):
+    """Patch the engine so that its first launch's tallies come with ``signum`` delivered
+    inside a ``__del__``; ``launches`` counts the launches (one Counts each, after the
+    walk's total)."""
+    import warpe_cl.engine
+
+    class Counts(warpe_cl.engine.Counts):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            launches.append(1)
+            if len(launches) == 2:           # the first launch's part
+                _Dropped(signum)             # made and dropped at once: its __del__ runs
+
+    monkeypatch.setattr(warpe_cl.engine, "Counts", Counts)
+
+
+@pytest.mark.parametrize("signame, rc, line", [
+    ("SIGTERM", 143, "warpe-cl: stopped by SIGTERM"),
+    ("SIGINT", 130, "warpe-cl: interrupted")])
+def test_a_signal_dropped_in_a_del_still_stops_the_run(tmp_path, capsys, monkeypatch,
+                                                        signame, rc, line):
+    """A SIGTERM whose exception Python dropped (it arrived in a __del__) used to be lost:
+    the run went on to exit 0 and wrote its file. It stops the run now, with its one line
+    and no "Exception ignored" report, and nothing is written."""
+    import signal
+    warm = tmp_path / "warm"        # the device qualified and the kernel built beforehand
+    warm.mkdir()
+    assert main(["run", str(PRESET), "--out", str(warm / "x.nc"), "--photons", "200",
+                 "--quiet"]) == 0
+    shutil.rmtree(warm)
+    capsys.readouterr()
+    launches = []
+    _drop_a_signal_in_launch(monkeypatch, getattr(signal, signame), launches)
+    code = main(["run", str(PRESET), "--out", str(tmp_path / "x.nc"), "--photons", "2000",
+                 "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert len(launches) >= 2, "the walk did not launch"
+    assert code == rc and err == line, err
+    assert list(tmp_path.iterdir()) == []
+    from warpe_cl import stops
+    assert stops.pending() is None                        # said once, then forgotten
+    assert signal.getsignal(signal.SIGTERM) is not stops._handler    # handlers put back
+
+
+def test_the_engine_stops_within_a_launch_after_a_dropped_signal(engine, monkeypatch):
+    """Engine.run checks for a stop between its launches: a SIGTERM dropped in the first of
+    four launches (batch 500 of 2000 rays) ends the walk before the second."""
+    import signal
+    from conftest import medium
+    from warpe_cl import stops
+    launches = []
+    _drop_a_signal_in_launch(monkeypatch, signal.SIGTERM, launches)
+    previous = stops.install()
+    try:
+        with pytest.raises(stops.Terminated):
+            engine.run(medium(), 2000, batch=500)
+    finally:
+        stops.restore(previous)
+        stops.clear()
+    assert len(launches) == 2                             # the total, and one launch
+
+
+@pytest.mark.parametrize("entry", [["-m", "warpe_cl"],
+                                   ["-c", "import sys; from warpe_cl.cli import main; "
+                                          "sys.exit(main())"]])
+def test_ctrl_c_while_the_modules_load_is_one_line(tmp_path, entry):
+    """Ctrl-C while NumPy loads (the first half second of every command) used to print a
+    traceback from `import warpe_cl`: one line and 130, by `python -m warpe_cl` and by the
+    console entry (which imports warpe_cl.cli, then calls main)."""
+    import os
+    (tmp_path / "numpy").mkdir()
+    (tmp_path / "numpy" / "__init__.py").write_text("raise KeyboardInterrupt\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(tmp_path), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    done = subprocess.run([sys.executable, *entry, "run", str(PRESET), "--out",
+                           str(tmp_path / "x.nc")], capture_output=True, text=True,
+                          cwd=tmp_path, env=env, timeout=60)
+    assert done.returncode == 130 and done.stderr == "warpe-cl: interrupted\n", done.stderr
+    assert not (tmp_path / "x.nc").exists()
+
+
+@pytest.mark.parametrize("raised, rc, line", [
+    ("CancelledError", 1, "warpe-cl: error: CancelledError: the scheduler went away (set "
+                          "WARPE_CL_DEBUG=1 for the traceback)"),
+    ("KeyboardInterrupt", 130, "warpe-cl: interrupted")])
+def test_a_dask_shutdown_is_one_line(tmp_path, capsys, monkeypatch, raised, rc, line):
+    """A Dask client closing under Ctrl-C raises asyncio's CancelledError (a BaseException)
+    or a KeyboardInterrupt from its clean-up: one line, never a traceback."""
+    import asyncio
+    import warpe_cl.sweep
+
+    def run_sweep(*args, **kwargs):
+        if raised == "CancelledError":
+            raise asyncio.CancelledError("the scheduler\nwent away")
+        raise KeyboardInterrupt
+    monkeypatch.setattr(warpe_cl.sweep, "run_sweep", run_sweep)
+    assert main(["sweep", str(PRESET), "--out", str(tmp_path / "db")]) == rc
+    assert capsys.readouterr().err == line + "\n"

@@ -17,22 +17,48 @@ Quick start::
 
 The command line does the same: ``warpe-cl run PRESET.yaml --out result.nc --plot result.png``.
 """
-from .config import load_preset
-from .radiative import radiative_parameters
-from .api import simulate
-from .io import package_version, as_grid
-from .database import open_database
-from .metrics import metrics
+import sys as _sys
+import types as _types
 
-__version__ = package_version()
 __all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "as_grid", "metrics",
            "invert", "__version__"]
 
+#: The public names, each imported from its module on first use: ``import warpe_cl`` (the
+#: start of every command) loads no NumPy, xarray or scipy, so that the command line catches a
+#: Ctrl-C while they load (one line, exit 130) and the inversion's 0.65 s of scipy imports
+#: are paid only by ``warpe_cl.invert``.
+_LAZY = {"load_preset": "config", "radiative_parameters": "radiative", "simulate": "api",
+         "as_grid": "io", "open_database": "database", "metrics": "metrics",
+         "invert": "inversion.invert"}
+
 
 def __getattr__(name: str):
-    """``warpe_cl.invert`` on first use: the inversion pulls in scipy.signal and scipy.stats
-    (0.65 s of imports), which a walk never needs."""
-    if name == "invert":
-        from .inversion.invert import invert
-        return invert
-    raise AttributeError(f"module 'warpe_cl' has no attribute {name!r}")
+    """A public name of :data:`__all__` on first use (then kept)."""
+    import importlib
+    if name == "__version__":
+        value = importlib.import_module(".io", __name__).package_version()
+    elif name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    else:
+        raise AttributeError(f"module 'warpe_cl' has no attribute {name!r}")
+    if name != "invert":     # warpe_cl.invert stays looked up (docs: loaded on first use)
+        globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
+
+class _Package(_types.ModuleType):
+    """The package module: importing the submodule ``warpe_cl.metrics`` leaves
+    ``warpe_cl.metrics`` the function of that name, as the public interface has it."""
+
+    def __setattr__(self, name, value):
+        if (name in _LAZY and isinstance(value, _types.ModuleType)
+                and value.__name__ == f"{__name__}.{name}"):
+            return
+        super().__setattr__(name, value)
+
+
+_sys.modules[__name__].__class__ = _Package

@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from . import device as devmod
+from . import stops
 from .errors import WeightError
 from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, IFACE_REAL_COLUMNS,
                      ITEM_STATS, LAYER_REAL_COLUMNS, LAYER_STATS, NADIR_BATCHES, NADIR_ROWS,
@@ -658,6 +659,7 @@ class Engine:
         # new photons per launch: the uint32 histograms hold them and the carried rays
         offer = min(int(batch) if batch else MAX_LAUNCH, MAX_LAUNCH - capacity)
         while handed < photons or carried:
+            stops.check()      # a Ctrl-C or SIGTERM whose exception was dropped: stop here
             n = min(offer, photons - handed)
             for buf in zeroed:
                 cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)

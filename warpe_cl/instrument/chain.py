@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import stops
 from ..errors import ConfigError
 from . import adc, detection, detector, electronics, footprint, photon_counting, pulse, \
     radiometry, specular, speckle
@@ -272,6 +273,7 @@ def _linear_mode(p, grid, amounts, kernel, k_origin, h, h_origin, signal_rate, d
     saturated = np.zeros(shots, bool)
     jitter = p["transmitter.pulse_fwhm_jitter"]
     for s in range(shots):
+        stops.check()          # a Ctrl-C or SIGTERM whose exception was dropped: stop here
         rng = shot_rng(seed, scenario_key, s)
         phase[s] = adc.sampling_phase(rng, interval, p["adc.random_phase"])
         rate = signal_rate
@@ -345,6 +347,7 @@ def _photon_counting(p, grid, signal_rate, dc_rate, modes, shots, seed, scenario
     arrival = np.full(shots, np.nan)
     width = np.full(shots, np.nan)
     for s in range(shots):
+        stops.check()          # a Ctrl-C or SIGTERM whose exception was dropped: stop here
         rng = shot_rng(seed, scenario_key, s)
         factor[s] = speckle.speckle_factor(rng, modes)
         times = photon_counting.arrivals(rng, edges, factor[s] * signal_rate[crop] + dc_rate)
