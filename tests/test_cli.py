@@ -546,3 +546,59 @@ def test_a_dask_shutdown_is_one_line(tmp_path, capsys, monkeypatch, raised, rc, 
     monkeypatch.setattr(warpe_cl.sweep, "run_sweep", run_sweep)
     assert main(["sweep", str(PRESET), "--out", str(tmp_path / "db")]) == rc
     assert capsys.readouterr().err == line + "\n"
+
+
+# --------------------------------------------------------------------------- inert, bounded lines
+
+def test_an_error_line_is_escaped_and_bounded(tmp_path, capsys):
+    """A 1 MB value used to give a 1 MB error line, and an escape sequence in it reached the
+    terminal: the line is now at most 500 characters, control characters written as \\x1b,
+    and it still names the file, the key and what is allowed."""
+    value = "\x1b[31m" + "x" * 1_000_000
+    rc = main(["run", str(PRESET), "--out", str(tmp_path / "x.nc"), "--device", "numpy",
+               "--set", f"medium.texture={value}"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.endswith("\n") and len(err.splitlines()) == 1, err[:1000]
+    line = err.rstrip("\n")
+    assert len(line) <= 500, len(line)
+    assert "\x1b" not in line and "\\x1b[31mxxx" in line, line
+    assert line.startswith(f"warpe-cl: error: {PRESET}: medium.texture: "), line
+    assert "more characters)" in line and line.endswith("give one of slab, granular"), line
+
+
+def test_a_file_echoed_in_an_error_is_bounded(tmp_path, capsys):
+    """`run /etc/passwd` printed the whole file in its error line."""
+    preset = tmp_path / "passwd"
+    preset.write_text(" ".join(f"user{i}:x:{i}:{i}::/home/user{i}:/bin/sh" for i in range(200)))
+    rc = main(["run", str(preset), "--out", str(tmp_path / "x.nc"), "--device", "numpy"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and len(err) <= 500, err
+    assert str(preset) in err and "user199" in err and "more characters" in err, err
+
+
+def test_names_read_from_a_file_reach_the_terminal_inert(tmp_path, capsys):
+    """The instrument's name and the scenarios' labels that `instrument` and `invert` print
+    come from files; an ESC or a line break in them is printed escaped."""
+    from conftest import synthetic_surface
+    from warpe_cl import report
+    from warpe_cl.instrument import apply_instrument
+    ds = apply_instrument(synthetic_surface(diffuse_integral=0.05), "bela", shots=4, seed=1)
+    ds.attrs["instrument_name"] = "bela\x1b]0;title\x07\nfake line"
+    lines = report.instrument_lines(ds)
+    assert lines[0].startswith("instrument bela\\x1b]0;title\\x07\\nfake line:"), lines[0]
+    assert not any(ch in "".join(lines) for ch in "\x1b\x07\n")
+    ds.to_netcdf(tmp_path / "obs.nc", engine="h5netcdf")
+    key, taus = "medium.thickness", [1.0, 2.0, 4.0]
+    parts = [synthetic_surface(diffuse_integral=0.05, tau=t) for t in taus]
+    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
+    db["time_edges"] = parts[0]["time_edges"]
+    db = db.assign_coords({key: ("scenario", np.asarray(taus) * 1e-3,
+                                 {"sweep_key": key, "units": "m"})})
+    db["scenario_key"] = ("scenario", np.arange(len(taus)) + 100)
+    database = tmp_path / "db\x1b[2J.nc"               # a name that would clear the screen
+    db.to_netcdf(database, engine="h5netcdf")
+    rc = main(["invert", str(tmp_path / "obs.nc"), "--database", str(database), "--instrument",
+               "bela", "--out", str(tmp_path / "fit.nc")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "\x1b" not in out, out
+    assert f"database {tmp_path}/db\\x1b[2J.nc" in out.splitlines()[0], out

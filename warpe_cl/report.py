@@ -3,9 +3,14 @@ the devices and a sweep.
 
 Every function here returns text (a line or a list of lines) and prints nothing; the commands
 of :mod:`warpe_cl.cli` decide where and when the lines go (``--quiet``, flushing between slow
-steps). Times are in s, lengths in the units named in each line.
+steps). Times are in s, lengths in the units named in each line. Lines that show text read
+from a file (names, labels, units) are made inert and bounded by
+:func:`warpe_cl.errors.printable`: a file's attribute cannot send escape sequences to the
+terminal.
 """
 from __future__ import annotations
+
+from .errors import printable
 
 __all__ = ["point_text", "derived_lines", "run_header", "scenario_lines", "instrument_lines",
            "device_status_lines", "verdict_line", "device_choice_line", "sweep_start_line",
@@ -156,7 +161,7 @@ def instrument_lines(ds) -> list:
             f"    detected              {float(sc['detected'].mean()):.2f} of shots; range "
             f"{float(np.nanmean(sc['range_time'])) if detected else float('nan'):.3g} ns, "
             f"width {float(np.nanmean(sc['pulse_width'])) if detected else float('nan'):.3g} ns")
-    return lines
+    return [printable(line) for line in lines]     # names and labels come from the file
 
 
 # --------------------------------------------------------------------------- devices
@@ -318,4 +323,4 @@ def inversion_lines(ds) -> list:
     lines.append(f"  fit: chi2/dof {float(ds['chi2_per_dof']):.3f} ({int(ds['dof'])} dof), "
                  f"p = {float(ds['p_value']):.3g}; {ds.attrs['evaluations']} model evaluations "
                  f"in {ds.attrs['elapsed_s']:.2f} s")
-    return lines
+    return [printable(line) for line in lines]     # names and units come from the files
