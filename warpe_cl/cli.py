@@ -539,7 +539,8 @@ def make_parser() -> argparse.ArgumentParser:
     sw.add_argument("--resume", action="store_true",
                     help="keep the scenarios already in the folder, compute the rest")
     sw.add_argument("--overwrite", action="store_true",
-                    help="replace an existing X.nc, or a folder's scenarios, instead of refusing")
+                    help="--out X.nc: replace an existing X.nc that is not this grid's "
+                         "combined file, once the grid is complete (refused otherwise)")
     sw.add_argument("--photons", help="rays per scenario (simulation.photons)")
     sw.add_argument("--seed", help="random seed (simulation.seed)")
     sw.add_argument("--quiet", action="store_true", help="print nothing but errors")
