@@ -684,7 +684,8 @@ class Outputs:
         # HDF5 writes into memory, and Python to the disk: HDF5 meeting a full disk itself
         # prints hundreds of lines and crashes the interpreter on its way out
         image = BytesIO()
-        ds.to_netcdf(image, engine="h5netcdf", invalid_netcdf=False)
+        with _no_distributed_lock():
+            ds.to_netcdf(image, engine="h5netcdf", invalid_netcdf=False)
         try:
             with open(self.stage(path), "wb") as stream:
                 stream.write(image.getbuffer())
@@ -717,6 +718,21 @@ class Outputs:
                     tmp.unlink()
             self._staged = []
         return False
+
+
+def _no_distributed_lock():
+    """A context in which xarray writes an in-memory NetCDF image under a thread lock.
+
+    Inside a Dask worker, xarray takes a write lock from the distributed scheduler, named by
+    the target; an in-memory target has no name it knows ("Semaphore or Lock ... not known"),
+    and every scenario of a Dask sweep failed. The Dataset holds NumPy arrays, so the
+    synchronous scheduler computes nothing differently.
+    """
+    import contextlib
+    if "dask" not in sys.modules:
+        return contextlib.nullcontext()
+    import dask
+    return dask.config.set(scheduler="synchronous")
 
 
 #: The signals that stop warpe-cl as Ctrl-C does (the command line turns SIGTERM, Slurm's time
