@@ -203,7 +203,7 @@ FILE_LEVEL = {
     "not YAML": ("medium:\n  texture: slab\n    thickness: 1\n",
                  "not valid YAML (line 3, column 14: "),
     "top-level list": ("- medium\n- simulation\n", "the top level is a list"),
-    "top-level scalar": ("just some text\n", "the top level is the single value"),
+    "top-level scalar": ("just some text\n", "the top level is one text of 14 characters"),
     "duplicate key": ("medium:\n  texture: slab\n  texture: granular\n",
                       'the key "texture" is given twice'),
 }

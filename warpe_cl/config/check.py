@@ -342,7 +342,10 @@ class PresetValidator:
     # the whole preset -------------------------------------------------------------------
     def preset(self, raw) -> dict:
         if not isinstance(raw, dict):
-            kind = "a list" if isinstance(raw, list) else f"the single value {show(raw)}"
+            # a text is not echoed: it is often a whole file that is no preset (/etc/passwd)
+            kind = ("a list" if isinstance(raw, list) else
+                    f"one text of {len(raw):,} characters" if isinstance(raw, str) else
+                    f"the single value {show(raw)}")
             raise ConfigError(f"the top level is {kind}; a preset must be a mapping of keys "
                               f"(medium:, simulation:, ...) with at least medium.texture and "
                               f"medium.thickness")

@@ -60,6 +60,10 @@ def _number_text(x) -> str:
     return repr(x) if isinstance(x, float) else str(x)
 
 
+#: The most characters of a text value an error message echoes.
+SHOWN = 80
+
+
 def show(value) -> str:
     """A value as a user would recognise it from their YAML, on one line."""
     if isinstance(value, bool):
@@ -67,7 +71,11 @@ def show(value) -> str:
     if value is None:
         return "an empty value"
     if isinstance(value, str):
-        return value if value.strip() else '""'
+        if not value.strip():
+            return '""'
+        text = " ".join(value.split())   # one line; a file's text is not echoed whole
+        return text if len(text) <= SHOWN else (f"{text[:SHOWN - 20]}... "
+                                                f"({len(value):,} characters)")
     if isinstance(value, (int, float)):
         return _number_text(value)
     text = yaml.safe_dump(value, default_flow_style=True, allow_unicode=True, width=1e9)
