@@ -73,7 +73,7 @@ def build(work: Path, grid: int, photons: int, shots: int, instrument: str) -> t
         apply_overrides(one, dict(TRUTH))
         (work / "truth.yaml").write_text(yaml.safe_dump(one, sort_keys=False))
         run(["run", work / "truth.yaml", "--photons", photons, "--seed", 11,
-             "--out", work / "truth.nc", "--quiet"])
+             "--out", work / "truth.nc", "--overwrite", "--quiet"])   # a stopped build's
         run(["instrument", work / "truth.nc", "--instrument", instrument, "--shots", shots,
              "--seed", 12, "--out", obs, "--quiet"])
     return db, obs
