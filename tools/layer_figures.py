@@ -7,7 +7,8 @@ For each preset of ``presets/layers/``: the waveform figure ``NAME.png`` (the bu
 interfaces' echoes marked), and, for a preset with an instrument block, what the instrument
 records, ``NAME_instrument.png``. Prints, per scenario, the numbers docs/figures/README.md
 quotes: the specular and BF-direct fractions, where the rays are absorbed (per layer and by
-the floor) and the direct-echo delays, and the time each preset took.
+the floor) and the direct-echo delays, and the time each preset took; and records each
+preset drawn in ``provenance.json`` (tools/figure_provenance.py).
 """
 from __future__ import annotations
 
@@ -21,6 +22,8 @@ import warpe_cl
 from warpe_cl.catalog import presets_dir
 from warpe_cl.errors import WarpeWarning
 from warpe_cl.plot import _scenarios, plot_waveform
+
+from figure_provenance import write_provenance
 
 
 def summary(ds) -> list:
@@ -51,6 +54,7 @@ def main(argv=None) -> int:
     parser.add_argument("--device", default=None)
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
+    drawn, devices = [], set()
     for path in sorted((presets_dir() / "layers").glob("*.yaml")):
         if args.only and path.stem not in args.only:
             continue
@@ -66,6 +70,13 @@ def main(argv=None) -> int:
             plot_instrument(ds, args.out / f"{path.stem}_instrument.png")
         print(f"{path.stem}: {time.perf_counter() - t0:.1f} s")
         print("\n".join(summary(ds)))
+        drawn.append(path.stem)
+        devices.add(str(ds.attrs.get("opencl_device", "numpy reference")))
+    if drawn:
+        command = " ".join(["python tools/layer_figures.py"] + list(argv or sys.argv[1:]))
+        print("provenance: " + str(write_provenance(
+            args.out / "provenance.json", "layers", drawn, args.photons,
+            ", ".join(sorted(devices)), command)))
     return 0
 
 

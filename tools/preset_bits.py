@@ -30,27 +30,53 @@ FOLDERS = ("paper", "radiative")
 SKIP = ("wall_time",)
 
 
-def fingerprints(photons: float, seed: int, device: str | None) -> dict:
-    """``{preset: {variable: sha256 hex}}`` for every preset of :data:`FOLDERS`."""
+def fingerprints(photons: float, seed: int, device: str | None, folders=FOLDERS,
+                 names=None, quiet: bool = False) -> dict:
+    """``{preset: {variable: sha256 hex}}`` for every preset of ``folders``.
+
+    Parameters
+    ----------
+    photons : float
+        Rays per scenario.
+    seed : int
+        ``simulation.seed`` of every preset.
+    device : str or None
+        Device spec (None: auto).
+    folders : tuple of str
+        Folders of ``presets/`` (default: paper and radiative).
+    names : collection of str, optional
+        Only these presets (``folder/name``).
+    quiet : bool
+        No line per preset on stderr.
+    """
     out = {}
     root = presets_dir()
-    for folder in FOLDERS:
+    for folder in folders:
         for path in sorted((root / folder).glob("*.yaml")):
+            name = f"{folder}/{path.stem}"
+            if names is not None and name not in names:
+                continue
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", WarpeWarning)
                 cfg = warpe_cl.load_preset(path, overrides={"simulation.photons": photons,
                                                             "simulation.seed": seed})
                 ds = warpe_cl.simulate(cfg, device=device, progress=False)
-            name = f"{folder}/{path.stem}"
             out[name] = {}
             for var in sorted(ds.data_vars):
                 values = np.ascontiguousarray(ds[var].values)
                 if var in SKIP or values.dtype.kind not in "fiub":
                     continue
                 out[name][var] = hashlib.sha256(values.tobytes()).hexdigest()
-            print(f"{name}: {len(out[name])} variables, ray_count sum "
-                  f"{int(ds['ray_count'].values.sum())}", file=sys.stderr)
+            if not quiet:
+                print(f"{name}: {len(out[name])} variables, ray_count sum "
+                      f"{int(ds['ray_count'].values.sum())}", file=sys.stderr)
     return out
+
+
+def combined(variables: dict) -> str:
+    """One SHA-256 (hex) of a preset's ``{variable: digest}``."""
+    text = json.dumps(variables, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def differences(before: dict, after: dict) -> list:

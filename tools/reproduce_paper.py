@@ -22,20 +22,15 @@ are delta-like, at exact times (t = 0, 2 k h n_eff / c), which their binned cent
 only blur by a bin width. The rows of presets not run (``--only``) are kept from an existing
 file.
 
-And ``provenance.json``: the tree that made the figures (``git describe``, with ``-dirty`` for
-uncommitted changes), the ray count, the device, and :func:`source_digest`, a SHA-256 of every
-source file the figures' numbers depend on. ``tests/test_docs.py`` compares that digest with
-the tree's own, so figures that outlived a change of the kernel, the physics or the presets
-fail the suite until they are made again.
+And an entry per preset in ``provenance.json`` (tools/figure_provenance.py): the tree, rays
+and device that made its figure, and the check bits that tests/test_metrics.py compares with
+what the code gives now.
 """
 from __future__ import annotations
 
 import argparse
 import csv
-import hashlib
-import json
 import multiprocessing
-import subprocess
 import sys
 import tempfile
 import time
@@ -48,6 +43,8 @@ from warpe_cl import io
 from warpe_cl.api import reusing_walks
 from warpe_cl.catalog import presets_dir
 from warpe_cl.plot import plot_angular, plot_waveform
+
+from figure_provenance import write_provenance
 
 
 #: The columns of metrics.csv: ``rays`` launched; ``fraction`` of them in the component (any
@@ -115,61 +112,6 @@ def write_metrics(rows: list, path: Path) -> Path:
         writer = csv.DictWriter(f, fieldnames=METRICS_COLUMNS, lineterminator="\n")
         writer.writeheader()
         writer.writerows(merged)
-    return path
-
-
-#: The sources the figures' numbers depend on, relative to the repository: the kernel, the
-#: radiative parameters and materials, the metrics, the instrument chain, the paper presets.
-DIGEST_SOURCES = ("cl/*.cl", "cl/*.h", "warpe_cl/radiative.py", "warpe_cl/materials.py",
-                  "warpe_cl/metrics.py", "warpe_cl/instrument/*.py", "presets/paper/*.yaml",
-                  "presets/instruments/*.yaml")
-
-
-def source_digest(repo: Path) -> str:
-    """SHA-256 (hex) of the files of DIGEST_SOURCES under ``repo``, each hashed with its path,
-    in sorted order: the same digest for the same sources, whatever the commit."""
-    digest = hashlib.sha256()
-    files = sorted({f for pattern in DIGEST_SOURCES for f in repo.glob(pattern) if f.is_file()})
-    for f in files:
-        digest.update(f.relative_to(repo).as_posix().encode() + b"\0")
-        digest.update(f.read_bytes() + b"\0")
-    return digest.hexdigest()
-
-
-def tree_name(repo: Path) -> str:
-    """``git describe --always --dirty`` of ``repo``, or ``unknown`` outside a checkout."""
-    try:
-        return subprocess.run(["git", "-C", str(repo), "describe", "--always", "--dirty",
-                               "--abbrev=12"], capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def write_provenance(path: Path, photons, device: str, presets: list) -> Path:
-    """Record in ``provenance.json`` which tree, rays and device made the figures of
-    ``presets``; the entries of other presets are kept if they were made from the same
-    sources (the same :func:`source_digest`), else dropped.
-
-    The file holds ``source_sha256`` (the sources' digest) and ``presets``: name -> ``tree``,
-    ``photons`` (None: the preset's own), ``device``, ``command``.
-    """
-    repo = Path(__file__).resolve().parent.parent
-    digest = source_digest(repo)
-    entries = {}
-    if path.is_file():
-        try:
-            old = json.loads(path.read_text(encoding="utf-8"))
-            if old.get("source_sha256") == digest:
-                entries = dict(old.get("presets", {}))
-        except (OSError, ValueError, AttributeError):
-            entries = {}
-    command = "python tools/reproduce_paper.py" + (f" --photons {photons:g}" if photons else "")
-    for name in presets:
-        entries[name] = {"tree": tree_name(repo), "photons": photons, "device": device,
-                         "command": command + ("" if len(presets) > 1 else f" --only {name}")}
-    record = {"source_sha256": digest, "presets": dict(sorted(entries.items()))}
-    path.write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
     return path
 
 
@@ -360,9 +302,10 @@ def main(argv=None) -> int:
     if rows:
         print(f"waveform metrics: {write_metrics(rows, out / 'metrics.csv')}")
     if presets:
+        command = " ".join(["python tools/reproduce_paper.py"] + list(argv or sys.argv[1:]))
         print("provenance: " + str(write_provenance(
-            out / "provenance.json", args.photons, ", ".join(sorted(devices)),
-            [p.stem for p in presets])))
+            out / "provenance.json", "paper", [p.stem for p in presets], args.photons,
+            ", ".join(sorted(devices)), command)))
     print(f"all presets: {time.perf_counter() - total:.1f} s; results in {data}")
     return 0
 
