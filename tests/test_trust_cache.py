@@ -19,6 +19,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -31,6 +32,8 @@ from warpe_cl.errors import WarpeWarning
 CPU = devmod.DeviceInfo(0, 0, "Fake OpenCL", "OpenCL 3.0 fake", "Fake CPU", "cpu", "1.0", 2,
                         True)
 WEIGHTED_DOUBLE = qualify.Combo("slab", "double", True)
+#: the 1-min load average per core of a busy machine (a timeout then is no verdict)
+BUSY = 3.0
 
 
 @pytest.fixture
@@ -39,6 +42,7 @@ def cache(tmp_path, monkeypatch):
     monkeypatch.setenv("WARPE_CL_CACHE_DIR", str(tmp_path))
     monkeypatch.delenv("WARPE_CL_LANES", raising=False)
     monkeypatch.setattr(qualify, "_warned_invalid", set(), raising=False)
+    monkeypatch.setattr(qualify, "load_per_core", lambda: BUSY, raising=False)   # busy
     qualify._qualifiers.clear()
     yield qualify.VerdictCache(tmp_path)
     qualify._qualifiers.clear()
@@ -117,11 +121,12 @@ def test_the_test_session_has_its_own_cache_folder(engine, monkeypatch):
 # --------------------------------------------------------------------------------------------
 # 2. a timed-out check is not checked yet
 
-def test_a_timed_out_check_is_not_cached_and_the_run_walks_a_qualified_width(cache,
-                                                                            monkeypatch):
+def test_a_timed_out_check_is_cached_as_not_checked_yet_and_not_waited_for_again(cache,
+                                                                                 monkeypatch):
     """8 lanes of double-precision weighted slab times out on a loaded machine; 4 lanes passed
-    before: the run walks 4 lanes with one warning line that says 8 was not checked yet, the
-    timeout is cached nowhere, and the next run (process) checks 8 lanes again."""
+    before: the run walks 4 lanes with one warning line that says 8 was not checked yet. The
+    timeout is cached as *not checked yet* (its date, a count of 1; no failure), so that the
+    next process (a sweep worker, `devices`) walks 4 lanes without waiting for it again."""
     assert qualify.Qualifier(CPU).lane_chain("double") == (8, 4, 1)
     cache.put([(key(4), passed())])
     child = FakeChild(monkeypatch, {8: "timeout"})
@@ -133,14 +138,95 @@ def test_a_timed_out_check_is_not_cached_and_the_run_walks_a_qualified_width(cac
     assert len(messages) == 1 and "\n" not in messages[0]
     assert "not checked yet" in messages[0] and "walking 4 lanes" in messages[0]
     assert "failed" not in messages[0]
-    assert cache.get(key(8)) is None and len(cache._read()) == 1
-    # the same process does not wait again; the next one checks again
+    stored = cache.get(key(8))
+    assert qualify.is_unchecked(stored) and stored["unfinished"] == 1 and stored["date"]
+    assert not stored["passed"] and stored["load_per_core"] == BUSY
+    # the same process and the next one do not wait again (within a day)
     with pytest.warns(WarpeWarning, match="not checked yet"):
         assert q.best_lanes(WEIGHTED_DOUBLE)[0] == 4 and child.calls == [8]
-    child.outcomes[8] = passed()
     again = qualify.Qualifier(CPU, cache=qualify.VerdictCache(cache.folder))
-    assert again.best_lanes(WEIGHTED_DOUBLE) == (8, []) and child.calls == [8, 8]
+    with pytest.warns(WarpeWarning, match="not checked yet"):
+        assert again.best_lanes(WEIGHTED_DOUBLE) == (4, []) and child.calls == [8]
+
+
+def _age(cache, lookup, seconds):
+    """Date the stored entry of ``lookup`` ``seconds`` back (hash recomputed)."""
+    when = time.strftime(qualify.DATE_FORMAT, time.localtime(time.time() - seconds))
+    _edit(cache, lookup, date=when)
+
+
+def test_an_old_timeout_is_checked_again_and_a_second_one_is_a_failure(cache, monkeypatch):
+    """A *not checked yet* entry older than a day is checked again: passing, it is a pass;
+    timing out again (the same key), it is a failure, cached, with the reason."""
+    cache.put([(key(4), passed())])
+    child = FakeChild(monkeypatch, {8: "timeout"})
+    q = qualify.Qualifier(CPU, cache=cache, say=lambda m: None)
+    with pytest.warns(WarpeWarning):
+        q.best_lanes(WEIGHTED_DOUBLE)
+    _age(cache, key(8), qualify.UNCHECKED_TTL_S + 60)
+    q = qualify.Qualifier(CPU, cache=qualify.VerdictCache(cache.folder), say=lambda m: None)
+    with pytest.warns(WarpeWarning, match="failed qualification at 8 lanes"):
+        assert q.best_lanes(WEIGHTED_DOUBLE)[0] == 4
+    assert child.calls == [8, 8]
+    stored = cache.get(key(8))
+    assert not stored["passed"] and not qualify.is_unchecked(stored)
+    assert "no verdict twice at 8 lanes" in stored["reason"] and "--requalify" in stored["reason"]
+    # a failure is not checked again, however old
+    q = qualify.Qualifier(CPU, cache=qualify.VerdictCache(cache.folder), say=lambda m: None)
+    with pytest.warns(WarpeWarning, match="failed"):
+        q.best_lanes(WEIGHTED_DOUBLE)
+    assert child.calls == [8, 8]
+    # --requalify forgets it: checked again
+    cache.clear()
+    child.outcomes[8] = passed()
+    q = qualify.Qualifier(CPU, cache=qualify.VerdictCache(cache.folder), say=lambda m: None)
+    assert q.best_lanes(WEIGHTED_DOUBLE) == (8, []) and child.calls == [8, 8, 8]
+
+
+def test_an_old_timeout_that_now_passes_is_a_pass(cache, monkeypatch):
+    FakeChild(monkeypatch, {8: "timeout", 4: passed()})
+    q = qualify.Qualifier(CPU, cache=cache, say=lambda m: None)
+    with pytest.warns(WarpeWarning):
+        q.best_lanes(WEIGHTED_DOUBLE)
+    _age(cache, key(8), 2 * qualify.UNCHECKED_TTL_S)
+    child = FakeChild(monkeypatch, {8: passed()})
+    q = qualify.Qualifier(CPU, cache=qualify.VerdictCache(cache.folder), say=lambda m: None)
+    assert q.best_lanes(WEIGHTED_DOUBLE) == (8, []) and child.calls == [8]
     assert cache.get(key(8))["passed"]
+
+
+def test_a_timeout_on_a_machine_that_was_not_busy_is_a_failure(cache, monkeypatch):
+    """Load average per core below 1 when the check timed out: the driver hangs (PoCL 3.0 at
+    16 lanes on Zen 4): a failure at once, cached, so no later process waits for it."""
+    monkeypatch.setattr(qualify, "load_per_core", lambda: 0.25)
+    cache.put([(key(4), passed())])
+    child = FakeChild(monkeypatch, {8: "timeout"})
+    q = qualify.Qualifier(CPU, cache=cache, say=lambda m: None)
+    with pytest.warns(WarpeWarning, match="failed qualification at 8 lanes"):
+        assert q.best_lanes(WEIGHTED_DOUBLE) == (4, [(8, cache.get(key(8))["reason"])])
+    stored = cache.get(key(8))
+    assert not qualify.is_unchecked(stored) and "not busy (load 0.25 per core)" in stored["reason"]
+    q = qualify.Qualifier(CPU, cache=qualify.VerdictCache(cache.folder), say=lambda m: None)
+    with pytest.warns(WarpeWarning, match="failed"):
+        q.best_lanes(WEIGHTED_DOUBLE)
+    assert child.calls == [8]
+
+
+def test_a_kill_from_outside_is_cached_and_a_second_one_is_a_failure(cache, monkeypatch):
+    """The OOM killer ends the child (its own compiler's memory): not checked yet, cached, so
+    the next process does not trigger it again; the second kill at the key is a failure."""
+    monkeypatch.setattr(qualify, "load_per_core", lambda: 0.1)   # no bearing on a kill
+    child = FakeChild(monkeypatch, {8: int(signal.SIGKILL)})
+    q = qualify.Qualifier(CPU, cache=cache, say=lambda m: None)
+    assert qualify.is_unchecked(q.verdicts(8, [WEIGHTED_DOUBLE])[WEIGHTED_DOUBLE])
+    q = qualify.Qualifier(CPU, cache=qualify.VerdictCache(cache.folder), say=lambda m: None)
+    assert qualify.is_unchecked(q.verdicts(8, [WEIGHTED_DOUBLE])[WEIGHTED_DOUBLE])
+    assert child.calls == [8]
+    _age(cache, key(8), qualify.UNCHECKED_TTL_S + 1)
+    q = qualify.Qualifier(CPU, cache=qualify.VerdictCache(cache.folder), say=lambda m: None)
+    entry = q.verdicts(8, [WEIGHTED_DOUBLE])[WEIGHTED_DOUBLE]
+    assert child.calls == [8, 8] and not entry["passed"] and not qualify.is_unchecked(entry)
+    assert "SIGKILL" in entry["reason"] and cache.get(key(8))["reason"] == entry["reason"]
 
 
 def test_a_timeout_with_nothing_qualified_below_checks_the_narrower_widths(cache, monkeypatch):
@@ -150,7 +236,8 @@ def test_a_timeout_with_nothing_qualified_below_checks_the_narrower_widths(cache
     q = qualify.Qualifier(CPU, cache=cache, say=lambda m: None)
     with pytest.warns(WarpeWarning, match="not checked yet.*walking 4 lanes"):
         assert q.best_lanes(WEIGHTED_DOUBLE) == (4, [])
-    assert child.calls == [8, 4] and cache.get(key(4))["passed"] and cache.get(key(8)) is None
+    assert child.calls == [8, 4] and cache.get(key(4))["passed"]
+    assert qualify.is_unchecked(cache.get(key(8)))
 
     analog = qualify.Combo("granular", "double", False)
     child = FakeChild(monkeypatch, dict.fromkeys((8, 4, 1), "timeout"))
@@ -158,21 +245,21 @@ def test_a_timeout_with_nothing_qualified_below_checks_the_narrower_widths(cache
     lanes, failures = q.best_lanes(analog)
     assert lanes is None and [w for w, _ in failures] == [8, 4, 1]
     assert all(r.startswith("not checked yet") for _, r in failures)
-    assert all(cache.get(key(w, analog)) is None for w in (8, 4, 1))
+    assert all(qualify.is_unchecked(cache.get(key(w, analog))) for w in (8, 4, 1))
 
 
 @pytest.mark.parametrize("sig, cached", [(signal.SIGKILL, False), (signal.SIGTERM, False),
                                          (signal.SIGINT, False), (signal.SIGABRT, True),
                                          (signal.SIGSEGV, True)])
 def test_a_child_killed_from_outside_is_not_a_verdict(cache, monkeypatch, sig, cached):
-    """SIGKILL (the OOM killer), SIGTERM, SIGINT come from outside: not checked yet, not
-    cached. SIGABRT and SIGSEGV are the driver's own: a failure, cached."""
+    """SIGKILL (the OOM killer), SIGTERM, SIGINT come from outside: not checked yet (cached as
+    such). SIGABRT and SIGSEGV are the driver's own: a failure, cached."""
     FakeChild(monkeypatch, {8: int(sig)})
     q = qualify.Qualifier(CPU, cache=cache, say=lambda m: None)
     entry = q.verdicts(8, [WEIGHTED_DOUBLE])[WEIGHTED_DOUBLE]
     assert not entry["passed"] and qualify.is_unchecked(entry) == (not cached)
     assert signal.Signals(sig).name in entry["reason"]
-    assert (cache.get(key(8)) is not None) == cached
+    assert qualify.is_unchecked(cache.get(key(8))) == (not cached)
 
 
 def test_devices_says_not_checked_yet_instead_of_qualified(cache, monkeypatch):
@@ -340,3 +427,54 @@ def test_devices_all_checks_the_combinations_not_checked_yet(cache, monkeypatch,
     assert len(lines) == len(combos) and all("1 lanes, qualified" in ln for ln in lines)
     assert child.calls == [1] * (len(combos) - 1)
 
+
+
+# --------------------------------------------------------------------------------------------
+# 6. what a run says about widths not checked yet
+
+def _engine(q):
+    """An Engine with only what ``lanes_for`` reads (no OpenCL)."""
+    from warpe_cl.engine import Engine
+    eng = Engine.__new__(Engine)
+    eng.info, eng.qualifier, eng._lanes = CPU, q, {}
+    return eng
+
+
+def test_an_explicit_width_not_checked_yet_says_so(cache, monkeypatch):
+    """WARPE_CL_LANES=8 whose check timed out: a DeviceError that says *not checked yet*
+    (what to do), never "failed qualification"."""
+    FakeChild(monkeypatch, {8: "timeout"})
+    eng = _engine(qualify.Qualifier(CPU, cache=cache, say=lambda m: None))
+    with pytest.raises(devmod.DeviceError) as err:
+        eng.lanes_for("slab", "double", True, lanes=8)
+    text = str(err.value)
+    assert "not checked yet: the check timed out" in text and "failed" not in text
+    assert "--requalify" in text and "WARPE_CL_LANES" in text and "\n" not in text
+
+
+def test_failures_and_widths_not_checked_yet_make_one_warning_line(cache, monkeypatch):
+    """8 lanes failed (cached), 4 lanes times out, 1 lane passed: one warning line names
+    both, and the run walks 1 lane."""
+    cache.put([(key(8), failed()), (key(1), passed())])
+    FakeChild(monkeypatch, {4: "timeout"})
+    eng = _engine(qualify.Qualifier(CPU, cache=cache, say=lambda m: None))
+    with pytest.warns(WarpeWarning) as caught:
+        assert eng.lanes_for("slab", "double", True) == 1
+    lines = [str(w.message) for w in caught if issubclass(w.category, WarpeWarning)]
+    assert len(lines) == 1, lines
+    assert "failed qualification at 8 lanes" in lines[0]
+    assert "not checked yet at 4 lanes" in lines[0] and "walking 1 lanes" in lines[0]
+
+
+def test_a_usable_qualification_is_made_of_a_passed_entry(cache, monkeypatch):
+    """The ranking kernel passed at 8 lanes without its speed (a run that did not measure);
+    16 lanes time out, and measuring 8 again times out too: the device is usable at 8 lanes
+    from the passed verdict (no speed), which stays passed, in the cache and in the process."""
+    rank = qualify.RANK_COMBO
+    cache.put([(key(8, rank), passed(speed=None))])
+    child = FakeChild(monkeypatch, {16: "timeout", 8: "timeout"})
+    status = devmod.qualification(CPU, say=lambda m: None)
+    assert child.calls == [16, 8]
+    assert status.usable and status.lanes == 8 and status.events_per_s is None
+    q = qualify.qualifier_for(CPU)
+    assert q.known(8, rank)["passed"] and cache.get(key(8, rank))["passed"]

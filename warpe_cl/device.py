@@ -338,7 +338,7 @@ class Qualification:
                                      # known-answer walk, speed)
     date: str | None = None          # when it ran
     #: widths above ``lanes`` (all, when none is usable) whose check came to no verdict --
-    #: timed out, or killed from outside -- as ``(lanes, reason)``: checked again next run
+    #: timed out, or killed from outside -- as ``(lanes, reason)``: checked again after a day
     unchecked: tuple = ()
 
 
@@ -355,14 +355,17 @@ def qualification(info, say=None) -> Qualification:
     if choice.lanes is None:
         unchecked_only = not choice.failures
         return Qualification(False, None, None,
-                             ("not checked yet at any lane width (checked again next run): "
+                             ("not checked yet at any lane width (checked again after a day, "
+                              "or with `warpe-cl devices --requalify`): "
                               if unchecked_only else
                               "failed the known-answer walk at every lane width: ")
                              + "; ".join(f"{w} lanes: {r}" for w, r in
                                          sorted(choice.failures + choice.unchecked,
                                                 reverse=True)),
                              choice.failures, unchecked=choice.unchecked)
-    entry = q.verdicts(choice.lanes, [RANK_COMBO], measure=True)[RANK_COMBO]
+    entry = choice.entry                   # the passed verdict the choice was made of
+    if entry is None or not entry["passed"]:
+        raise AssertionError(f"lane choice {choice.lanes} without a passed verdict")
     return Qualification(True, choice.lanes, entry.get("events_per_s"), None, choice.failures,
                          entry.get("child_wall_s", entry.get("seconds")), entry.get("date"),
                          choice.unchecked)

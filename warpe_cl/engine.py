@@ -383,13 +383,21 @@ class Engine:
         if not check or self.qualifier is None:
             return int(lanes or default_lanes(self.info.kind, precision,
                                               self.info.preferred_width(precision)))
-        from .qualify import Combo, describe_short
+        from .qualify import (UNCHECKED_TTL_S, Combo, describe_short, fallback_message,
+                              is_unchecked)
         combo = Combo(texture, precision, bool(weighted))
         key = (combo, lanes)
         if key in self._lanes:
             return self._lanes[key]
         if lanes is not None:
             entry = self.qualifier.verdicts(int(lanes), [combo], measure=False)[combo]
+            if is_unchecked(entry):
+                raise devmod.DeviceError(
+                    f"{describe_short(self.info)}: {combo.label} at {lanes} lanes (asked for) "
+                    f"is not checked yet: the check timed out or was stopped "
+                    f"({entry['reason'].removeprefix('not checked yet: ')}); run again after "
+                    f"{UNCHECKED_TTL_S // 3600} h or `warpe-cl devices --requalify` (on a "
+                    "machine less busy), or unset WARPE_CL_LANES to walk a qualified width")
             if not entry["passed"]:
                 raise devmod.DeviceError(
                     f"{describe_short(self.info)} failed qualification at {lanes} lanes for "
@@ -397,18 +405,18 @@ class Engine:
                     f"{entry['reason']}")
             chosen = int(lanes)
         else:
-            chosen, failures = self.qualifier.best_lanes(combo)
+            choice = self.qualifier.choose(combo)
+            chosen = choice.lanes
             if chosen is None:
                 raise devmod.DeviceError(
                     f"{describe_short(self.info)} is not usable for {combo.label}: "
-                    + "; ".join(f"{w} lanes: {r}" for w, r in failures))
-            if failures:
+                    + "; ".join(f"{w} lanes: {r}" for w, r in
+                                sorted(choice.failures + choice.unchecked, reverse=True)))
+            message = fallback_message(self.info, combo, choice)   # one line, both kinds
+            if message:
                 import warnings
                 from .errors import WarpeWarning
-                warnings.warn(
-                    f"{describe_short(self.info)}: {combo.label} failed qualification at "
-                    f"{', '.join(str(w) for w, _ in failures)} lanes "
-                    f"({failures[0][1]}); walking {chosen} lanes", WarpeWarning, stacklevel=2)
+                warnings.warn(message, WarpeWarning, stacklevel=2)
         self._lanes[key] = chosen
         return chosen
 

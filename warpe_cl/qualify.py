@@ -29,8 +29,13 @@ have the types and ranges a check writes (:func:`entry_problem`), its stored key
 looked up, and the SHA-256 stored with it matches its contents and key (:func:`entry_hash`);
 anything else is ignored and checked again. A check that did not come to a verdict -- it ran
 past its time limit, or its process was killed from outside (SIGKILL, SIGTERM, SIGINT,
-SIGHUP: the OOM killer, a Ctrl-C) -- is *not checked yet*: never cached, and a run walks the
-next narrower width that is already qualified, or checks the narrower ones.
+SIGHUP: the OOM killer, a Ctrl-C) -- is *not checked yet*: cached as such with its date and a
+count (no failure), so that other processes do not wait for it again; a run walks the next
+narrower width that is already qualified, or checks the narrower ones. Such an entry is
+checked again once it is older than :data:`UNCHECKED_TTL_S` (or after ``warpe-cl devices
+--requalify``); a second check with no verdict at the same key, or a timeout on a machine
+that was not busy (1-min load average per core below :data:`QUIET_LOAD`), is a failure
+(:func:`after_no_verdict`).
 
 Run by hand: ``python -m warpe_cl.qualify --device P:D --lanes 16 --combos slab:single:analog``.
 """
@@ -63,8 +68,15 @@ N_RAYS = 2000
 #: build takes seconds, the walk and the speed probe about one; a driver stuck in its compiler
 #: (pip's PoCL 3.0 at 16 lanes on Zen 4 spins for 2-3 minutes before it aborts) must not hold
 #: a user's first run for long. A stopped check is *not checked yet*, not a failure: a loaded
-#: machine is no verdict on the driver; it is never cached, and the next run checks again
+#: machine is no verdict on the driver; it is cached as such for :data:`UNCHECKED_TTL_S`, then
+#: checked again; a second one (or one on an idle machine) is a failure (:func:`after_no_verdict`)
 CHILD_TIMEOUT_S = 60
+#: a cached *not checked yet* entry is believed this long, s; then the width is checked again
+#: (one day: a busy machine is rarely busy all day; a hang costs at most one timeout a day)
+UNCHECKED_TTL_S = 86400
+#: 1-min load average per CPU core below which the machine was not busy: a check that timed
+#: out then is the driver's hang, a failure at once (every core had a free turn)
+QUIET_LOAD = 1.0
 MARK = "WARPE-QUALIFY "
 #: signals that end a check's process from outside (the OOM killer, a Ctrl-C, a logout): they
 #: say nothing about the driver, so the check is not checked yet rather than failed. A driver
@@ -349,8 +361,84 @@ def entry_hash(entry: dict, key: dict) -> str:
 
 def is_unchecked(entry: dict) -> bool:
     """True for the entry of a check that came to no verdict (it timed out, or its process was
-    killed from outside): *not checked yet*, never cached."""
+    killed from outside): *not checked yet*, cached with its date for :data:`UNCHECKED_TTL_S`
+    (:func:`after_no_verdict`)."""
     return entry.get("checked") is False
+
+
+DATE_FORMAT = "%Y-%m-%dT%H:%M:%S"
+
+
+def _date_seconds(date) -> float | None:
+    """Seconds since the epoch of a stored ``date`` (local time, :data:`DATE_FORMAT`), or
+    ``None`` where it is no such date."""
+    try:
+        return time.mktime(time.strptime(date, DATE_FORMAT))
+    except (TypeError, ValueError, OverflowError):
+        return None
+
+
+def is_stale(entry: dict, now: float | None = None) -> bool:
+    """True for a *not checked yet* entry older than :data:`UNCHECKED_TTL_S` (or undated, or
+    dated in the future): its width is checked again."""
+    if not is_unchecked(entry):
+        return False
+    when = _date_seconds(entry.get("date"))
+    now = time.time() if now is None else now
+    return when is None or not (-3600 <= now - when < UNCHECKED_TTL_S)
+
+
+def load_per_core() -> float | None:
+    """The 1-min load average per CPU core, or ``None`` where the system does not say."""
+    try:
+        return os.getloadavg()[0] / max(1, os.cpu_count() or 1)
+    except (AttributeError, OSError):
+        return None
+
+
+def after_no_verdict(previous: dict | None, entry: dict, lanes: int) -> dict:
+    """The entry to cache for a check at ``lanes`` that came to no verdict (``entry``, from
+    :func:`run_child`), given the entry cached before at the same key (``previous``).
+
+    The rule (docs/devices.md): the first such check is *not checked yet* (``checked: false``,
+    ``unfinished: 1``, its date), no failure. It becomes a **failure**, with the reason, when
+
+    * an earlier check at the same key came to no verdict too (``previous`` not checked yet,
+      whatever its age): a second timeout or kill is the driver's, not the machine's; or
+    * the check timed out while the machine was not busy: the 1-min load average per core
+      (``load_per_core``, measured at the timeout) was below :data:`QUIET_LOAD`.
+
+    Parameters
+    ----------
+    previous : dict or None
+        The entry cached at the key before this check.
+    entry : dict
+        The check's entry: ``checked`` false, ``reason``, ``seconds`` (s), ``date``,
+        ``child_wall_s`` (s), ``load_per_core`` (None for a kill).
+    lanes : int
+        The lane width checked.
+
+    Returns
+    -------
+    dict
+        The entry to cache and use: not checked yet, or a failure.
+    """
+    load = entry.get("load_per_core")
+    timed_out = "did not finish" in (entry.get("reason") or "")
+    what = (entry.get("reason") or "").removeprefix("not checked yet: ")
+    again = previous is not None and is_unchecked(previous)
+    if again:
+        reason = (f"the check came to no verdict twice at {lanes} lanes (first on "
+                  f"{previous.get('date')}; now {what}): a failure "
+                  "(`warpe-cl devices --requalify` checks again)")
+    elif timed_out and load is not None and load < QUIET_LOAD:
+        reason = (f"{what} on a machine that was not busy (load {load:.2f} per core): the "
+                  "driver hangs, a failure (`warpe-cl devices --requalify` checks again)")
+    else:
+        return {**entry, "checked": False, "unfinished": 1}
+    out = {k: v for k, v in entry.items() if k not in ("checked", "unfinished")}
+    out.update(passed=False, reason=reason, events_per_s=None)
+    return out
 
 
 def _finite_number(value) -> bool:
@@ -360,7 +448,8 @@ def _finite_number(value) -> bool:
 
 #: the fields of a stored verdict: name -> is it required
 ENTRY_FIELDS = {"passed": True, "reason": True, "events_per_s": True, "seconds": True,
-                "date": False, "child_wall_s": False, "key": True, "sha256": True}
+                "date": False, "child_wall_s": False, "key": True, "sha256": True,
+                "checked": False, "unfinished": False, "load_per_core": False}
 
 
 def entry_problem(entry, key: dict) -> str | None:
@@ -407,6 +496,20 @@ def entry_problem(entry, key: dict) -> str | None:
             return f"{name} {entry[name]!r} is not a finite duration"
     if "date" in entry and not isinstance(entry["date"], str):
         return "date is not a string"
+    if "checked" in entry:
+        # a check that came to no verdict: not checked yet, with its date and count
+        if entry["checked"] is not False or entry["passed"] is not False:
+            return "checked is not false on a failed entry"
+        count = entry.get("unfinished")
+        if not (isinstance(count, int) and not isinstance(count, bool) and count == 1):
+            return f"unfinished {count!r} is not 1 (a second one is a failure)"
+        if _date_seconds(entry.get("date")) is None:
+            return "a check with no verdict has no date"
+    elif "unfinished" in entry:
+        return "unfinished without checked"
+    if "load_per_core" in entry and entry["load_per_core"] is not None \
+            and not (_finite_number(entry["load_per_core"]) and entry["load_per_core"] >= 0):
+        return f"load_per_core {entry['load_per_core']!r} is not a load"
     try:
         if _canonical(entry["key"]) != _canonical(key):
             return "its stored key is not the key looked up"
@@ -520,7 +623,8 @@ def run_child(info, lanes: int, combos, measure: bool = True) -> dict:
     combination it was given, with the reason. A child that runs past the time limit
     (``$WARPE_CL_QUALIFY_TIMEOUT``, default :data:`CHILD_TIMEOUT_S`) or is killed from outside
     (:data:`EXTERNAL_SIGNALS`) came to no verdict: its entries are *not checked yet*
-    (``"checked": False``, :func:`is_unchecked`), which the caller never caches.
+    (``"checked": False``, :func:`is_unchecked`; a timeout's with the machine's
+    ``load_per_core`` then), which the caller caches by the rule of :func:`after_no_verdict`.
     """
     cmd = [sys.executable, "-m", "warpe_cl.qualify", "--device", info.spec, "--lanes",
            str(lanes), "--combos", ",".join(c.label for c in combos), "--expect", info.device]
@@ -535,14 +639,15 @@ def run_child(info, lanes: int, combos, measure: bool = True) -> dict:
     except subprocess.TimeoutExpired:
         reason = (f"not checked yet: the check did not finish in {timeout:g} s at {lanes} "
                   "lanes (a busy machine?; $WARPE_CL_QUALIFY_TIMEOUT)")
+        load = load_per_core()
         return {c: {"passed": False, "checked": False, "reason": reason, "events_per_s": None,
-                    "seconds": timeout} for c in combos}
+                    "seconds": timeout, "load_per_core": load} for c in combos}
     if proc.returncode < 0 and -proc.returncode in EXTERNAL_SIGNALS:
         reason = (f"not checked yet: the check's process was killed by "
                   f"{_signal_name(proc.returncode)} from outside at {lanes} lanes")
         took = round(time.perf_counter() - t0, 3)
         return {c: {"passed": False, "checked": False, "reason": reason, "events_per_s": None,
-                    "seconds": took} for c in combos}
+                    "seconds": took, "load_per_core": None} for c in combos}
     results = None
     for line in proc.stdout.splitlines():
         if line.startswith(MARK):
@@ -574,16 +679,20 @@ class Qualifier:
     def verdicts(self, lanes: int, combos, measure: bool = True) -> dict:
         """``{combo: entry}`` at ``lanes``; the missing ones are checked in one child."""
         out, missing, keys = {}, [], {c: combo_key(self.info, lanes, c) for c in combos}
+        before = {}
         for c in combos:
             kid = _key_id(keys[c])
             entry = self._memo.get(kid) or self.cache.get(keys[c])
             # a passing verdict of the ranking kernel without its speed is checked again
-            # when the speed is wanted (it was made by a run that did not measure)
+            # when the speed is wanted (it was made by a run that did not measure); a cached
+            # "not checked yet" older than UNCHECKED_TTL_S is checked again
             unmeasured = (measure and c == RANK_COMBO and entry is not None and entry["passed"]
                           and entry.get("events_per_s") is None)
-            if entry is not None and not unmeasured:
+            if entry is not None and not unmeasured and not (
+                    kid not in self._memo and is_stale(entry)):
                 out[c] = self._memo[kid] = entry
             else:
+                before[c] = entry
                 missing.append(c)
         if missing:
             if self.say:
@@ -598,11 +707,16 @@ class Qualifier:
                 entry = {**fresh.get(c, {"passed": False, "reason": "no verdict returned",
                                          "events_per_s": None, "seconds": 0.0}),
                          "date": stamp, "child_wall_s": wall}
-                # a check with no verdict is remembered by this process only (it is not
-                # tried again in this run) and checked again by the next one
+                previous = before.get(c)
+                if is_unchecked(entry) and previous is not None and previous["passed"]:
+                    # the speed of a passing kernel could not be measured: it still passed
+                    # (kept as it was, without a speed); measured again by the next process
+                    out[c] = self._memo[_key_id(keys[c])] = previous
+                    continue
+                if is_unchecked(entry):
+                    entry = after_no_verdict(previous, entry, lanes)
                 out[c] = self._memo[_key_id(keys[c])] = entry
-                if not is_unchecked(entry):
-                    items.append((keys[c], entry))
+                items.append((keys[c], entry))
             if items:
                 self.cache.put(items)
         return out
@@ -654,7 +768,7 @@ class Qualifier:
                 unchecked.append((lanes, None))
                 continue
             if entry["passed"]:
-                return LaneChoice(lanes, tuple(failures), tuple(unchecked))
+                return LaneChoice(lanes, tuple(failures), tuple(unchecked), entry)
             if not is_unchecked(entry):
                 failures.append((lanes, entry["reason"]))
                 continue
@@ -662,6 +776,10 @@ class Qualifier:
             # a busy machine: walk a narrower width already qualified rather than check more
             for j in range(i, len(chain)):
                 known = self.known(chain[j], combo)
+                if known is not None and known["passed"] and check and measure:
+                    # the entry used must be the one the caller gets (with its speed, where
+                    # measured): a usable choice is only ever made of a passed entry
+                    known = self.verdicts(chain[j], [combo], measure=True)[combo]
                 if known is not None and known["passed"]:
                     for w in chain[i:j]:            # the widths skipped, as far as known
                         e = self.known(w, combo)
@@ -669,7 +787,7 @@ class Qualifier:
                             unchecked.append((w, None if e is None else e["reason"]))
                         else:
                             failures.append((w, e["reason"]))
-                    return LaneChoice(chain[j], tuple(failures), tuple(unchecked))
+                    return LaneChoice(chain[j], tuple(failures), tuple(unchecked), known)
         return LaneChoice(None, tuple(failures), tuple(unchecked))
 
     def best_lanes(self, combo: Combo, measure: bool = False):
@@ -688,17 +806,44 @@ class Qualifier:
         choice = self.choose(combo, measure=measure)
         if choice.lanes is None:
             return None, sorted(choice.failures + choice.unchecked, reverse=True)
-        if choice.unchecked:
+        message = fallback_message(self.info, combo, choice)
+        if message:
             import warnings
             from .errors import WarpeWarning
-            first, why = choice.unchecked[0]
-            others = [str(w) for w, _ in choice.unchecked[1:]]
-            why = why or f"not checked yet at {first} lanes"
-            warnings.warn(f"{describe_short(self.info)}: {combo.label} {why}"
-                          + (f" (nor at {', '.join(others)} lanes)" if others else "")
-                          + f"; walking {choice.lanes} lanes, already qualified; checked "
-                          "again next run", WarpeWarning, stacklevel=3)
+            warnings.warn(message, WarpeWarning, stacklevel=3)
         return choice.lanes, list(choice.failures)
+
+
+def fallback_message(info, combo: Combo, choice: "LaneChoice") -> str | None:
+    """The one warning line of a run that walks ``choice.lanes`` narrower than the widest
+    width: the widths that failed (the first one's reason) and those not checked yet (the
+    first one's reason), merged; ``None`` where nothing above was skipped.
+
+    Parameters
+    ----------
+    info : DeviceInfo
+    combo : Combo
+    choice : LaneChoice
+        With ``lanes`` set (a usable width).
+
+    Returns
+    -------
+    str or None
+    """
+    parts = []
+    if choice.failures:
+        parts.append(f"failed qualification at {', '.join(str(w) for w, _ in choice.failures)}"
+                     f" lanes ({choice.failures[0][1]})")
+    if choice.unchecked:
+        first, why = choice.unchecked[0]
+        why = (why or "not checked yet").removeprefix("not checked yet: ")
+        parts.append(f"not checked yet at {', '.join(str(w) for w, _ in choice.unchecked)} "
+                     f"lanes ({why}; checked again after {UNCHECKED_TTL_S // 3600} h, or "
+                     "with `warpe-cl devices --requalify`)")
+    if not parts:
+        return None
+    return (f"{describe_short(info)}: {combo.label} {'; '.join(parts)}; walking {choice.lanes} "
+            "lanes" + (", already qualified" if choice.unchecked else ""))
 
 
 @dataclass(frozen=True)
@@ -719,6 +864,8 @@ class LaneChoice:
     lanes: int | None
     failures: tuple = ()
     unchecked: tuple = ()
+    #: the passed verdict of ``lanes`` (``None`` when there is none)
+    entry: dict | None = None
 
 
 _qualifiers: dict = {}
