@@ -264,8 +264,9 @@ def test_instrument_checks_the_surface_values(edit, name):
     ds = edit(_surface())
     with pytest.raises(ConfigError) as err:
         apply_instrument(ds, "bela", shots=2, seed=1, source="s.nc")
-    assert str(err.value).startswith(f"s.nc: {name}: ") and "is not allowed" in str(err.value) \
-        or "strictly increasing" in str(err.value)
+    text = str(err.value)
+    assert text.startswith(f"s.nc: {name}: "), text
+    assert "is not allowed" in text or "strictly increasing" in text, text
 
 
 def _database():
@@ -306,3 +307,75 @@ def test_unfit_results_are_refused():
         _check_fit(np.nan, -5.0, 3, 2, 1, "obs.nc")
     with pytest.raises(ConfigError, match="-44 degrees of freedom"):
         _check_fit(10.0, -5.0, -44, 2, 1, "obs.nc")
+
+
+def test_a_bundled_instrument_named_by_the_file_is_the_bundled_file(tmp_path, monkeypatch):
+    """instrument_name: bela with a file ./bela in the current folder: the bundled preset is
+    read, never the decoy (load_instrument tries a name as a path first)."""
+    from warpe_cl.instrument import load_instrument
+    from warpe_cl.instrument.params import instruments_dir
+    from warpe_cl.inversion.invert import _named_instrument
+    obs = _observed("BELA")
+    (tmp_path / "bela").write_text("name: decoy\ngarbage: [\n")
+    monkeypatch.chdir(tmp_path)
+    spec = _named_instrument(obs)
+    assert spec == instruments_dir() / "bela.yaml"
+    assert load_instrument(spec) == load_instrument(instruments_dir() / "bela.yaml")
+
+
+def _receiver(ceiling=100.0, sigma_n=2.0, baseline=10.0):
+    import types
+    return types.SimpleNamespace(ceiling=ceiling, sigma_n=sigma_n, baseline=baseline)
+
+
+@pytest.mark.parametrize("value, ceiling", [(np.nan, 100.0), (np.inf, np.inf),
+                                            (-np.inf, np.inf), (np.nan, np.inf)])
+def test_non_finite_samples_are_refused(value, ceiling):
+    """NaN passed (|nan| > limit is False), and ±inf where the receiver does not clip."""
+    from warpe_cl.inversion.invert import _check_samples
+    from warpe_cl.inversion.observed import Observed
+    shots = np.full((2, 4), 20.0)
+    shots[1, 2] = value
+    obs = Observed("mv", np.arange(4.0), shots, "obs.nc", "bela", {})
+    with pytest.raises(ConfigError) as err:
+        _check_samples(obs, _receiver(ceiling=ceiling))
+    text = str(err.value)
+    assert text.startswith(f"obs.nc: signal_mv: {value:g} mV at shot 1, sample 2 is not "
+                           "allowed; give finite samples"), text
+
+
+def test_samples_are_bounded_by_the_clipped_level_and_the_noise():
+    """A receiver records nothing above its clipped level but noise: ceiling + 6 σ_n."""
+    from warpe_cl.inversion.invert import SAMPLE_NOISE_SIGMAS, _check_samples
+    from warpe_cl.inversion.observed import Observed
+    assert SAMPLE_NOISE_SIGMAS == 6.0
+    shots = np.full((1, 3), 20.0)
+    shots[0, 1] = 100.0 + 5.9 * 2.0                              # within: allowed
+    shots[0, 2] = -5.9 * 2.0
+    _check_samples(Observed("mv", np.arange(3.0), shots, "obs.nc", None, {}), _receiver())
+    for bad in (100.0 + 6.1 * 2.0, -6.1 * 2.0, 3 * 100.0):
+        shots[0, 1] = bad
+        with pytest.raises(ConfigError, match=r"in \[-12, 112\] mV: the receiver's clipped "
+                                              r"level 100 mV plus 6 σ_n \(2 mV\)"):
+            _check_samples(Observed("mv", np.arange(3.0), shots, "obs.nc", None, {}),
+                           _receiver())
+
+
+def test_negative_degrees_of_freedom_are_refused_before_the_search(monkeypatch):
+    """2 shots of 3 samples: 6 samples, 4 per-shot parameters, 2 nuisances and 1 free key:
+    -1 degrees of freedom, known before the search, which must not start."""
+    from warpe_cl.inversion import invert as inv
+    from warpe_cl.inversion.observed import Observed
+
+    def no_search(*a, **k):
+        raise AssertionError("the search ran")
+    monkeypatch.setattr(inv, "refine", no_search)
+    full = _observed()
+    peak = int(np.argmax(full.shots[0]))
+    cut = slice(peak - 1, peak + 2)
+    obs = Observed("mv", full.time_ns[cut], full.shots[:, cut], "obs.nc", "bela", {})
+    with pytest.raises(ConfigError) as err:
+        inv.invert(obs, _database())
+    text = str(err.value)
+    assert "would have -1 degrees of freedom" in text and "2 for each shot" in text, text
+    assert "per shot and" not in text

@@ -111,6 +111,11 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
             raise ConfigError(f"no shot rises {DETECTION_SIGMA:g} σ_n ({forward.sigma_n:.3g} "
                               "mV) above the baseline: nothing to invert", key=obs.source)
         shots = Shots(obs.time_ns, obs.shots[used], forward)
+    # degrees of freedom are known from the counts before any work (result.check_dof)
+    from .result import check_dof, dof_bound
+    n_used = int(used.sum())
+    check_dof(dof_bound(counting, n_used, obs.time_ns.size, len(keys)), n_used,
+              obs.time_ns.size, len(keys), counting, obs.source)
     overall = nuisance.get("amplitude")
     problem = Problem(space, forward, shots, overall=None if overall is None else float(overall),
                       v=v_fixed)
@@ -122,41 +127,80 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
                         db_source=db_source, db_attrs=dict(db.attrs))
 
 
-#: How far beyond the receiver's clipped level (saturation or top ADC code) an observed sample
-#: may lie before it is refused as not recorded by that receiver.
-SAMPLE_MARGIN = 10.0
+#: How many per-sample noise standard deviations σ_n an observed sample may lie beyond the
+#: receiver's clipped level (saturation or top ADC code) before it is refused as not recorded
+#: by that receiver. A receiver records nothing above its clipped level but the noise added
+#: after it (a saturated sample is the saturation voltage plus noise): 6 σ_n is exceeded by
+#: Gaussian noise with probability 1e-9 per sample, so a file of 1e6 saturated samples is
+#: wrongly refused once in a thousand; below, the bound is the lower of 0 (the lowest ADC
+#: code) and the baseline, less the same 6 σ_n (docs/inversion.md §2).
+SAMPLE_NOISE_SIGMAS = 6.0
+
+
+def sample_range(forward) -> tuple:
+    """The observed samples (mV) a linear-mode receiver can record: ``(low, high)``.
+
+    Parameters
+    ----------
+    forward : Forward
+        Its ``ceiling`` (clipped level, mV), ``baseline`` (mV) and ``sigma_n`` (per-sample
+        noise, mV).
+
+    Returns
+    -------
+    (float, float)
+        ``min(0, baseline) - k σ_n`` and ``ceiling + k σ_n`` (mV), k =
+        :data:`SAMPLE_NOISE_SIGMAS`; ``(-inf, inf)`` where the receiver does not clip.
+    """
+    if not (np.isfinite(forward.ceiling) and np.isfinite(forward.sigma_n)):
+        return -np.inf, np.inf
+    pad = SAMPLE_NOISE_SIGMAS * forward.sigma_n
+    return min(0.0, forward.baseline) - pad, forward.ceiling + pad
 
 
 def _check_samples(obs, forward) -> None:
-    """Refuse observed samples the receiver cannot have recorded: counts below 0 or not whole,
-    or samples in mV beyond ``SAMPLE_MARGIN`` times its clipped level (1e30 mV once gave
-    confident intervals from a fit with chi2/dof nan)."""
+    """Refuse observed samples the receiver cannot have recorded: any sample not finite
+    (NaN, ±inf); counts below 0 or not whole; samples in mV outside :func:`sample_range`
+    (1e30 mV once gave confident intervals from a fit with chi2/dof nan).
+
+    Raises
+    ------
+    ConfigError
+        One line: the variable, the value and its unit, the shot and sample, what is allowed.
+    """
     shots = np.asarray(obs.shots, float)
-    if obs.kind == "counts":
+    counts = obs.kind == "counts"
+    name, unit = ("signal_counts", "counts") if counts else ("signal_mv", "mV")
+    if counts:
         bad = (shots < 0) | (shots != np.round(shots))
-        allowed = "whole photon counts >= 0"
+        allowed = "finite, whole photon counts >= 0"
     else:
-        level = max(abs(forward.ceiling), abs(forward.baseline)) \
-            if np.isfinite(forward.ceiling) else np.inf
-        limit = SAMPLE_MARGIN * level
-        bad = np.abs(shots) > limit
-        allowed = (f"samples within +-{limit:g} mV ({SAMPLE_MARGIN:g} times the receiver's "
-                   f"clipped level {level:g} mV)")
+        low, high = sample_range(forward)
+        bad = (shots < low) | (shots > high)
+        allowed = (f"finite samples in [{low:.6g}, {high:.6g}] mV: the receiver's clipped "
+                   f"level {forward.ceiling:.6g} mV plus {SAMPLE_NOISE_SIGMAS:g} σ_n "
+                   f"({forward.sigma_n:.3g} mV) of noise at most"
+                   if np.isfinite(high) else "finite samples in mV")
+    bad = bad | ~np.isfinite(shots)
     if np.any(bad):
         s, k = np.argwhere(bad)[0]
-        raise ConfigError(f"{shots[s, k]:g} at shot {s}, sample {k} is not allowed; give "
-                          f"{allowed}, as recorded by the instrument", key=obs.source)
+        raise ConfigError(f"{name}: {shots[s, k]:g} {unit} at shot {s}, sample {k} is not "
+                          f"allowed; give {allowed}, as recorded by the instrument",
+                          key=obs.source)
 
 
-def _named_instrument(obs) -> str:
-    """The bundled instrument the observed file names (attribute ``instrument_name``).
+def _named_instrument(obs):
+    """The file of the bundled instrument the observed file names (attribute
+    ``instrument_name``): its path in :func:`~warpe_cl.instrument.params.instruments_dir`,
+    never the bare name, which :func:`~warpe_cl.instrument.load_instrument` would first try as
+    a file of the current folder.
 
     A name read from a file is data, not a path: only the bundled names
     (:data:`warpe_cl.instrument.params.BUILTIN`) are taken from it, so that a file saying
     ``instrument_name: /etc/shadow`` opens nothing. Any other instrument is given with
     ``--instrument FILE``.
     """
-    from ..instrument.params import BUILTIN
+    from ..instrument.params import BUILTIN, instruments_dir
     name = obs.instrument
     if name is None:
         raise ConfigError("the observed file does not name its instrument: give --instrument",
@@ -166,7 +210,7 @@ def _named_instrument(obs) -> str:
         raise ConfigError(f"the file's instrument_name {shown!r} is not a bundled instrument "
                           f"({', '.join(BUILTIN)}); pass the instrument explicitly with "
                           "--instrument FILE", key=obs.source)
-    return str(name).strip().lower()
+    return instruments_dir() / f"{str(name).strip().lower()}.yaml"
 
 
 def _database(database, source):

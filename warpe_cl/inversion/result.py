@@ -61,9 +61,58 @@ def _check_fit(chi2: float, loglike: float, dof: int, shots: int, free: int, sou
                           "receiver records (check the file and --instrument)", key=source)
     if dof < 0:
         raise ConfigError(f"the fit has {dof} degrees of freedom: {shots} shot(s) hold fewer "
-                          f"samples than the fit's parameters (per shot and {free} free "
-                          "key(s)); give more samples or shots, or fix keys with --fix",
-                          key=source)
+                          f"samples than the fit's parameters (2 per shot -- amplitude and "
+                          f"delay --, 2 nuisances, {free} free key(s)); give more samples or "
+                          "shots, or fix keys with --fix", key=source)
+
+
+def dof_bound(counting: bool, shots: int, samples: int, free: int) -> int:
+    """The most degrees of freedom the fit can have, from counts known before the search.
+
+    Parameters
+    ----------
+    counting : bool
+        A photon-counting receiver (one histogram of ``samples`` bins, Pearson groups).
+    shots : int
+        Shots used.
+    samples : int
+        Samples (or histogram bins) per shot.
+    free : int
+        Free swept keys.
+
+    Returns
+    -------
+    int
+        Linear mode: ``shots samples - 2 shots - 2 - free`` (a per-shot amplitude and delay,
+        two nuisances); photon counting: ``samples - 3 - free`` (A, δ, v). The fit's own
+        count (:func:`build_result`) is at most this: censored samples and merged groups
+        only lower it.
+    """
+    if counting:
+        return samples - 3 - free
+    return shots * samples - 2 * shots - 2 - free
+
+
+def check_dof(dof: int, shots: int, samples: int, free: int, counting: bool, source) -> None:
+    """Refuse, before any work, a fit that would have negative degrees of freedom
+    (:func:`dof_bound`).
+
+    Raises
+    ------
+    ConfigError
+        One line: the counts, the parameters and what to do.
+    """
+    if dof >= 0:
+        return
+    if counting:
+        held = (f"{samples} histogram bin(s) are fewer than the fit's parameters (3 "
+                f"nuisances -- amplitude, delay, broadening --, {free} free key(s))")
+    else:
+        held = (f"{shots} shot(s) of {samples} sample(s) hold fewer samples than the fit's "
+                f"parameters (2 for each shot -- amplitude and delay --, 2 nuisances, {free} "
+                "free key(s))")
+    raise ConfigError(f"the fit would have {dof} degrees of freedom: {held}; give more samples "
+                      "or shots, or fix keys with --fix", key=source)
 
 
 def build_result(obs, params, space, problem, nodes, final, summary, used, *, db_source,
