@@ -46,9 +46,8 @@ def _table_preset(tmp_path, table: str | bytes):
 @pytest.mark.parametrize("row, column, value", [
     ("1100, 1.3, nan", "k", "nan"),            # ran to exit 0 with k_eff = nan
     ("1100, inf, 1e-6", "n", "inf"),           # ZeroDivisionError
-    ("1100, 1.3, 1e300", "k", "1e300"),        # ZeroDivisionError
     ("1100, 1.3, -1e-6", "k", "-1e-6"),
-    ("1100, 1e300, 1e-6", "n", "1e300"),
+    ("1100, 0, 1e-6", "n", "0"),
     ("inf, 1.3, 1e-6", "wavelength_nm", "inf"),
     ("-inf, 1.3, 1e-6", "wavelength_nm", "-inf"),
     ("1000, 1.3, 1e-6", "wavelength_nm", "1000"),   # not increasing
@@ -60,6 +59,79 @@ def test_table_cells_are_checked(tmp_path, row, column, value):
     text = str(err.value)
     assert "materials.X.table" in text and "t.csv" in text and "line 3" in text
     assert f"column {column}: {value} is not allowed" in text
+
+
+#: aluminium, 500 nm - 20 um (Rakic 1995, rounded): n ~ 27 and k ~ 90-150 in the thermal IR
+ALUMINIUM = ("wavelength_nm, n, k\n500, 0.77, 6.08\n1000, 1.21, 10.4\n1100, 1.36, 11.2\n"
+             "10000, 25.3, 89.8\n20000, 27.1, 150.4\n")
+
+
+def test_a_table_beyond_the_run_s_wavelength_is_not_bounded(tmp_path):
+    """A 500 nm - 20 um aluminium table was refused at 1064 nm for its thermal-infrared cells
+    (n > 20, k > 100): only the value the run interpolates is bounded."""
+    from warpe_cl.materials import optical_constants
+    cfg = load_preset(_table_preset(tmp_path, ALUMINIUM))
+    n, k = optical_constants(cfg)["X"]
+    assert n == pytest.approx(1.21 + 0.64 * 0.15) and k == pytest.approx(10.4 + 0.64 * 0.8)
+
+
+@pytest.mark.parametrize("row, symbol", [("1100, 1.3, 1e300", "k"), ("1100, 1e300, 1e-6", "n")])
+def test_the_interpolated_value_is_bounded(tmp_path, row, symbol):
+    """1e300 gave ZeroDivisionError and NaN albedos: the value used at 1064 nm is refused with
+    the bound the walk computes without overflow (1e9)."""
+    from warpe_cl.config.tables import MAX_K, MAX_N
+    from warpe_cl.materials import optical_constants
+    assert MAX_N == MAX_K == 1e9
+    cfg = load_preset(_table_preset(tmp_path, f"wavelength_nm, n, k\n1000, 1.3, 1e-6\n{row}\n"))
+    with pytest.raises(ConfigError) as err:
+        optical_constants(cfg)
+    text = str(err.value)
+    assert "materials.X.table" in text and f"{symbol} = " in text and "1064 nm" in text
+    assert "at most 1e+09" in text and "\n" not in text
+
+
+def test_config_and_materials_do_not_import_each_other():
+    """config/check.py imported ..materials (in a function) while materials imported the
+    config at top: no module of warpe_cl/config imports warpe_cl.materials, at any level."""
+    import ast
+    from pathlib import Path
+
+    import warpe_cl.config
+    folder = Path(warpe_cl.config.__file__).parent
+    for path in sorted(folder.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                names = [(node.module or "")] + [f"{node.module or ''}.{a.name}"
+                                                 for a in node.names]
+                assert not any(n.split(".")[-1] == "materials" or ".materials" in n
+                               for n in names if node.level), f"{path.name}: {ast.dump(node)}"
+            elif isinstance(node, ast.Import):
+                assert not any("materials" in a.name for a in node.names), path.name
+
+
+def test_a_table_is_read_once_and_the_record_is_what_was_used(tmp_path, monkeypatch):
+    """The table was read three times per point (the check, the constants, the record), so
+    that the recorded SHA-256 came from another read than the n, k walked: one read now."""
+    import hashlib
+
+    from warpe_cl.config import tables
+    from warpe_cl.materials import optical_constants, table_attrs
+    reads = []
+    real = tables.read_input_bytes
+
+    def counted(path, what="a preset"):
+        reads.append(str(path))
+        return real(path, what)
+    monkeypatch.setattr(tables, "read_input_bytes", counted)
+    monkeypatch.setattr(tables, "_TABLES", {})
+    preset = _table_preset(tmp_path, GOOD_TABLE)
+    cfg = load_preset(preset)
+    n, k = optical_constants(cfg)["X"]
+    (tmp_path / "t.csv").write_text(GOOD_TABLE.replace("1100, 1.3", "1100, 1.4"))
+    text = table_attrs(cfg)["material_tables"]
+    assert len(reads) == 1, reads
+    assert hashlib.sha256(GOOD_TABLE.encode()).hexdigest() in text
+    assert f"n = {n!r}, k = {k!r}" in text
 
 
 def test_binary_table_is_refused(tmp_path, capsys):

@@ -6,21 +6,18 @@ published source. A preset may add or override materials under ``materials:``, e
 constants at the run's wavelength (``{n, k}``) or as a CSV table over wavelength
 (``{table: FILE}``, columns ``wavelength_nm, n, k``), interpolated linearly; such materials work
 at any wavelength. Names are case-insensitive. Every cell of a table is checked (finite,
-wavelengths > 0 and increasing, 0 < n <= MAX_N, 0 <= k <= MAX_K) and the output records each
-table's SHA-256 and the n, k interpolated from it (:func:`table_attrs`).
+wavelengths > 0 and increasing, n > 0, k >= 0; :mod:`warpe_cl.config.tables`, which reads
+each file once), the values interpolated at the run's wavelength are held to n <= MAX_N,
+k <= MAX_K (what the walk computes without overflow), and the output records each table's
+SHA-256 and the n, k the walk used, from that same read (:func:`table_attrs`).
 """
 from __future__ import annotations
 
-import csv
-import hashlib
-import io
-import math
 from pathlib import Path
 
 import numpy as np
 
-from .config.schema import MAX_K, MAX_N
-from .config.validate import read_input_bytes
+from .config.tables import MAX_K, MAX_N, load_table, read_table  # noqa: F401 - read_table
 from .errors import ConfigError
 
 #: Built-in end-members at 1064 nm (paper Table 2; docs/physics.md §3.1): name -> (n, k)
@@ -79,109 +76,40 @@ def _nm_list(wavelengths) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
-def _cell_rule(column: str) -> str:
-    """What a table cell of ``column`` may hold, in words."""
-    if column == "wavelength_nm":
-        return "a finite wavelength > 0 nm, strictly increasing from row to row"
-    if column == "n":
-        return f"a finite real index in (0, {MAX_N:g}]"
-    return f"a finite extinction index in [0, {MAX_K:g}]"
-
-
-def read_table(path, name: str, source=None) -> tuple:
-    """The rows of a material table and the SHA-256 of its bytes, every cell checked.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        A CSV file with the header ``wavelength_nm, n, k`` (comment lines starting with
-        ``#`` and blank lines are skipped): a regular UTF-8 file of at most 1 MiB.
-    name : str
-        The material, for the key ``materials.NAME.table`` of messages.
-    source : str, optional
-        The preset, for messages.
-
-    Returns
-    -------
-    data : numpy.ndarray
-        Shape (rows, 3): wavelength (nm), n, k.
-    sha256 : str
-        Hex digest of the file's bytes, recorded in the output with the interpolated n, k.
-
-    Raises
-    ------
-    ConfigError
-        A file that is missing, not regular, too large, not UTF-8 text, without the header
-        or without rows; a row with fewer than 3 cells; a cell that is not a number, not
-        finite or out of its range (wavelength_nm > 0 and strictly increasing; 0 < n <=
-        MAX_N; 0 <= k <= MAX_K). One line naming the file, the row, the column, the value and
-        what is allowed.
-    """
-    key = f"materials.{name}.table"
-    try:
-        raw = read_input_bytes(path, "a material table")
-    except ConfigError as err:
-        raise ConfigError(f"{err.source}: {err.message}", key=key, source=source) from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as err:
-        raise ConfigError(f"{path}: not UTF-8 text (byte {err.start}); a material table is a "
-                          "CSV text file with the header wavelength_nm, n, k", key=key,
-                          source=source) from None
-    try:
-        rows = [(i, r) for i, r in enumerate(csv.reader(io.StringIO(text, newline="")),
-                                             start=1)
-                if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
-    except csv.Error as err:
-        raise ConfigError(f"{path}: not a CSV table ({err})", key=key, source=source) from None
-    header = [c.strip().lower() for c in rows[0][1]] if rows else []
-    if header[:3] != ["wavelength_nm", "n", "k"]:
-        raise ConfigError(f"{path}: the first row must be the header wavelength_nm, n, k",
-                          key=key, source=source)
-    if len(rows) < 2:
-        raise ConfigError(f"{path}: no rows under the header; give at least one row "
-                          "wavelength_nm, n, k", key=key, source=source)
-    columns = ("wavelength_nm", "n", "k")
-    data = np.empty((len(rows) - 1, 3))
-    for j, (line, row) in enumerate(rows[1:]):
-        if len(row) < 3:
-            raise ConfigError(f"{path}: line {line} has {len(row)} cell(s); every row gives "
-                              "wavelength_nm, n, k", key=key, source=source)
-        for c, column in enumerate(columns):
-            cell = row[c].strip()
-            try:
-                x = float(cell)
-            except ValueError:
-                x = None
-            ok = x is not None and math.isfinite(x)
-            if ok and column == "wavelength_nm":
-                ok = x > 0 and (j == 0 or x > data[j - 1, 0])
-            elif ok and column == "n":
-                ok = 0 < x <= MAX_N
-            elif ok:
-                ok = 0 <= x <= MAX_K
-            if not ok:
-                shown = cell if len(cell) <= 40 else cell[:37] + "..."
-                raise ConfigError(f"{path}: line {line}, column {column}: {shown or '(empty)'} "
-                                  f"is not allowed; give {_cell_rule(column)}",
-                                  key=key, source=source)
-            data[j, c] = x
-    return data, hashlib.sha256(raw).hexdigest()
-
-
 def _table_constants(spec: dict, name: str, wavelength: float, source) -> dict:
     """The table material ``name`` at ``wavelength`` (m): ``{table, sha256, rows,
-    wavelength_nm, n, k}``, n and k interpolated linearly."""
-    data, digest = read_table(Path(spec["table"]), name, source)
+    wavelength_nm, n, k}``, n and k interpolated linearly from the one read of the file
+    (:func:`~warpe_cl.config.tables.load_table`) whose SHA-256 is recorded."""
+    data, digest = load_table(Path(spec["table"]), name, source)
+    key = f"materials.{name}.table"
     lam_nm = wavelength * 1e9
     lo, hi = data[0, 0], data[-1, 0]
     if not lo <= lam_nm <= hi:
         raise ConfigError(f"wavelength {lam_nm:g} nm is outside the table's range "
-                          f"{lo:g}-{hi:g} nm", key=f"materials.{name}.table", source=source)
+                          f"{lo:g}-{hi:g} nm", key=key, source=source)
     n = float(np.interp(lam_nm, data[:, 0], data[:, 1]))
     k = float(np.interp(lam_nm, data[:, 0], data[:, 2]))
+    for symbol, value, limit in (("n", n, MAX_N), ("k", k, MAX_K)):
+        if not value <= limit:
+            raise ConfigError(f"{symbol} = {value:g} interpolated at {lam_nm:g} nm is not "
+                              f"allowed; give a table whose {symbol} at the run's wavelength "
+                              f"is at most {limit:g} (what the walk computes without overflow,"
+                              " docs/materials.md §4)", key=key, source=source)
     return {"table": str(spec["table"]), "sha256": digest, "rows": int(data.shape[0]),
             "wavelength_nm": lam_nm, "n": n, "k": k}
+
+
+def _table_rows(cfg) -> dict:
+    """``{NAME: row}`` of :func:`_table_constants` for every table material of ``cfg`` at its
+    wavelength, made once per configuration (kept on it), so that the n, k a walk uses and
+    the digest the output records come from the same read."""
+    wavelength = cfg.get("wavelength")
+    memo = cfg.__dict__.setdefault("_material_table_rows", {})
+    if wavelength not in memo:
+        memo[wavelength] = {
+            name: _table_constants(spec, name, wavelength, cfg.source)
+            for name, spec in (cfg.get("materials") or {}).items() if spec.get("table")}
+    return memo[wavelength]
 
 
 def optical_constants(cfg) -> dict:
@@ -199,10 +127,10 @@ def optical_constants(cfg) -> dict:
         table.update({k.upper(): v for k, v in builtins.items()})
     else:
         table["VOID"] = (1.0, 0.0)
+    rows = _table_rows(cfg)
     for name, spec in (cfg.get("materials") or {}).items():
         if spec.get("table"):
-            row = _table_constants(spec, name, wavelength, cfg.source)
-            table[name.upper()] = (row["n"], row["k"])
+            table[name.upper()] = (rows[name]["n"], rows[name]["k"])
         else:
             table[name.upper()] = (float(spec["n"]), float(spec.get("k") or 0.0))
     return table
@@ -217,13 +145,10 @@ def table_attrs(cfg) -> dict:
     The resolved configuration names a table by its path only; this attribute keeps what the
     file held when the scenario ran.
     """
-    wavelength = cfg.get("wavelength")
     lines = []
-    for name, spec in (cfg.get("materials") or {}).items():
-        if spec.get("table"):
-            row = _table_constants(spec, name, wavelength, cfg.source)
-            lines.append(f"{name}: {row['table']} sha256 {row['sha256']}, {row['rows']} rows; "
-                         f"at {row['wavelength_nm']:g} nm n = {row['n']!r}, k = {row['k']!r}")
+    for name, row in _table_rows(cfg).items():
+        lines.append(f"{name}: {row['table']} sha256 {row['sha256']}, {row['rows']} rows; "
+                     f"at {row['wavelength_nm']:g} nm n = {row['n']!r}, k = {row['k']!r}")
     return {"material_tables": "; ".join(lines)} if lines else {}
 
 

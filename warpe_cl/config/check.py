@@ -13,6 +13,7 @@ from .bins import bin_count, edges
 from .keys import schema_key, split_key
 from .schema import (DEFAULTS, FIELDS, LAYER_KEYS, MAX_TIME_BINS, PHYSICAL_KEYS, SCALAR_KINDS,
                      SCHEMA, STACK_KEYS, SWEEPABLE, Field, children)
+from .tables import load_table
 from .validate import allowed, check_scalar, did_you_mean, show, unknown_key
 
 __all__ = ["PresetValidator", "sweep_field", "NEEDS"]
@@ -126,8 +127,7 @@ class PresetValidator:
                                       "table", f"{sub}.{extra[0]}")
                 path = check_scalar(FIELDS[prefix + ".table"], entry["table"], f"{sub}.table")
                 out[name] = {"table": self.table_path(path, f"{sub}.table")}
-                from ..materials import read_table   # materials imports the schema
-                read_table(out[name]["table"], name)  # every cell checked when loaded
+                load_table(out[name]["table"], name)  # every cell checked, read once
             else:
                 if entry.get("n") is None:
                     raise ConfigError("missing; give the optical constants {n: ..., k: ...} "

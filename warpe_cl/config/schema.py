@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 from ..params import MAX_LAYERS
 from ..units import parse_quantity
+from .tables import MAX_K, MAX_N
 
 __all__ = ["Field", "SCHEMA", "FIELDS", "DEFAULTS", "SWEEPABLE", "QUANTITY_KINDS",
            "SCALAR_KINDS", "MAX_PHOTONS", "MAX_TIME_BINS", "MAX_N", "MAX_K",
@@ -85,13 +86,8 @@ class Field:
 QUANTITY_KINDS = ("length", "time", "angle")
 SCALAR_KINDS = QUANTITY_KINDS + ("float", "int", "str", "choice", "bool")
 MAX_TIME_BINS = 1_000_000
-#: Largest real refractive index of a material, a substrate or a radiative medium: the
-#: highest indices of solids at laser wavelengths are about 4-6 (germanium, lead telluride);
-#: far beyond, the Fresnel and Hapke formulas overflow (n = 1e300 raised OverflowError).
-MAX_N = 20.0
-#: Largest extinction index k: metals reach a few tens in the near infrared (aluminium about
-#: 10 at 1064 nm, gold about 70 at 10 um); k = 1e300 gave NaN albedos and exits.
-MAX_K = 100.0
+#: MAX_N, MAX_K: the largest n and k a run may use (warpe_cl/config/tables.py gives their
+#: derivation: what the walk's single-precision Fresnel terms hold without overflow)
 #: Most rays a scenario may launch: 2^53, the largest count a YAML number (a float64) holds
 #: exactly. The kernel's photon index (the Philox counter) is 64-bit and the host tallies are
 #: int64 or exact integers, so every count up to here is walked and tallied exactly.
