@@ -29,9 +29,34 @@ from pathlib import Path
 SESSION_CACHE_ENV = "WARPE_CL_TEST_SESSION_CACHE"
 
 
+def _users_cache_dir() -> Path:
+    """The user's own cache folder, by the rule of :func:`warpe_cl.drivers.cache_dir`
+    (``$WARPE_CL_CACHE_DIR``, else ``$XDG_CACHE_HOME/warpe-cl``, else ``~/.cache/warpe-cl``),
+    read before this file changes ``$WARPE_CL_CACHE_DIR`` and without importing warpe-cl."""
+    env = os.environ.get("WARPE_CL_CACHE_DIR", "").strip()
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME", "").strip() or os.path.join(Path.home(), ".cache")
+    return Path(base) / "warpe-cl"
+
+
 def _session_cache_dir() -> str:
     """The test session's cache folder: ``$WARPE_CL_TEST_CACHE_DIR`` if set, the one a parent
-    session made, else a new temporary folder removed when the session ends."""
+    session made, else a new temporary folder removed when the session ends.
+
+    ``$WARPE_CL_TEST_CACHE_DIR`` resolving to the user's own cache folder is refused (the
+    session stops with one line): the faults and fake devices of the tests would land in it.
+    """
+    folder = os.environ.get("WARPE_CL_TEST_CACHE_DIR", "").strip()
+    if folder and not os.environ.get(SESSION_CACHE_ENV, "").strip():
+        # (a child of a session has the session's folder as $WARPE_CL_CACHE_DIR: checked
+        # by its parent)
+        users = _users_cache_dir()
+        if Path(folder).expanduser().resolve() == users.expanduser().resolve():
+            import pytest
+            pytest.exit(f"$WARPE_CL_TEST_CACHE_DIR={folder} is the user's own warpe-cl cache "
+                        f"folder ({users}); give another folder (or none: a temporary one)",
+                        returncode=4)
     for name in ("WARPE_CL_TEST_CACHE_DIR", SESSION_CACHE_ENV):
         folder = os.environ.get(name, "").strip()
         if folder:

@@ -478,3 +478,28 @@ def test_a_usable_qualification_is_made_of_a_passed_entry(cache, monkeypatch):
     assert status.usable and status.lanes == 8 and status.events_per_s is None
     q = qualify.qualifier_for(CPU)
     assert q.known(8, rank)["passed"] and cache.get(key(8, rank))["passed"]
+
+
+@pytest.mark.parametrize("how", ["home", "env"])
+def test_the_test_cache_may_not_be_the_users_cache(tmp_path, how):
+    """$WARPE_CL_TEST_CACHE_DIR naming the user's own cache folder (~/.cache/warpe-cl, or the
+    user's $WARPE_CL_CACHE_DIR) stops the session with one line, before any test."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("WARPE_CL_CACHE_DIR", "XDG_CACHE_HOME", "OCL_ICD_VENDORS",
+                        "WARPE_CL_TEST_SESSION_CACHE")}
+    env["HOME"] = str(tmp_path)
+    users = tmp_path / ".cache" / "warpe-cl"
+    if how == "env":
+        users = tmp_path / "mine"
+        env["WARPE_CL_CACHE_DIR"] = str(users)
+    users.mkdir(parents=True)
+    env["WARPE_CL_TEST_CACHE_DIR"] = str(users) + "/"
+    here = Path(__file__).resolve().parent
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                           str(here / "test_trust_cache.py"), "-k", "no_such_test"],
+                          capture_output=True, text=True, env=env, cwd=here.parent,
+                          timeout=120)
+    out = done.stdout + done.stderr
+    assert done.returncode == 4, out
+    assert "is the user's own warpe-cl cache folder" in out
+    assert not (users / "qualification.json").exists()

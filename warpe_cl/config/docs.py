@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from ..units import unit_list
+from .grid import MAX_GRID_POINTS
 from .schema import MAX_K, MAX_N, MAX_TIME_BINS, QUANTITY_KINDS, SCALAR_KINDS, SCHEMA
 from .validate import MAX_DEPTH, MAX_FILE_BYTES, MAX_NODES, MAX_TEXT, allowed
 
@@ -70,9 +71,13 @@ def limits_markdown() -> str:
         "characters;\n"
         "- a real refractive index n (`materials.*.n`, `medium.substrate.n`, "
         f"`medium.radiative.n`) is at most {MAX_N:g} and an extinction index k at most "
-        f"{MAX_K:g}; every cell of a material table is a finite number: wavelength_nm > 0 "
-        f"and strictly increasing, 0 < n <= {MAX_N:g}, 0 <= k <= {MAX_K:g} "
-        "(docs/materials.md §4);\n"
+        f"{MAX_K:g} (what the walk's single-precision Fresnel terms hold without overflow, "
+        "docs/materials.md §4); every cell of a material table is a finite number: "
+        "wavelength_nm > 0 and strictly increasing, n > 0, k >= 0, and the n, k "
+        f"interpolated at the run's wavelength are at most {MAX_N:g} and {MAX_K:g};\n"
+        f"- a sweep has at most {MAX_GRID_POINTS:.0e} points (the product of its axes' "
+        "lengths), and no axis gives the same value twice (compared after unit resolution: "
+        "`\"10 mm\"` and `\"1 cm\"` are the same);\n"
         f"- the time bins (`simulation.time_bins`) number at most {MAX_TIME_BINS}, and fewer "
         "where the device cannot hold the walk's buffers: a run is refused before its walk, "
         "naming the largest count the device allows.\n")
