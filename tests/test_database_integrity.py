@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import threading
 from pathlib import Path
@@ -73,6 +74,13 @@ def db(done_db, tmp_path):
     return tmp_path / "db", preset
 
 
+def _hidden(folder: Path) -> list:
+    """Hidden names in ``folder`` but the lock files, which stay (docs/cluster.md): the
+    folder's ``.warpe-cl.lock`` and a manifest's ``.<manifest>.lock``."""
+    locks = re.compile(r"^\.(warpe-cl|manifest(-shard-\d+-of-\d+)?\.json)\.lock$")
+    return sorted(p.name for p in folder.glob(".*") if not locks.match(p.name))
+
+
 def _one_line_error(capsys) -> str:
     err = [x for x in capsys.readouterr().err.strip().splitlines()   # device notes aside
            if not x.startswith(("warpe-cl: qualifying", "warpe-cl: warning:"))]
@@ -94,13 +102,14 @@ def test_a_held_manifest_lock_refuses_a_second_sweep(preset, tmp_path, capsys):
         err = _one_line_error(capsys)
         assert rc == 2 and str(folder) in err and "another sweep" in err, err
         assert f"pid {os.getpid()}" in err and "started 2026-01-01" in err, err
-        assert sorted(p.name for p in folder.iterdir()) == [".manifest.json.lock"]
+        assert sorted(p.name for p in folder.iterdir()) == [".manifest.json.lock",
+                                                             ".warpe-cl.lock"]
         with pytest.raises(ConfigError, match="is writing this database"):
             _sweep(preset, folder)
     finally:
         lock.release()
     assert _sweep(preset, folder).done == 4          # free again
-    assert not list(folder.glob(".*")), "lock files left behind"
+    assert not _hidden(folder), "temporary files left behind"
 
 
 def test_two_resumes_at_once_the_second_is_refused(db, capsys):
@@ -364,4 +373,175 @@ def test_a_dropped_sigterm_stops_the_sweep_between_scenarios(preset, tmp_path, m
     assert (summary.done, summary.pending) == (1, 3)
     rows = [r for r in _manifest(folder)["scenarios"] if r["status"] == "done"]
     assert [r["file"] for r in rows] == [p.name for p in folder.glob("s*.nc")]
-    assert not list(folder.glob(".*")), "lock files left behind"
+    assert not _hidden(folder), "temporary files left behind"
+
+
+# --------------------------------------------------------------------------- review of issue 39
+
+def test_a_busy_folder_lock_is_waited_for_and_never_called_deletable(preset, tmp_path, capsys,
+                                                                     monkeypatch):
+    """Other sweeps holding the folder lock longer than a minute (32 shards of a large grid
+    queue for it): the sweep waits, says so every few seconds, and never tells the user to
+    delete a live lock file."""
+    monkeypatch.setattr(sweep_module, "FOLDER_LOCK_WAIT_S", 0.3, raising=False)
+    monkeypatch.setattr(sweep_module, "FOLDER_LOCK_NOTE_S", 0.3, raising=False)
+    folder = tmp_path / "db"
+    folder.mkdir()
+    busy = sweep_module._Lock.take(folder / sweep_module.FOLDER_LOCK)
+    busy.claim("2026-01-01T00:00:00+00:00")
+    timer = threading.Timer(1.5, busy.release)
+    timer.start()
+    try:
+        rc = main(["sweep", str(preset), "--out", str(folder), "--quiet"])
+    finally:
+        timer.cancel()
+        busy.release()
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "delete" not in err and "waiting" in err and f"pid {os.getpid()}" in err, err
+
+
+def test_resume_checks_files_outside_the_folder_lock(db, monkeypatch):
+    """Hashing a shard's files on --resume happens without the folder lock (other shards
+    need it), under the shard's own manifest lock."""
+    folder, preset = db
+    real = sweep_module._file_problem
+    seen = []
+
+    def problem(path, *args):
+        other = sweep_module._Lock.take(folder / sweep_module.FOLDER_LOCK)
+        seen.append(other is not None)
+        if other is not None:
+            other.release()
+        return real(path, *args)
+    monkeypatch.setattr(sweep_module, "_file_problem", problem)
+    assert _sweep(preset, folder, resume=True).skipped == 4
+    assert seen and all(seen), "files hashed under the folder lock"
+
+
+def test_resume_after_another_shard_layout_keeps_a_correct_file(preset, tmp_path, capsys):
+    """Manifests of shards 0/2 and 1/2 remain; s00000 is deleted and recomputed by an
+    unsharded --resume (new bytes: wall_time differs). A further --resume keeps it: the file
+    is checked as open_database checks it, not against the stale shard row."""
+    folder = tmp_path / "db"
+    for shard in ((0, 2), (1, 2)):
+        assert _sweep(preset, folder, shard=shard).done == 2
+    next(folder.glob("s00000_*.nc")).unlink()
+    assert _sweep(preset, folder, resume=True).done == 1
+    warpe_cl.open_database(folder)
+    capsys.readouterr()
+    summary = _sweep(preset, folder, resume=True)
+    assert (summary.done, summary.skipped) == (0, 4), capsys.readouterr().err
+    assert not (folder / "rejected").exists()
+
+
+def test_releasing_a_lock_never_removes_another_holders_file(tmp_path):
+    """A lock file deleted by hand and taken again by another run: releasing the first lock
+    leaves the new holder's file in place (and so its lock)."""
+    path = tmp_path / ".warpe-cl.lock"
+    first = sweep_module._Lock.take(path)
+    path.unlink()
+    second = sweep_module._Lock.take(path)
+    assert second is not None
+    first.release()
+    assert path.exists(), "the new holder's lock file was removed"
+    assert sweep_module._Lock.take(path) is None, "the new holder lost its lock"
+    second.release()
+    assert path.exists()            # lock files stay, reused by the next run
+    assert sweep_module._Lock.take(path) is not None
+
+
+def test_a_bad_other_shard_does_not_fail_this_shards_combined_file(preset, tmp_path, capsys,
+                                                                   monkeypatch):
+    """open_database refusing the combination (another shard's damaged file) after this
+    shard finished its own work: one warning line, no X.nc, exit 0."""
+    out = tmp_path / "all.nc"
+
+    def refuse(folder, grid=False):
+        raise ConfigError("its sha256 is not the one recorded\x1b[31m", key="s00001_x.nc")
+    monkeypatch.setattr(sweep_module, "open_database", refuse)
+    rc = main(["sweep", str(preset), "--out", str(out), "--quiet"])
+    err = [x for x in capsys.readouterr().err.splitlines()
+           if not x.startswith("warpe-cl: qualifying")]
+    assert rc == 0, err
+    assert len(err) == 1 and "s00001_x.nc" in err[0] and "\x1b" not in err[0], err
+    assert not out.exists()
+
+
+def test_a_device_error_on_resume_comes_before_files_are_moved(db, monkeypatch):
+    """--resume with a damaged file and no usable device: DeviceError before any file is
+    moved to rejected/ or the manifest rewritten."""
+    from warpe_cl.errors import DeviceError
+    folder, preset = db
+    path = sorted(folder.glob("s*.nc"))[1]
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    path.write_bytes(bytes(data))
+    before = (folder / "manifest.json").read_bytes()
+    real = sweep_module.Workers.open
+
+    def open_(scheduler, device, runnable):
+        if runnable:
+            raise DeviceError("no usable OpenCL device")
+        return real(scheduler, device, runnable)
+    monkeypatch.setattr(sweep_module.Workers, "open", staticmethod(open_))
+    with pytest.raises(DeviceError):
+        _sweep(preset, folder, resume=True)
+    assert path.exists() and not (folder / "rejected").exists()
+    assert (folder / "manifest.json").read_bytes() == before
+
+
+def test_a_rejected_file_line_is_printable(preset, tmp_path, capsys):
+    """The --resume line naming a rejected file goes through errors.printable."""
+    folder = tmp_path / "db\x1b[31m"
+    assert _sweep(preset, folder).done == 4
+    path = sorted(folder.glob("s*.nc"))[0]
+    path.write_bytes(path.read_bytes()[:1000])
+    capsys.readouterr()
+    assert _sweep(preset, folder, resume=True).done == 1
+    err = [x for x in capsys.readouterr().err.splitlines() if "rejected/" in x]
+    assert len(err) == 1 and "\x1b" not in err[0] and "\\x1b" in err[0], err
+
+
+def test_a_rejected_that_is_a_file_is_one_line(db, capsys):
+    folder, preset = db
+    path = sorted(folder.glob("s*.nc"))[0]
+    path.write_bytes(path.read_bytes()[:1000])
+    (folder / "rejected").write_text("mine")
+    rc = main(["sweep", str(preset), "--out", str(folder), "--resume", "--quiet"])
+    err = _one_line_error(capsys)
+    assert rc == 2 and "rejected" in err, err
+    assert (folder / "rejected").read_text() == "mine"
+
+
+def test_an_unreadable_folder_is_one_line(preset, tmp_path, capsys, monkeypatch):
+    """A folder whose listing is refused (PermissionError): exit 2 in one line (root reads
+    any folder, so the refusal is simulated)."""
+    folder = tmp_path / "db"
+    folder.mkdir()
+    real = Path.iterdir
+
+    def iterdir(self):
+        if self == folder:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real(self)
+    monkeypatch.setattr(Path, "iterdir", iterdir)
+    rc = main(["sweep", str(preset), "--out", str(folder), "--quiet"])
+    err = _one_line_error(capsys)
+    assert rc == 2 and str(folder) in err and "Permission denied" in err, err
+
+
+def test_a_failed_record_carries_no_sha256(preset, tmp_path, monkeypatch):
+    """A scenario that fails after its file was written and hashed (here: its Dataset lacks
+    ``photons``): the record says failed and names no SHA-256, which only a done file has."""
+    from warpe_cl import api
+    real = api.simulate_point
+
+    def no_photons(*args, **kw):
+        return real(*args, **kw).drop_vars("photons")
+    monkeypatch.setattr(api, "simulate_point", no_photons)
+    folder = tmp_path / "db"
+    summary = _sweep(preset, folder)
+    assert summary.exit_code == 1 and len(summary.failed) == 4
+    rows = _manifest(folder)["scenarios"]
+    assert all(r["status"] == "failed" and "sha256" not in r for r in rows), rows

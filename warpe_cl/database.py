@@ -29,7 +29,8 @@ from pathlib import Path
 from .errors import ConfigError, one_line
 
 __all__ = ["open_database", "database_folder", "manifest_name", "read_manifests",
-           "check_manifest", "scenario_file_name", "file_sha256", "FORMAT", "FORMAT_VERSION"]
+           "check_manifest", "scenario_file_name", "file_sha256", "recorded_sha256", "FORMAT",
+           "FORMAT_VERSION"]
 
 MANIFEST_RE = re.compile(r"^manifest(-shard-\d+-of-\d+)?\.json$")
 SCENARIO_FILE_RE = re.compile(r"^s\d{5,}_[0-9a-f]{16}\.nc$")
@@ -155,11 +156,16 @@ def read_manifests(folder: Path) -> list:
     Raises
     ------
     ConfigError
-        A manifest that cannot be read, is not JSON, or fails :func:`check_manifest`.
+        A folder that cannot be listed, a manifest that cannot be read, is not JSON, or fails
+        :func:`check_manifest`.
     """
     out = []
     if folder.is_dir():
-        for path in sorted(folder.iterdir()):
+        try:
+            names = sorted(folder.iterdir())
+        except OSError as err:          # PermissionError, an NFS error: one line, exit 2
+            raise ConfigError(f"cannot be listed ({one_line(err)})", key=str(folder)) from None
+        for path in names:
             if MANIFEST_RE.match(path.name):
                 try:
                     manifest = json.loads(path.read_text(encoding="utf-8"))
@@ -168,6 +174,36 @@ def read_manifests(folder: Path) -> list:
                                       f"warpe-cl sweep database", key=str(path)) from None
                 out.append((path, check_manifest(path, manifest)))
     return out
+
+
+def recorded_sha256(manifests) -> dict:
+    """The SHA-256s a scenario's file may have: every one a done row of any manifest of the
+    folder recorded for its index.
+
+    The one rule for both sides: ``warpe-cl sweep --resume`` keeps a file whose SHA-256 is in
+    this set (:mod:`warpe_cl.sweep`), and :func:`open_database` reads it. A folder may hold
+    manifests of several shard layouts (``--shard 0/2`` and ``1/2``, then an unsharded run);
+    each recorded the file it wrote, and a file recomputed since has new bytes (its
+    ``wall_time``), so no single row is the file's own. A set needs no clock: rows come from
+    several hosts, whose ``finished_utc`` need not agree.
+
+    Parameters
+    ----------
+    manifests : iterable of (Path, dict)
+        As :func:`read_manifests` returns them.
+
+    Returns
+    -------
+    dict
+        index -> set of hex SHA-256s; an index no done row recorded a SHA-256 for (version
+        1) is absent.
+    """
+    recorded = {}
+    for _, manifest in manifests:
+        for rec in manifest["scenarios"]:
+            if rec["status"] == "done" and rec.get("sha256"):
+                recorded.setdefault(rec["index"], set()).add(rec["sha256"])
+    return recorded
 
 
 def _attribute(value):
@@ -236,7 +272,7 @@ def _finished(folders: list) -> tuple:
         if not manifests:
             raise ConfigError("is not a warpe-cl sweep database (no manifest.json)",
                               key=str(folder))
-        recorded = {}             # index -> the SHA-256s this folder's manifests recorded
+        recorded = recorded_sha256(manifests)   # the same rule as sweep --resume
         legacy = False
         for path, manifest in manifests:
             if fingerprint is None:
@@ -248,8 +284,6 @@ def _finished(folders: list) -> tuple:
             for rec in manifest["scenarios"]:
                 if rec["status"] == "failed":
                     failed.setdefault(rec["index"], rec.get("error"))
-                elif rec["status"] == "done" and rec.get("sha256"):
-                    recorded.setdefault(rec["index"], set()).add(rec["sha256"])
         for rec in grid["scenarios"]:
             index, name = rec["index"], rec["file"]
             if not name or index in found:

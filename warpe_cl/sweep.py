@@ -18,10 +18,13 @@
     moved aside with a ``.reason.txt`` beside each; never deleted.
 
 A run holds two locks (:class:`_Lock`, ``flock``): the folder's (``DIR/.warpe-cl.lock``) for
-the moment it checks its grid against the manifests there and writes its own, so that two
-runs cannot both find a folder free and claim it; and its manifest's
-(``DIR/.manifest.json.lock``) for the whole run, so that two runs of the same shard never
-write the same files: the second exits 2 naming the first (pid, host, start).
+the moment it checks the fingerprints of the manifests there and writes its own, so that two
+runs cannot both find a folder free and claim it (a run waits for it as long as other sweeps
+hold it, saying so every few seconds); and its manifest's (``DIR/.manifest.json.lock``) for
+the whole run, so that two runs of the same shard never write the same files: the second
+exits 2 naming the first (pid, host, start). Checking the files ``--resume`` keeps (hashing
+them) needs only the manifest's lock. Lock files are never removed: removing one by name
+could remove another holder's, and the next run reuses them.
 
 A scenario's random numbers are keyed by (seed, scenario key), and its key is a hash of its own
 resolved configuration (seed and photons apart): the same point gives the same bits whichever
@@ -53,7 +56,8 @@ from . import stops
 from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, SCENARIO_FILE_RE, database_folder,
                        file_sha256, manifest_name, open_database, read_manifests,
                        scenario_file_name)
-from .errors import ConfigError, one_line
+from .database import recorded_sha256
+from .errors import ConfigError, one_line, printable
 from .io import json_default, utc_now, versions, write_text
 from .progress import Progress
 from .report import point_text, sweep_start_line
@@ -67,7 +71,7 @@ __all__ = ["run_sweep", "open_database", "SweepSummary", "parse_shard", "worker_
 
 MANIFEST_INTERVAL_S = 2.0     # the manifest is rewritten at most this often (and at the end)
 FOLDER_LOCK = ".warpe-cl.lock"
-FOLDER_LOCK_WAIT_S = 60.0     # the folder lock is held for a moment: wait this long at most
+FOLDER_LOCK_NOTE_S = 10.0     # waiting for the folder lock: a line on stderr this often
 REJECTED = "rejected"
 # What a run's record of an earlier run may carry forward (never a file name or a point: those
 # come from the plan).
@@ -137,37 +141,53 @@ class _Lock:
     On Linux, ``flock`` on NFS is carried out as a POSIX lock on the whole file (the same as
     ``fcntl.lockf``), so it excludes runs on other nodes sharing the folder; on a local file
     system it also excludes another ``open`` in the same process. The holder writes who it is
-    (pid, host, start) into the file, for the refusal message of the next comer. Releasing
-    removes the file while it is still locked; a comer that locked a file removed meanwhile
-    sees that its path no longer names it and tries again.
+    (pid, host, start) into the file, for the messages of the next comer. The file is never
+    removed, only closed (unlocked): removing it by name could remove a file that another run
+    has locked since (one deleted by hand and created again), and the next run reuses it.
     """
 
     def __init__(self, path: Path, fd: int):
         self.path, self.fd = path, fd
 
     @classmethod
-    def take(cls, path: Path, wait_s: float = 0.0) -> "_Lock | None":
-        """Lock ``path`` (created if absent), waiting up to ``wait_s`` seconds; None if
-        another process holds it."""
+    def take(cls, path: Path, wait_s: float | None = 0.0, note=None,
+             note_s: float = 10.0) -> "_Lock | None":
+        """Lock ``path`` (created if absent).
+
+        Parameters
+        ----------
+        path : Path
+            The lock file.
+        wait_s : float or None
+            How long to wait for another holder to let go, in seconds; None: as long as it
+            takes.
+        note : callable, optional
+            Called with the seconds waited so far every ``note_s`` seconds of waiting.
+        note_s : float
+            See ``note``.
+
+        Returns
+        -------
+        _Lock or None
+            None if another process still holds it after ``wait_s``.
+        """
         import fcntl
-        deadline = time.monotonic() + wait_s
+        t0 = time.monotonic()
+        noted = t0
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
         while True:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:                       # EWOULDBLOCK (EACCES on some NFS)
-                os.close(fd)
-                if time.monotonic() >= deadline:
-                    return None
-                time.sleep(0.05)
-                continue
-            try:
-                same = os.path.samestat(os.fstat(fd), os.stat(path))
-            except FileNotFoundError:
-                same = False
-            if same:
                 return cls(path, fd)
-            os.close(fd)                          # removed by its last holder: again
+            except OSError:                       # EWOULDBLOCK (EACCES on some NFS)
+                now = time.monotonic()
+                if wait_s is not None and now - t0 >= wait_s:
+                    os.close(fd)
+                    return None
+                if note is not None and now - noted >= note_s:
+                    noted = now
+                    note(now - t0)
+                time.sleep(0.05)
 
     def claim(self, started_utc: str) -> None:
         """Write who holds the lock: pid, host, start (read by :func:`_holder`)."""
@@ -178,13 +198,9 @@ class _Lock:
         os.pwrite(self.fd, text.encode(), 0)
 
     def release(self) -> None:
-        """Remove the lock file and unlock it (idempotent)."""
+        """Unlock: close the file, never remove it (idempotent)."""
         if self.fd is None:
             return
-        try:
-            os.unlink(self.path)
-        except OSError:
-            pass
         os.close(self.fd)
         self.fd = None
 
@@ -238,6 +254,7 @@ def run_scenario(task: dict) -> dict:
                       wall_time_s=float(ds["wall_time"]),
                       device=str(ds.attrs.get("opencl_device", "?")))
     except Exception as err:  # noqa: BLE001 - recorded in the manifest, the sweep goes on
+        record.pop("sha256", None)        # only a done file has one (database.check_manifest)
         record.update(status="failed", error=one_line(err), photons=0,
                       wall_time_s=time.perf_counter() - t0)
     record["finished_utc"] = utc_now()
@@ -292,7 +309,10 @@ class _Sweep:
     owned: list                     # the Scenarios of this shard
     resume: bool = False
     present: set = field(default_factory=set)      # indices whose result file is in the folder
-    previous: dict = field(default_factory=dict)   # index -> the record an earlier manifest holds
+    previous: dict = field(default_factory=dict)   # index -> the done records of the manifests
+    recorded: dict = field(default_factory=dict)   # index -> the SHA-256s its file may have
+    seen: dict = field(default_factory=dict)       # manifest name -> stat when fully checked
+    checked: dict = field(default_factory=dict)    # index -> (stat, reason, (sha256, photons))
     verified: dict = field(default_factory=dict)   # index -> (sha256, photons) checked on resume
     device: str | None = None
     scheduler: str | None = None
@@ -303,8 +323,11 @@ class _Sweep:
 
     @property
     def runnable(self) -> int:
-        """Scenarios of this shard still to compute."""
-        return sum(s.valid and s.index not in self.present for s in self.owned)
+        """Scenarios of this shard still to compute: not in the folder, or in it and found
+        wrong by :func:`_check_files`."""
+        return sum(s.valid and (s.index not in self.present
+                                or self.checked.get(s.index, (None, None))[1] is not None)
+                   for s in self.owned)
 
 
 @dataclass
@@ -374,16 +397,20 @@ def run_sweep(preset, out, *, overrides=None, shard=None, scheduler=None, resume
         is not a database, an ``X.nc`` of something else without ``overwrite``, or another
         sweep writing the same manifest (its pid, host and start named).
     DeviceError
-        No usable device (local engine), before anything is written.
+        No usable device (local engine), before anything is written: on ``--resume`` the
+        files kept are checked first (read only), so that the workers are opened for the
+        scenarios to compute again too.
     """
     sweep = _prepare(preset, out, overrides, shard, resume, overwrite)
     sweep.device, sweep.scheduler = device, scheduler
+    if resume:
+        _check_files(sweep)        # read only; what changes before the lock is checked again
     # Where the scenarios run; device problems surface before anything is written.
     workers = Workers.open(scheduler, device, sweep.runnable)
     lock = None
     try:
         lock, manifest, summary, todo = _claim(sweep, workers.text)
-        if todo and workers.mode == "none":      # a file rejected on --resume: work after all
+        if todo and workers.mode == "none":      # a file changed since _check_files (a race)
             workers = Workers.open(scheduler, device, len(todo))
             manifest.header["engine"] = workers.text
         return _run(sweep, workers, manifest, summary, todo, quiet, say)
@@ -454,30 +481,93 @@ def _inspect(sweep: _Sweep) -> None:
         scenarios without ``resume``.
     """
     folder = sweep.folder
+    seen = {path.name: _stat(path) for path in _manifest_paths(folder)}
     manifests = read_manifests(folder)
     if folder.is_dir() and not manifests:
-        foreign = [p.name for p in sorted(folder.iterdir())
-                   if not (_OURS_RE.match(p.name) or MANIFEST_RE.match(p.name)
-                           or (p.name == REJECTED and p.is_dir()))]
-        if foreign:
-            more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
-            raise ConfigError(f"is not empty and is not a warpe-cl sweep database (no "
-                              f"manifest; it holds {foreign[0]}{more}); give a new or empty "
-                              f"folder", key=str(folder))
+        _refuse_foreign(folder)
     # A folder holds one grid: every manifest already there must share our fingerprint.
     previous = {}
     for path, manifest in manifests:
-        if manifest["fingerprint"] != sweep.fingerprint:
-            raise ConfigError(
-                f"holds a database of another grid ({path.name}: preset "
-                f"{manifest.get('preset')}, seed {manifest.get('seed')}, photons "
-                f"{manifest.get('photons')}); the preset, --set, --photons or --seed differ. "
-                f"Give another --out", key=str(folder))
+        _same_grid(sweep, path, manifest)
         _match_plan(path, manifest, sweep.scenarios)
         for rec in manifest["scenarios"]:
-            if rec["status"] in ("done", "failed"):
-                previous.setdefault(rec["index"], rec)
+            if rec["status"] == "done":
+                previous.setdefault(rec["index"], []).append(rec)
+    sweep.seen = seen
     sweep.previous = previous
+    sweep.recorded = recorded_sha256(manifests)       # the rule open_database follows
+    _find_present(sweep)
+
+
+def _manifest_paths(folder: Path) -> list:
+    """The manifests' paths in ``folder`` (none if it does not exist).
+
+    Raises
+    ------
+    ConfigError
+        A folder that cannot be listed.
+    """
+    if not folder.is_dir():
+        return []
+    try:
+        return sorted(p for p in folder.iterdir() if MANIFEST_RE.match(p.name))
+    except OSError as err:
+        raise ConfigError(f"cannot be listed ({one_line(err)})", key=str(folder)) from None
+
+
+def _stat(path: Path):
+    """What changes when a file is replaced or written: (inode, size, mtime, ctime); None if
+    it is gone."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
+
+
+def _refuse_foreign(folder: Path) -> None:
+    """A folder without a manifest may hold only what a sweep writes.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first name a sweep never writes.
+    """
+    foreign = [p.name for p in sorted(folder.iterdir())
+               if not (_OURS_RE.match(p.name) or MANIFEST_RE.match(p.name)
+                       or (p.name == REJECTED and p.is_dir()))]
+    if foreign:
+        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+        raise ConfigError(f"is not empty and is not a warpe-cl sweep database (no "
+                          f"manifest; it holds {foreign[0]}{more}); give a new or empty "
+                          f"folder", key=str(folder))
+
+
+def _same_grid(sweep: _Sweep, path: Path, manifest: dict) -> None:
+    """A manifest in the folder must be of this grid (its fingerprint).
+
+    Raises
+    ------
+    ConfigError
+        A manifest of another grid, named with its preset, seed and photons.
+    """
+    if manifest["fingerprint"] != sweep.fingerprint:
+        raise ConfigError(
+            f"holds a database of another grid ({path.name}: preset "
+            f"{manifest.get('preset')}, seed {manifest.get('seed')}, photons "
+            f"{manifest.get('photons')}); the preset, --set, --photons or --seed differ. "
+            f"Give another --out", key=str(sweep.folder))
+
+
+def _find_present(sweep: _Sweep) -> None:
+    """Set ``present`` (the indices whose file is in the folder).
+
+    Raises
+    ------
+    ConfigError
+        Results of this shard's scenarios without ``resume``.
+    """
+    folder = sweep.folder
     sweep.present = {s.index for s in sweep.scenarios
                      if s.valid and (folder / s.file).is_file()}
     count = sum(s.index in sweep.present for s in sweep.owned)
@@ -485,6 +575,39 @@ def _inspect(sweep: _Sweep) -> None:
         raise ConfigError(f"already holds {count} result(s) of these scenarios; pass --resume "
                           f"to keep them and compute the rest, or give another --out",
                           key=str(folder))
+
+
+def _inspect_under_lock(sweep: _Sweep) -> None:
+    """Under the folder's lock, what must be atomic with writing this run's manifest: no
+    manifest of another grid, nothing foreign in a folder without one, no results of this
+    shard without ``resume``.
+
+    A manifest unchanged since :func:`_inspect` checked it in full is not read again; one new
+    or rewritten since is read for its fingerprint only (its rows are checked in full once
+    the folder's lock is released, before anything else is written).
+
+    Raises
+    ------
+    ConfigError
+        As :func:`_inspect`.
+    """
+    folder = sweep.folder
+    paths = _manifest_paths(folder)
+    if not paths:
+        _refuse_foreign(folder)
+    for path in paths:
+        stat = _stat(path)
+        if stat is None or sweep.seen.get(path.name) == stat:
+            continue
+        try:
+            manifest = json.loads(path.read_text(encoding="utf-8"))
+            fingerprint = manifest["fingerprint"]
+        except (OSError, ValueError, KeyError, TypeError):
+            read_manifests(folder)                      # names the file and what is wrong
+            raise
+        if fingerprint != sweep.fingerprint:
+            _same_grid(sweep, path, manifest)
+    _find_present(sweep)
 
 
 def _match_plan(path: Path, manifest: dict, scenarios: list) -> None:
@@ -512,13 +635,20 @@ def _match_plan(path: Path, manifest: dict, scenarios: list) -> None:
 
 
 def _claim(sweep: _Sweep, engine: str) -> tuple:
-    """Take the folder for this run: check and claim it atomically, then hold its manifest.
+    """Take the folder for this run: claim it atomically, then hold its manifest.
 
-    Under the folder's lock (a moment): check the folder again (:func:`_inspect`), take this
-    manifest's lock (held for the whole run), check the files ``--resume`` keeps
-    (:func:`_check_present`), sort the scenarios (:func:`_triage`) and write the first
-    manifest. A second run started at the same time then finds this run's manifest (another
-    grid: refused) or its lock (the same manifest: refused).
+    Under the folder's lock, only what must be atomic: the manifests' fingerprints checked
+    again (:func:`_inspect_under_lock`), this manifest's lock taken (held for the whole run)
+    and, if this manifest is not in the folder yet, its first version written (every
+    scenario of this shard pending). A second run started at the same time then finds this
+    run's manifest (another grid: refused) or its lock (the same manifest: refused). A run
+    waits for the folder's lock as long as other sweeps hold it, with a line on stderr every
+    FOLDER_LOCK_NOTE_S seconds naming the holder.
+
+    Then, under this manifest's lock alone (it protects this shard's files): every manifest
+    checked in full (:func:`_inspect`), the files ``--resume`` keeps checked
+    (:func:`_check_present`), the scenarios sorted (:func:`_triage`) and the manifest
+    written.
 
     Returns
     -------
@@ -534,26 +664,35 @@ def _claim(sweep: _Sweep, engine: str) -> tuple:
     folder = sweep.folder
     folder.mkdir(parents=True, exist_ok=True)
     name = manifest_name(sweep.shard)
-    folder_lock = _Lock.take(folder / FOLDER_LOCK, FOLDER_LOCK_WAIT_S)
-    if folder_lock is None:
-        raise ConfigError(f"another sweep ({_holder(folder / FOLDER_LOCK)}) has held "
-                          f"{FOLDER_LOCK} for {FOLDER_LOCK_WAIT_S:.0f} s; if no sweep runs "
-                          f"here, delete that file", key=str(folder))
+
+    def waiting(seconds):
+        print(printable(f"warpe-cl: {folder}: waited {seconds:.0f} s so far for {FOLDER_LOCK}, "
+                        f"held by another sweep ({_holder(folder / FOLDER_LOCK)}) while it "
+                        f"checks the folder; sweeps sharing a folder take it in turn, "
+                        f"waiting"), file=sys.stderr, flush=True)
+    folder_lock = _Lock.take(folder / FOLDER_LOCK, None, waiting, FOLDER_LOCK_NOTE_S)
     lock = None
     try:
-        folder_lock.claim(utc_now())
-        _inspect(sweep)                    # another grid is named as such, running or not
-        lock = _Lock.take(folder / f".{name}.lock")
-        if lock is None:
-            raise ConfigError(f"another sweep ({_holder(folder / f'.{name}.lock')}) is "
-                              f"writing this database ({name}); wait for it to end or stop "
-                              f"it, then run again with --resume", key=str(folder))
-        lock.claim(utc_now())
+        try:
+            folder_lock.claim(utc_now())
+            _inspect_under_lock(sweep)      # another grid is named as such, running or not
+            lock = _Lock.take(folder / f".{name}.lock")
+            if lock is None:
+                raise ConfigError(f"another sweep ({_holder(folder / f'.{name}.lock')}) is "
+                                  f"writing this database ({name}); wait for it to end or "
+                                  f"stop it, then run again with --resume", key=str(folder))
+            lock.claim(utc_now())
+            manifest = _Manifest(folder / name, sweep.grid, sweep.scenarios, sweep.fingerprint,
+                                 {"shard": sweep.shard_text, "engine": engine,
+                                  "device": sweep.device, "scheduler": sweep.scheduler})
+            if not manifest.path.exists():  # an existing one of this grid claims it already
+                manifest.records.update({s.index: {"status": "pending"} for s in sweep.owned})
+                manifest.write(force=True)
+        finally:
+            folder_lock.release()
+        _inspect(sweep)                     # every manifest in full, the files present now
         if sweep.resume:
             _check_present(sweep)
-        manifest = _Manifest(folder / name, sweep.grid, sweep.scenarios, sweep.fingerprint,
-                             {"shard": sweep.shard_text, "engine": engine,
-                              "device": sweep.device, "scheduler": sweep.scheduler})
         summary = SweepSummary(folder=folder, total=len(sweep.scenarios),
                                owned=len(sweep.owned))
         todo = _triage(sweep, manifest.records, summary)
@@ -562,17 +701,16 @@ def _claim(sweep: _Sweep, engine: str) -> tuple:
         if lock is not None:
             lock.release()
         raise
-    finally:
-        folder_lock.release()
     return lock, manifest, summary, todo
 
 
-def _file_problem(path: Path, scenario: Scenario, fingerprint: str, old: dict | None) -> tuple:
+def _file_problem(path: Path, scenario: Scenario, fingerprint: str, shas) -> tuple:
     """Why a result file in the folder is not scenario ``scenario`` of this grid, or None.
 
     Its attributes are read with h5py (a millisecond): seed, photons, ``sweep_index`` and
-    ``sweep_fingerprint`` must be this run's; its SHA-256 must be the one ``old`` (an earlier
-    manifest's record) recorded, if it recorded one.
+    ``sweep_fingerprint`` must be this run's; its SHA-256 must be one of ``shas``, those the
+    folder's manifests recorded for it (:func:`warpe_cl.database.recorded_sha256`, the rule
+    :func:`open_database` follows), if they recorded any.
 
     Returns
     -------
@@ -604,8 +742,8 @@ def _file_problem(path: Path, scenario: Scenario, fingerprint: str, old: dict | 
         return (f"its sweep_fingerprint {str(attrs.get('sweep_fingerprint'))[:16]}... is not "
                 f"this grid's {fingerprint[:16]}..."), None
     sha = file_sha256(path)
-    if old and old.get("status") == "done" and old.get("sha256") not in (None, sha):
-        return (f"its sha256 {sha[:16]}... is not the {old['sha256'][:16]}... the manifest "
+    if shas and sha not in shas:
+        return (f"its sha256 {sha[:16]}... is not the {sorted(shas)[0][:16]}... the manifest "
                 f"recorded: the file changed after it was written"), None
     return None, (sha, photons)
 
@@ -614,7 +752,10 @@ def _reject(folder: Path, name: str, reason: str) -> Path:
     """Move ``folder/name`` into ``folder/rejected/`` (never deleted), with ``.reason.txt``
     beside it; a name already there gets a numbered suffix."""
     target_dir = folder / REJECTED
-    target_dir.mkdir(exist_ok=True)
+    try:
+        target_dir.mkdir(exist_ok=True)
+    except OSError as err:     # FileExistsError: a file of that name
+        raise ConfigError(_no_rejected_folder(target_dir, err), key=str(target_dir)) from None
     target, n = target_dir / name, 1
     while target.exists() or target.with_name(target.name + ".reason.txt").exists():
         target, n = target_dir / f"{name}.{n}", n + 1
@@ -624,21 +765,58 @@ def _reject(folder: Path, name: str, reason: str) -> Path:
     return target
 
 
-def _check_present(sweep: _Sweep) -> None:
-    """``--resume``: check every result file of this shard already in the folder; move aside
-    (:func:`_reject`) and count as to compute those that fail, one line each on stderr."""
+def _no_rejected_folder(target_dir: Path, err: OSError | None = None) -> str:
+    why = "exists and is not a folder" if err is None or isinstance(err, FileExistsError) \
+        else f"cannot be made ({one_line(err)})"
+    return (f"{why}; --resume moves the files it finds wrong into {target_dir.name}/: move "
+            f"it away and run again with --resume")
+
+
+def _check_files(sweep: _Sweep) -> None:
+    """``--resume``: check every result file of this shard in the folder (read only), into
+    ``sweep.checked``; a file unchanged since it was checked (its :func:`_stat`) is not read
+    again."""
     for s in sweep.owned:
         if not (s.valid and s.index in sweep.present):
             continue
         path = sweep.folder / s.file
-        reason, checked = _file_problem(path, s, sweep.fingerprint, sweep.previous.get(s.index))
+        stat = _stat(path)
+        if stat is not None and sweep.checked.get(s.index, (None,))[0] == stat:
+            continue
+        reason, checked = _file_problem(path, s, sweep.fingerprint,
+                                        sweep.recorded.get(s.index))
+        sweep.checked[s.index] = (stat, reason, checked)
+
+
+def _check_present(sweep: _Sweep) -> None:
+    """``--resume``, under this manifest's lock: check every result file of this shard in the
+    folder (:func:`_check_files`); move aside (:func:`_reject`) and count as to compute those
+    that fail, one line each on stderr.
+
+    Raises
+    ------
+    ConfigError
+        A file to move aside and ``DIR/rejected`` that is not a folder (before any is moved).
+    """
+    _check_files(sweep)
+    bad = [s for s in sweep.owned if s.valid and s.index in sweep.present
+           and sweep.checked[s.index][1] is not None]
+    target_dir = sweep.folder / REJECTED
+    if bad and target_dir.exists() and not target_dir.is_dir():
+        raise ConfigError(_no_rejected_folder(target_dir), key=str(target_dir))
+    for s in sweep.owned:
+        if not (s.valid and s.index in sweep.present):
+            continue
+        _, reason, checked = sweep.checked[s.index]
         if reason is None:
             sweep.verified[s.index] = checked
             continue
+        path = sweep.folder / s.file
         target = _reject(sweep.folder, s.file, reason)
         sweep.present.discard(s.index)
-        print(f"warpe-cl: {path}: {reason}; moved to {target.parent.name}/{target.name}, "
-              f"computing it again", file=sys.stderr)
+        print(printable(f"warpe-cl: {path}: {reason}; moved to "
+                        f"{target.parent.name}/{target.name}, computing it again"),
+              file=sys.stderr)
 
 
 class _Manifest:
@@ -691,10 +869,11 @@ def _triage(sweep: _Sweep, records: dict, summary: SweepSummary) -> list:
         elif s.index in sweep.present:
             # What an earlier run recorded, the run's facts only: the file, point and key come
             # from the plan, the SHA-256 and photons from the file checked now.
-            old = sweep.previous.get(s.index, {})
-            carried = {k: old[k] for k in RECORD_KEYS if k in old} \
-                if old.get("status") == "done" else {}
             sha, photons = sweep.verified[s.index]
+            olds = sweep.previous.get(s.index, [])
+            old = next((r for r in olds if r.get("sha256") == sha),
+                       next((r for r in olds if not r.get("sha256")), {}))
+            carried = {k: old[k] for k in RECORD_KEYS if k in old}
             records[s.index] = {**carried, "status": "done", "this_run": "skipped",
                                 "sha256": sha, "photons": photons}
             summary.skipped += 1
@@ -779,7 +958,14 @@ def _run(sweep: _Sweep, workers: Workers, manifest: _Manifest, summary: SweepSum
                                      for s in sweep.scenarios if s.valid)
     if sweep.combined is not None and summary.finished_in_folder == len(sweep.scenarios):
         from .io import write_netcdf
-        combined = open_database(folder)
+        try:
+            combined = open_database(folder)
+        except ConfigError as err:
+            # Another shard's problem (a damaged file, a manifest): this shard's work is
+            # done; X.nc waits for a --resume that mends the folder.
+            print(printable(f"warpe-cl: warning: {sweep.combined} not written: "
+                            f"{one_line(err)}"), file=sys.stderr)
+            return summary
         # Another shard's last files may be in place before its manifest lists them: the
         # shard that records them writes X.nc then.
         if combined.sizes["scenario"] == len(sweep.scenarios):
