@@ -395,6 +395,22 @@ def test_a_bundled_instrument_named_by_the_file_is_the_bundled_file(tmp_path, mo
     assert load_instrument(spec) == load_instrument(instruments_dir() / "bela.yaml")
 
 
+def test_a_bundled_name_is_the_bundled_instrument_whatever_the_folder_holds(tmp_path,
+                                                                            monkeypatch):
+    """`--instrument bela` (and apply_instrument(ds, "bela")) with a file ./bela in the
+    current folder read that file; a bundled name is now always the bundled preset, and a
+    file of that name is given as ./bela."""
+    from warpe_cl.instrument import load_instrument
+    from warpe_cl.instrument.params import instruments_dir
+    bundled = load_instrument(instruments_dir() / "bela.yaml")
+    (tmp_path / "bela").write_text("name: decoy\ngarbage: [\n")
+    monkeypatch.chdir(tmp_path)
+    assert load_instrument("bela") == bundled
+    assert load_instrument("BELA") == bundled
+    with pytest.raises(ConfigError, match="bela"):
+        load_instrument("./bela")            # the file, explicitly: read, and refused
+
+
 def _receiver(ceiling=100.0, sigma_n=2.0, baseline=10.0):
     import types
     return types.SimpleNamespace(ceiling=ceiling, sigma_n=sigma_n, baseline=baseline)

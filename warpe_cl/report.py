@@ -192,7 +192,7 @@ def device_status_lines(reason: str | None, status=None) -> list:
             + [f"      failed at {lanes} lanes: {why}" for lanes, why in status.failures]
             + [f"      not checked yet at {lanes} lanes"
                + (f": {why.removeprefix('not checked yet: ')}" if why else "")
-               + " (checked again next run)"
+               + " (checked again after a day, or with `warpe-cl devices --requalify`)"
                for lanes, why in getattr(status, "unchecked", ())])
 
 

@@ -241,13 +241,12 @@ def _resolve(spec, spec_key: str) -> tuple[dict, str]:
         return spec, "<dict>"
     text = str(spec)
     path = Path(text)
-    if not path.is_file():
-        bundled = instruments_dir() / f"{text.lower()}.yaml"
-        if text.lower() in BUILTIN and bundled.is_file():
-            path = bundled
-        else:
-            raise ConfigError(f"unknown instrument {text!r}; give one of {', '.join(BUILTIN)} "
-                              "or an instrument YAML file", key=spec_key)
+    bundled = instruments_dir() / f"{text.lower()}.yaml"
+    if text.lower() in BUILTIN and bundled.is_file():
+        path = bundled     # a bundled name is the bundled instrument: a file bela is ./bela
+    elif not path.is_file():
+        raise ConfigError(f"unknown instrument {text!r}; give one of {', '.join(BUILTIN)} "
+                          "or an instrument YAML file", key=spec_key)
     stat = path.stat()
     raw = _read(str(path), (stat.st_mtime_ns, stat.st_size))
     if not isinstance(raw, dict):
