@@ -559,3 +559,25 @@ def test_readme_delay_vs_grain_size(grains, tmp_path, monkeypatch):
     x = plt.gca().lines[0].get_xdata()
     assert np.allclose(x, [50, 200, 1000])
     plt.close("all")
+
+
+def test_in_memory_netcdf_touches_no_dask_config(reference, tmp_path, monkeypatch):
+    """Outputs.netcdf builds its image under its own lock, never through dask's global
+    configuration (not thread-safe: a worker's other thread could restore it mid-write),
+    and writes the same data as ``to_netcdf(path, engine="h5netcdf")``."""
+    import dask
+    from warpe_cl.io import write_netcdf
+    _, _, run, _ = reference
+    ds = run.isel(scenario=0) if "scenario" in run.dims else run
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("dask.config.set called")
+    monkeypatch.setattr(dask.config, "set", refuse)
+    ours, theirs = tmp_path / "ours.nc", tmp_path / "theirs.nc"
+    write_netcdf(ds, ours)
+    monkeypatch.undo()
+    ds.to_netcdf(theirs, engine="h5netcdf")
+    a, b = xr.load_dataset(ours, engine="h5netcdf"), xr.load_dataset(theirs, engine="h5netcdf")
+    assert a.identical(b)
+    for name in a.variables:
+        assert a[name].values.tobytes() == b[name].values.tobytes(), name

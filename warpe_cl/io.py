@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import ConfigError
 from .params import COMPONENTS, FATES, N_EMERGENCE
 
 DERIVED = ("tau0", "omega", "extinction_per_m", "n_eff", "k_eff", "first_bf_time_ns",
@@ -668,8 +669,12 @@ class Outputs:
             system refuses (no space left, quota, read-only file system, permission): one
             line, the temporary file removed. HDF5 writes the file into memory, which Python
             then writes to the disk: HDF5 never meets a full disk, on which it crashes.
+
+        Notes
+        -----
+        The whole file is built in memory first (:func:`_netcdf_image`): the peak memory of a
+        write is about twice the Dataset's.
         """
-        from .errors import ConfigError
         path = Path(path)
         folder = Path(os.path.realpath(path)).parent
         need = netcdf_size(ds)
@@ -683,9 +688,7 @@ class Outputs:
                               "space or give a name in another folder", key=key or str(path))
         # HDF5 writes into memory, and Python to the disk: HDF5 meeting a full disk itself
         # prints hundreds of lines and crashes the interpreter on its way out
-        image = BytesIO()
-        with _no_distributed_lock():
-            ds.to_netcdf(image, engine="h5netcdf", invalid_netcdf=False)
+        image = _netcdf_image(ds)
         try:
             with open(self.stage(path), "wb") as stream:
                 stream.write(image.getbuffer())
@@ -720,19 +723,28 @@ class Outputs:
         return False
 
 
-def _no_distributed_lock():
-    """A context in which xarray writes an in-memory NetCDF image under a thread lock.
+def _netcdf_image(ds) -> BytesIO:
+    """``ds`` as the bytes of a NetCDF-4 file (h5netcdf), in memory.
 
-    Inside a Dask worker, xarray takes a write lock from the distributed scheduler, named by
-    the target; an in-memory target has no name it knows ("Semaphore or Lock ... not known"),
-    and every scenario of a Dask sweep failed. The Dataset holds NumPy arrays, so the
-    synchronous scheduler computes nothing differently.
+    ``ds.to_netcdf(BytesIO(), engine="h5netcdf")`` takes xarray's write lock for its target
+    (``xarray.backends.locks.get_write_lock``), which inside a Dask worker is a lock of the
+    distributed scheduler named by the target; an in-memory target has no name it knows
+    ("Semaphore or Lock ... not known"), and every scenario of a Dask sweep failed. So the
+    store is opened here with a lock of its own (``H5NetCDFStore.open(..., lock=...)``, the
+    public route xarray documents), no global configuration changed: the image is private
+    to this call, so a plain thread lock is all it needs. The variables and attributes are
+    those ``to_netcdf(path, engine="h5netcdf")`` writes (tested).
     """
-    import contextlib
-    if "dask" not in sys.modules:
-        return contextlib.nullcontext()
-    import dask
-    return dask.config.set(scheduler="synchronous")
+    from xarray.backends import H5NetCDFStore
+    if any(var.chunks for var in ds.variables.values()):
+        ds = ds.compute()      # the store writes NumPy arrays at once; dask ones would wait
+    image = BytesIO()
+    store = H5NetCDFStore.open(image, mode="w", lock=threading.Lock(), invalid_netcdf=False)
+    try:
+        ds.dump_to_store(store)
+    finally:
+        store.close()
+    return image
 
 
 #: The signals that stop warpe-cl as Ctrl-C does (the command line turns SIGTERM, Slurm's time
