@@ -21,8 +21,8 @@ import sys
 import time
 from pathlib import Path
 
-from . import stops
-from .errors import ConfigError, DeviceError, WarpeError, printable
+from . import report, stops
+from .errors import ConfigError, DeviceError, WarpeError, one_line, printable
 from .stops import Terminated
 
 EXIT_OK, EXIT_OTHER, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
@@ -221,14 +221,13 @@ def _write_outputs(ds, out: Path, plot, draw, say, started: float | None = None)
     except Exception as err:  # noqa: BLE001 - the result is kept; one line says so
         if os.environ.get("WARPE_CL_DEBUG"):
             raise
-        from .errors import one_line
         raise FigureError(f"--plot: the figure {plot} could not be drawn ({one_line(err)}); "
                           f"the result {out} was written") from None
     say(f"wrote {plot}")
 
 
 def cmd_run(args) -> int:
-    from . import api, report
+    from . import api
     from .plot import plot_waveform
     from .radiative import radiative_parameters
 
@@ -265,7 +264,6 @@ def cmd_run(args) -> int:
 
 
 def cmd_instrument(args) -> int:
-    from . import report
     from .instrument import apply_instrument, check_parameter, load_instrument
     from .io import load_result
     from .instrument.plot import plot_instrument
@@ -295,7 +293,6 @@ def cmd_invert(args) -> int:
     from .inversion.invert import invert
     from .inversion.observed import load_observed
     from .inversion.plot import plot_fit
-    from . import report
     out = _check_outputs(args, _inputs(args.observed, args.database, args.instrument))
     scenario = None
     if args.scenario is not None:
@@ -323,7 +320,6 @@ def cmd_sweep(args) -> int:
     recorded in the manifest with its error) or did not finish; 2 bad input found before any
     scenario ran; 3 no usable device.
     """
-    from . import report
     from .sweep import parse_shard, run_sweep
     from .catalog import resolve_preset
     _not_an_instrument(args)
@@ -339,7 +335,6 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_devices(args) -> int:
-    from . import report
     from .device import INSTALL_HINT, list_devices, probe, qualification, resolve_spec, select_device
     devices = list_devices()
     if not devices:
@@ -371,7 +366,6 @@ def _print_all_verdicts(info, check: bool = False):
     its widest qualified lane width, the widths that failed, those not checked yet. Plain
     ``devices`` shows what is cached and checks nothing (it stays cheap); ``check``
     (``devices --all``) checks the widths not known yet."""
-    from . import report
     from .qualify import all_combos, qualifier_for
     q = qualifier_for(info)
     for combo in all_combos(info.fp64):
@@ -381,7 +375,6 @@ def _print_all_verdicts(info, check: bool = False):
 
 
 def cmd_show_config(args) -> int:
-    from . import report
     from .radiative import radiative_parameters
     instrument = _instrument_preset(args.preset)
     if instrument is not None:     # its resolved parameters (a base: filled in), with units

@@ -22,6 +22,7 @@ import numpy as np
 
 from . import device as devmod
 from . import stops
+from .buffers import check_walk_buffers, walk_buffer_bytes
 from .errors import WeightError
 from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, IFACE_REAL_COLUMNS,
                      ITEM_STATS, LAYER_REAL_COLUMNS, LAYER_STATS, NADIR_BATCHES, NADIR_ROWS,
@@ -577,12 +578,14 @@ class Engine:
         # every lane of every work-item may park a ray at the end of a launch, and so may every
         # photon left in its pool
         capacity = gsize * (lanes + photon_pool(lanes))
+        # the nadir sums: one slice per work-item on CPUs (plain adds, walk.md §8), one slice
+        # that every work-item adds to atomically on GPUs
+        if shared_nadir is None:
+            shared_nadir = self.info.kind == "gpu"
+        slices = 1 if shared_nadir else gsize
         # what the buffers below take, refused (exit 2) where the device cannot hold them
-        from .buffers import check_walk_buffers, walk_buffer_bytes
-        nadir_slices = 0 if not nadir else 1 if (self.info.kind == "gpu" if shared_nadir is None
-                                                 else shared_nadir) else gsize
         check_walk_buffers(lambda n: walk_buffer_bytes(n, hist, weights, gsize, capacity,
-                                                       itemsize, nadir_slices),
+                                                       itemsize, slices if nadir else 0),
                            n_time, self.device.max_mem_alloc_size, self.device.global_mem_size,
                            self.info.device)
         # the buffers, by kernel argument: uint32 histograms; weighted sums in FIXED_WORDS
@@ -601,11 +604,6 @@ class Engine:
                 buffers[name] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=table)
             buffers["layer_stats"] = cl.Buffer(ctx, mf.READ_WRITE,
                                                size=8 * len(LAYER_STATS) * gsize)
-        # the nadir sums: one slice per work-item on CPUs (plain adds, walk.md §8), one slice
-        # that every work-item adds to atomically on GPUs
-        if shared_nadir is None:
-            shared_nadir = self.info.kind == "gpu"
-        slices = 1 if shared_nadir else gsize
         nadir_shape = (slices, NADIR_BATCHES, len(NADIR_ROWS), n_time + 2)
         if nadir:
             from .nadir import mirror_table, view_table
