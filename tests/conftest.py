@@ -160,3 +160,37 @@ def synthetic_surface(diffuse_integral=0.0, tau=5.0, f_spec=0.0, f_bf=0.0, t_bf=
         ds["time_edges"] = ("time_edge", edges)
         ds["scenario_key"] = ("scenario", np.arange(scenarios) + 11)
     return ds
+
+
+def tiny_grid(photons: int, seed: int) -> str:
+    """A preset of four slab scenarios (thickness 5 and 10 mm x tau0 0.5 and 2.0) as YAML
+    text: the sweep grid of the database tests."""
+    return f"""\
+name: tiny_grid
+medium:
+  texture: slab
+  thickness: "10 mm"
+  radiative: {{tau0: 1.0, omega: 0.9, n: 1.3, k: 0.0}}
+  bottom_albedo: 0.15
+simulation:
+  photons: {photons}
+  seed: {seed}
+  time_bins: {{start: "1e-3 ns", stop: "1e3 ns", per_decade: 5}}
+sweep:
+  medium.thickness: ["5 mm", "10 mm"]
+  medium.radiative.tau0: [0.5, 2.0]
+"""
+
+
+def synthetic_database(path, key: str = "medium.thickness", taus=(1.0, 2.0, 4.0)):
+    """Write a sweep-like NetCDF of synthetic surfaces (:func:`synthetic_surface`, decay
+    times ``taus`` in ns) along ``key`` (the decay time in mm, stored in m) to ``path``;
+    returns ``path``."""
+    parts = [synthetic_surface(diffuse_integral=0.05, tau=t) for t in taus]
+    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
+    db["time_edges"] = parts[0]["time_edges"]
+    db = db.assign_coords({key: ("scenario", np.asarray(taus) * 1e-3,
+                                 {"sweep_key": key, "units": "m"})})
+    db["scenario_key"] = ("scenario", np.arange(len(taus)) + 100)
+    db.to_netcdf(path, engine="h5netcdf")
+    return path

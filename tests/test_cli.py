@@ -580,7 +580,7 @@ def test_a_file_echoed_in_an_error_is_bounded(tmp_path, capsys):
 def test_names_read_from_a_file_reach_the_terminal_inert(tmp_path, capsys):
     """The instrument's name and the scenarios' labels that `instrument` and `invert` print
     come from files; an ESC or a line break in them is printed escaped."""
-    from conftest import synthetic_surface
+    from conftest import synthetic_database, synthetic_surface
     from warpe_cl import report
     from warpe_cl.instrument import apply_instrument
     ds = apply_instrument(synthetic_surface(diffuse_integral=0.05), "bela", shots=4, seed=1)
@@ -589,15 +589,8 @@ def test_names_read_from_a_file_reach_the_terminal_inert(tmp_path, capsys):
     assert lines[0].startswith("instrument bela\\x1b]0;title\\x07\\nfake line:"), lines[0]
     assert not any(ch in "".join(lines) for ch in "\x1b\x07\n")
     ds.to_netcdf(tmp_path / "obs.nc", engine="h5netcdf")
-    key, taus = "medium.thickness", [1.0, 2.0, 4.0]
-    parts = [synthetic_surface(diffuse_integral=0.05, tau=t) for t in taus]
-    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
-    db["time_edges"] = parts[0]["time_edges"]
-    db = db.assign_coords({key: ("scenario", np.asarray(taus) * 1e-3,
-                                 {"sweep_key": key, "units": "m"})})
-    db["scenario_key"] = ("scenario", np.arange(len(taus)) + 100)
-    database = tmp_path / "db\x1b[2J.nc"               # a name that would clear the screen
-    db.to_netcdf(database, engine="h5netcdf")
+    # a name that would clear the screen
+    database = synthetic_database(tmp_path / "db\x1b[2J.nc")
     rc = main(["invert", str(tmp_path / "obs.nc"), "--database", str(database), "--instrument",
                "bela", "--out", str(tmp_path / "fit.nc")])
     out = capsys.readouterr().out

@@ -18,22 +18,9 @@ import warpe_cl
 import warpe_cl.sweep as sweep_module
 from warpe_cl.cli import main
 from warpe_cl.errors import ConfigError
+from conftest import tiny_grid
 
-GRID = """\
-name: tiny_grid
-medium:
-  texture: slab
-  thickness: "10 mm"
-  radiative: {tau0: 1.0, omega: 0.9, n: 1.3, k: 0.0}
-  bottom_albedo: 0.15
-simulation:
-  photons: 300
-  seed: 1
-  time_bins: {start: "1e-3 ns", stop: "1e3 ns", per_decade: 5}
-sweep:
-  medium.thickness: ["5 mm", "10 mm"]
-  medium.radiative.tau0: [0.5, 2.0]
-"""
+GRID = tiny_grid(photons=300, seed=1)
 
 
 def _silent(line):

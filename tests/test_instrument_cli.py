@@ -88,7 +88,8 @@ def test_instrument_verb_writes_the_outputs(tmp_path, surface_file, capsys):
     assert png.stat().st_size > 10000
     png2 = tmp_path / "again.png"
     assert main(["plot", str(out), "--out", str(png2)]) == 0          # detects the kind
-    assert main(["plot", str(out), "--out", str(png2), "--kind", "instrument"]) == 0
+    assert main(["plot", str(out), "--out", str(png2), "--kind", "instrument",
+                 "--overwrite"]) == 0
 
 
 @pytest.mark.parametrize("extra, message", [

@@ -11,11 +11,10 @@ import shutil
 import stat
 from collections import namedtuple
 
-import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import REPO, synthetic_surface
+from conftest import REPO, synthetic_database, synthetic_surface
 from warpe_cl.cli import main
 
 PRESET = REPO / "presets" / "radiative" / "slab_co2_1m.yaml"
@@ -40,14 +39,7 @@ def files(tmp_path_factory):
     synthetic surfaces swept along medium.thickness."""
     from warpe_cl.instrument import apply_instrument
     d = tmp_path_factory.mktemp("inputs")
-    taus = [1.0, 2.0, 4.0]
-    parts = [synthetic_surface(diffuse_integral=0.05, tau=t) for t in taus]
-    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
-    db["time_edges"] = parts[0]["time_edges"]
-    db = db.assign_coords({KEY: ("scenario", np.asarray(taus) * 1e-3,
-                                 {"sweep_key": KEY, "units": "m"})})
-    db["scenario_key"] = ("scenario", np.arange(len(taus)) + 100)
-    db.to_netcdf(d / "db.nc", engine="h5netcdf")
+    synthetic_database(d / "db.nc", KEY)
     surface = synthetic_surface(diffuse_integral=0.05, tau=2.0)
     surface.to_netcdf(d / "surface.nc", engine="h5netcdf")
     apply_instrument(surface, "bela", shots=4, seed=4).to_netcdf(d / "obs.nc",

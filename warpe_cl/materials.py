@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config.tables import MAX_K, MAX_N, load_table, read_table  # noqa: F401 - read_table
+from .config.tables import MAX_K, MAX_N, load_table
 from .errors import ConfigError
 
 #: Built-in end-members at 1064 nm (paper Table 2; docs/physics.md §3.1): name -> (n, k)

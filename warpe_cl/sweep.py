@@ -46,14 +46,13 @@ import hashlib
 import json
 import os
 import re
-import shutil
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import stops
-from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, SCENARIO_FILE_RE, database_folder,
+from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, database_folder,
                        file_sha256, manifest_name, open_database, read_manifests,
                        scenario_file_name)
 from .database import recorded_sha256
