@@ -5,7 +5,7 @@ One walk (default OpenCL device) of an optically thick, bright granular layer: t
 omega = 0.99, g = 0.5, n = 1 (no interface: every exit is a volume scattering's), black floor;
 its diffuse reflectance is large (about 0.66 of the rays, 0.22 sr^-1 at nadir), so that a
 3 deg cone holds ~1800 rays of 1e6 (sigma 2.3 %); the walk takes 0.4 s.
-tools/nadir_cones.py makes the same comparison on the paper's preset.
+tools/studies/nadir_cones.py makes the same comparison on the paper's preset.
 
 Monte Carlo tolerances are 5 standard errors (false alarm ~6e-7 per assertion), written next
 to each assertion.
@@ -142,7 +142,7 @@ def test_components_of_a_slab_over_a_gap_in_a_three_degree_cone():
         nadir_err = float(ds["nadir_brdf_stderr"].sel(component=comp))
         sigma = math.hypot(fov_err, nadir_err)
         # 5 sigma (Poisson of the cone's rays and the nadir batches); the BRDF's variation
-        # within 3 deg is below 0.1 % (tools/nadir_cones.py's flat factor 0.9993)
+        # within 3 deg is below 0.1 % (tools/studies/nadir_cones.py's flat factor 0.9993)
         assert abs(fov - nadir) < 5.0 * sigma, (comp, fov, nadir, sigma)
 
 

@@ -1,6 +1,8 @@
-"""The pure-Python parts of ``tools/bench.py --compare mcxcl``: the MCX scene built from B1, the
-scattering-event count, the reflectance comparison and the parsing of MCX's output. MCX-CL itself
-is never run here (it is a benchmark tool with its own venv)."""
+"""The pure-Python parts of ``tools/studies/mcxcl_compare.py`` (the host side of
+``tools/bench/bench.py --compare mcxcl`` and the layered study): the MCX scene built from B1,
+the scattering-event count, the reflectance comparison and the parsing of MCX's output
+(``tools/bench/mcxcl_anchor.py``). MCX-CL itself is never run here (it is a benchmark tool with
+its own venv). Outside the default run: ``python -m pytest tools/studies``."""
 from __future__ import annotations
 
 import sys
@@ -8,9 +10,10 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import TOOLS
+from conftest import BENCH, STUDIES
 
-sys.path.insert(0, str(TOOLS))
+# the study, and the benchmark folder it shares the anchor and scene B1 with
+sys.path[:0] = [str(STUDIES), str(BENCH)]
 
 import mcxcl_anchor  # noqa: E402
 import mcxcl_compare as mc  # noqa: E402
@@ -154,7 +157,7 @@ def test_scattering_census_per_fate():
 
 
 # ---------------------------------------------------------------------------------------------
-# two layers against MCX-CL (python tools/mcxcl_compare.py layers)
+# two layers against MCX-CL (python tools/studies/mcxcl_compare.py layers)
 
 def test_layered_params_are_mcx_media():
     p = mc.layered_params()

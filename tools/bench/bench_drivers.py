@@ -1,7 +1,7 @@
 """Compare the OpenCL drivers of this machine side by side, in one run (docs/performance.md).
 
-    python tools/bench_drivers.py [--devices all|SPEC,SPEC,...] [--scenes B1,B3] [--photons 1e6]
-                                  [--rounds 5] [--json FILE]
+    python tools/bench/bench_drivers.py [--devices all|SPEC,SPEC,...] [--scenes B1,B3]
+                                        [--photons 1e6] [--rounds 5] [--json FILE]
 
 For every device (default: all that qualify), first the qualification from an empty cache
 (wall time of the child process: builds, known-answer walk, speed probe), then ``--rounds``

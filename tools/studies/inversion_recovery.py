@@ -1,13 +1,14 @@
 #!/usr/bin/env python3
 """The injection-recovery study of issue 14, recovery side: invert every injection of
-``tools/inversion_study.py`` and report bias, coverage, identifiability and time.
+``tools/studies/inversion_study.py`` and report bias, coverage, identifiability and time.
 
-    python tools/inversion_recovery.py invert FAMILY --work DIR [--instruments bela,gala]
-                                      [--jobs 1] [--budget 600]
-    python tools/inversion_recovery.py report FAMILY [FAMILY ...] --work DIR [--out TABLES]
+    python tools/studies/inversion_recovery.py invert FAMILY --work DIR
+                                               [--instruments bela,gala] [--jobs 1] [--budget 600]
+    python tools/studies/inversion_recovery.py report FAMILY [FAMILY ...] --work DIR
+                                               [--out TABLES]
 
 ``invert`` reads ``DIR/FAMILY/injections.csv`` and the database ``DIR/FAMILY/db`` (both written
-by ``tools/inversion_study.py``). For every finished injection and instrument it writes
+by ``tools/studies/inversion_study.py``). For every finished injection and instrument it writes
 
 - ``inj/iNNN/fit_LABEL.nc``: ``warpe_cl.invert`` of the injection's ``LABEL.nc`` against the
   database, every swept key free (skipped when it exists: the verb resumes);
@@ -57,7 +58,8 @@ def read_injections(family_dir: Path) -> tuple:
     """(rows, swept keys, instrument labels) of ``family_dir/injections.csv``."""
     path = family_dir / "injections.csv"
     if not path.is_file():
-        raise StudyError(f"{path}: no injections; run tools/inversion_study.py inject first")
+        raise StudyError(f"{path}: no injections; run tools/studies/inversion_study.py "
+                         "inject first")
     with open(path, newline="") as fh:
         reader = csv.DictReader(fh)
         rows, cols = list(reader), reader.fieldnames
@@ -137,7 +139,7 @@ def recovery_columns(keys: list) -> list:
 
 _STATE = {}
 #: Instrument files of the study, for labels that are not bundled instruments.
-STUDY_INSTRUMENTS = Path(__file__).resolve().parent.parent / "presets" / "study" / "instruments"
+STUDY_INSTRUMENTS = Path(__file__).resolve().parents[2] / "presets" / "study" / "instruments"
 
 
 def instrument_source(label: str) -> str:
@@ -207,7 +209,7 @@ def cmd_invert(args) -> int:
         instrument_source(label)
     db = family_dir / "db"
     if not db.is_dir():
-        raise StudyError(f"{db}: no database; run tools/inversion_study.py build first")
+        raise StudyError(f"{db}: no database; run tools/studies/inversion_study.py build first")
     done = [r for r in rows if r["status"] == "done"]
     tasks = [(family_dir, r, keys, label, args.budget) for label in wanted for r in done]
     results = {label: {} for label in wanted}

@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 """A/B speed of two checkouts of warpe-cl, interleaved in one run (docs/performance.md).
 
-    python tools/bench_ab.py --before /path/to/A --after /path/to/B [--rounds 5]
-                             [--scenes B1,B3] [--photons 1e6] [--device SPEC]
-                             [--precision single|double] [--modes analog] [--out FILE]
+    python tools/bench/bench_ab.py --before /path/to/A --after /path/to/B [--rounds 5]
+                                   [--scenes B1,B3] [--photons 1e6] [--device SPEC]
+                                   [--precision single|double] [--modes analog] [--out FILE]
 
-Each round runs tools/bench.py (this folder's, so both trees are measured the same way) once
+Each round runs tools/bench/bench.py (this folder's, so both trees are measured the same way) once
 per tree, in a new process with ``PYTHONPATH`` set to that tree; the order alternates from
 round to round (A B, B A, A B, ...) so that a drift of the machine's load falls on both alike.
 bench.py times one run per scene after a warm-up. Prints every round and the load
@@ -29,7 +29,7 @@ engine (``Engine.use_program``) and checks that the engine walked with it. ``--n
 scenes with the nadir estimate (``simulation.nadir: true``), which bench.py's scenes leave out;
 ``--modes analog,weighted`` walks each scene in each mode.
 
-    python tools/bench_ab.py --kernel-only [--nadir] [--different-bits] --before A --after B
+    python tools/bench/bench_ab.py --kernel-only [--nadir] [--different-bits] --before A --after B
 """
 from __future__ import annotations
 
@@ -42,9 +42,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-from _common import loadavg  # tools/ is first on sys.path when run as a script
+from _common import loadavg  # tools/bench/ is first on sys.path when run as a script
 
 HERE = Path(__file__).resolve().parent
+#: The checkout this script belongs to (tools/bench/ is two folders down).
+REPO = HERE.parent.parent
 
 
 def tree_env(tree: Path) -> dict:
@@ -65,7 +67,7 @@ def describe_tree(tree: Path) -> str:
 
 
 def run_bench(tree: Path, args) -> dict:
-    """One tools/bench.py process on ``tree``; its JSON result."""
+    """One tools/bench/bench.py process on ``tree``; its JSON result."""
     with tempfile.TemporaryDirectory(prefix="warpe-bench-ab-") as tmp:
         out = Path(tmp) / "bench.json"
         cmd = [sys.executable, str(HERE / "bench.py"), "--scenes", args.scenes,
@@ -93,7 +95,7 @@ def kernel_only(trees: dict, args, say) -> dict:
     """``--kernel-only``: both trees' kernels in this process; ``{label: {scene: samples}}``."""
     import time
 
-    sys.path.insert(0, str(HERE.parent))
+    sys.path.insert(0, str(REPO))
     sys.path.insert(1, str(HERE))
     from bench import SCENES
     from warpe_cl import device as devmod
@@ -102,7 +104,7 @@ def kernel_only(trees: dict, args, say) -> dict:
     from warpe_cl.engine import WALK_FILES, Engine, kernel_key
 
     engine = Engine(args.device)
-    say(f"# host {HERE.parent}; device {engine.info.device} | {engine.info.platform} "
+    say(f"# host {REPO}; device {engine.info.device} | {engine.info.platform} "
         f"{engine.info.platform_version}")
     sources = {}
     for label, tree in trees.items():        # a header split out after the tree was written
@@ -194,7 +196,7 @@ def main(argv=None) -> int:
         lines.append(text)
 
     what = ("the two cl/ folders' walk kernels in one process" if args.kernel_only
-            else "tools/bench.py")
+            else "tools/bench/bench.py")
     say(f"# bench_ab: {args.rounds} interleaved rounds of {what}, --scenes {args.scenes} "
         f"--photons {args.photons:g} --precision {args.precision} --modes {args.modes}"
         + (f" --device {args.device}" if args.device else "")

@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Benchmark the walk kernels on the scenes of the speed issues, and the references beside them.
 
-    python tools/bench.py [--photons N] [--tail-photons N] [--rounds R] [--device SPEC]
-                          [--precision single|double] [--scenes B1,B2,B3,T1]
-                          [--modes analog,weighted] [--compare numpy] [--compare toy]
-                          [--compare mcxcl] [--json FILE]
+    python tools/bench/bench.py [--photons N] [--tail-photons N] [--rounds R] [--device SPEC]
+                                [--precision single|double] [--scenes B1,B2,B3,T1]
+                                [--modes analog,weighted] [--compare numpy] [--compare toy]
+                                [--compare mcxcl] [--json FILE]
 
 Scenes B1-B3 (issue 5; time cap 5 ns, Lambertian floor A = 0.15, HG g = 0.8):
   B1  slab 60 mm, tau0 = 60.3, omega = 0.99502, n = 1.3 (89 scatterings per launched ray in our
@@ -56,7 +56,7 @@ device, after the rounds: MCX photons/s and scattering events/s (kernel and wall
 events/s in the same run, their ratio, and our time-resolved reflectance against MCX's. It keeps
 its own interleaving: --mcxcl-rounds MCX runs, each between two runs of ours, the ratio's median
 and range over them. A second, matched check puts MCX in a 400 mm wide box against our B1 with
-A = 0 (MCX has no Lambertian floor). See tools/mcxcl_compare.py and docs/performance.md,
+A = 0 (MCX has no Lambertian floor). See tools/studies/mcxcl_compare.py and docs/performance.md,
 "MCX-CL anchor".
 """
 from __future__ import annotations
@@ -78,12 +78,18 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import loadavg  # tools/ is first on sys.path when run as a script
+from _common import loadavg  # tools/bench/ is first on sys.path when run as a script
 from warpe_cl.api import get_engine, walk_params
 from warpe_cl.config import load_preset
 
+#: tools/studies/, where mcxcl_compare.py lives: the host side of --compare mcxcl is also the
+#: layered study's (docs/validation-layers.md); imported from there, after this folder.
+STUDIES = Path(__file__).resolve().parent.parent / "studies"
+if str(STUDIES) not in sys.path:
+    sys.path.append(str(STUDIES))
+
 #: The scenes time the walk as MCX-CL and the toy walk do: without the nadir estimate, whose
-#: cost tools/nadir_fom.py measures (it turns it on per configuration).
+#: cost tools/bench/nadir_fom.py measures (it turns it on per configuration).
 COMMON_SIM = {"time_bins": {"start": "1e-6 ns", "stop": "5 ns", "per_decade": 20},
               "max_time": "5 ns", "seed": 1, "nadir": False}
 #: T1's simulation: the paper's time bins and no cap but their last edge (module docstring).
@@ -184,7 +190,7 @@ def figure_of_merit(counts, params, seconds: float, t_min: float = 0.0) -> dict:
 
 def summarize_runs(runs: list) -> dict:
     """One scene and mode over rounds: the medians of ``RUN_KEYS`` (under their own names, as
-    tools/bench_ab.py reads them), their ranges, the figures of merit and every run."""
+    tools/bench/bench_ab.py reads them), their ranges, the figures of merit and every run."""
     out = {"photons": runs[0]["photons"], "rounds": len(runs), "range": {}}
     for key in RUN_KEYS:
         s = spread(r[key] for r in runs)
@@ -452,7 +458,7 @@ def compare_mcxcl(engine, params, ours, counts, args, state) -> tuple:
 
 def scene_list(text: str) -> list:
     """The scenes of a comma-separated ``--scenes``; ValueError naming the unknown ones and the
-    choices (tools/kernel_icount.py checks its own ``--scenes`` with it too)."""
+    choices."""
     names = [s.strip() for s in text.split(",") if s.strip()]
     unknown = [s for s in names if s not in SCENES]
     if unknown:

@@ -1,5 +1,6 @@
-"""tools/inversion_recovery.py's arithmetic: coverage with its binomial error, bias in the
-axis' coordinate, optical-depth classes, the Markdown report, the instrument lookup."""
+"""tools/studies/inversion_recovery.py's arithmetic: coverage with its binomial error, bias in
+the axis' coordinate, optical-depth classes, the Markdown report, the instrument lookup.
+Outside the default run: ``python -m pytest tools/studies``."""
 from __future__ import annotations
 
 import math
@@ -8,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import TOOLS
+from conftest import STUDIES
 
-sys.path.insert(0, str(TOOLS))
+sys.path.insert(0, str(STUDIES))
 
 import inversion_recovery as recovery  # noqa: E402
 from inversion_study import StudyError  # noqa: E402

@@ -1,6 +1,7 @@
-"""The pure helpers of ``tools/inversion_study.py``: the spacing of a sweep axis, the off-grid
-draw of the injected points, the values as written, the plan of an injection and its preset.
-No simulation runs here (the tool's build and inject verbs call warpe-cl as child processes)."""
+"""The pure helpers of ``tools/studies/inversion_study.py``: the spacing of a sweep axis, the
+off-grid draw of the injected points, the values as written, the plan of an injection and its
+preset. No simulation runs here (the tool's build and inject verbs call warpe-cl as child
+processes). Outside the default run: ``python -m pytest tools/studies``."""
 from __future__ import annotations
 
 import sys
@@ -8,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import REPO, TOOLS
+from conftest import REPO, STUDIES
 
-sys.path.insert(0, str(TOOLS))
+sys.path.insert(0, str(STUDIES))
 
 import inversion_study as study  # noqa: E402
 

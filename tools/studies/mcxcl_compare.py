@@ -1,8 +1,9 @@
 """MCX-CL side by side with our walk: the host side of ``bench.py --compare mcxcl``, and the
 two-layer check of issue 15 as a command of its own::
 
-    python tools/mcxcl_compare.py layers [--photons 1e6] [--box 400] [--no-control] [--json F]
-    python tools/mcxcl_compare.py faces [--photons 1e5]
+    python tools/studies/mcxcl_compare.py layers [--photons 1e6] [--box 400] [--no-control]
+                                                 [--json F]
+    python tools/studies/mcxcl_compare.py faces [--photons 1e5]
 
 ``layers`` runs a stack of two slabs of different index (:data:`LAYERS_MM`) through MCX-CL and our
 walk, prints the time-resolved reflectance per photon entering window by window with z-scores,
@@ -14,8 +15,8 @@ with their results, in docs/validation-layers.md.
 MCX-CL (pmcxcl 0.7.5, Qianqian Fang), run on PoCL, is the project's speed anchor
 (docs/performance.md, "MCX-CL anchor"). It runs in its own virtual environment
 (``$WARPE_MCXCL_VENV``, default ``/tmp/mcxcl-venv``, created on first use), never as a dependency
-of warpe-cl, through ``tools/mcxcl_anchor.py`` started in a subprocess with the two environment
-workarounds that running pmcxcl on PoCL needs:
+of warpe-cl, through ``tools/bench/mcxcl_anchor.py`` started in a subprocess with the two
+environment workarounds that running pmcxcl on PoCL needs:
 
 - ``OCL_ICD_VENDORS`` names the OpenCL platform(s) pmcxcl's bundled ICD loader may load, so that
   MCX runs on the same device as our kernels (``--mcxcl-icd``);
@@ -53,7 +54,9 @@ from warpe_cl.params import C_M_PER_NS
 PMCXCL_VERSION = "0.7.5"
 DEFAULT_VENV = "/tmp/mcxcl-venv"
 SYSTEM_ICD_DIR = "/etc/OpenCL/vendors"
-HELPER = Path(__file__).resolve().parent / "mcxcl_anchor.py"
+#: The anchor run in MCX-CL's venv, a benchmark: tools/bench/mcxcl_anchor.py (run as a script,
+#: so that its folder is on its sys.path and it finds tools/bench/_common.py).
+HELPER = Path(__file__).resolve().parent.parent / "bench" / "mcxcl_anchor.py"
 #: the anchor's time gates (0.05 ns; they cost MCX time even without fluence output)
 ANCHOR_TSTEP_NS = 0.05
 #: MCX's fixed seed in the anchor script
@@ -259,7 +262,8 @@ def format_tpsf(cmp: dict, indent: str = "    ") -> str:
 
 # ---------------------------------------------------------------------------------------------
 # two slab layers against MCX-CL (issue 15): the scene, the statistics (pure: tested in
-# tests/test_mcxcl_compare.py), and the command ``python tools/mcxcl_compare.py layers``
+# tools/studies/test_mcxcl_compare.py), and the command
+# ``python tools/studies/mcxcl_compare.py layers``
 
 #: The two-layer scene, top first: (thickness mm, mus 1/mm, mua 1/mm, g, n). The indices
 #: differ, so the contact between the slabs is a Fresnel interface in both codes.
@@ -582,7 +586,7 @@ def run_layers_case(label: str, layers_mm, args, engine, python, icd, gpuid, wd,
 def parse_layers_args(argv):
     import argparse
     p = argparse.ArgumentParser(
-        prog="python tools/mcxcl_compare.py layers",
+        prog="python tools/studies/mcxcl_compare.py layers",
         description="Two slab layers against MCX-CL: time-resolved reflectance per photon "
                     "entering, window by window (docs/validation-layers.md). Exit status 0 if "
                     "every judged row agrees within --z-limit standard errors, 1 if one does "
@@ -682,7 +686,7 @@ def probe_row(label: str, pad: str, result: dict, n: float = PROBE_N) -> dict:
 def main_faces(argv) -> int:
     """``faces``: the box-face probe (why the layered comparison pads the stack with vacuum)."""
     import argparse
-    p = argparse.ArgumentParser(prog="python tools/mcxcl_compare.py faces",
+    p = argparse.ArgumentParser(prog="python tools/studies/mcxcl_compare.py faces",
                                 description="MCX-CL's Fresnel at the box's faces, medium by "
                                             "medium: a non-scattering slab of n = 1.5 as one "
                                             "or two media, at the box's faces or padded with "
@@ -728,8 +732,9 @@ def main(argv=None) -> int:
         return main_layers(argv[1:])
     if argv[:1] == ["faces"]:
         return main_faces(argv[1:])
-    print("usage: python tools/mcxcl_compare.py layers|faces [options] (--help for the "
-          "options); the one-layer comparison runs from python tools/bench.py --compare mcxcl",
+    print("usage: python tools/studies/mcxcl_compare.py layers|faces [options] (--help for "
+          "the options); the one-layer comparison runs from "
+          "python tools/bench/bench.py --compare mcxcl",
           file=sys.stderr)
     return 2
 

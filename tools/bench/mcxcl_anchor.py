@@ -4,9 +4,10 @@ that lives in MCX-CL's own virtual environment.
 
 MCX-CL (pmcxcl, Qianqian Fang's Monte Carlo eXtreme for OpenCL) run on PoCL is the project's
 speed anchor (docs/performance.md, "MCX-CL anchor"), and this script is the anchor run. It imports
-only numpy, pmcxcl and ``tools/_common.py`` (standard library only); it is started by
-``tools/mcxcl_compare.py`` with that venv's python and the two environment workarounds pmcxcl
-needs on PoCL: OCL_ICD_VENDORS pointing its bundled ICD loader at the OpenCL platform to use, and
+only numpy, pmcxcl and ``tools/bench/_common.py`` (standard library only); it is started
+by ``tools/studies/mcxcl_compare.py`` with that venv's python and the two environment
+workarounds pmcxcl needs on PoCL: OCL_ICD_VENDORS pointing its bundled ICD loader at the OpenCL
+platform to use, and
 LD_PRELOAD of the system libstdc++ (without it PoCL's build options are cut short inside pmcxcl
 and every kernel build fails).
 pmcxcl must never become a dependency of warpe-cl.
@@ -43,7 +44,7 @@ import resource
 import sys
 import time
 
-from _common import loadavg  # tools/ is first on sys.path when run as a script
+from _common import loadavg  # tools/bench/ is first on sys.path when run as a script
 
 C_MM_PER_NS = 299.792458
 

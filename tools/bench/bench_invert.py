@@ -2,8 +2,8 @@
 """Speed of ``warpe-cl invert`` (issue 14's goal: 100 BELA shots at 12.5 ns against a
 1,000-scenario database in under 10 s on 2 cores).
 
-    python tools/bench_invert.py --work DIR [--grid 10] [--photons 1e4] [--rounds 5]
-                                 [--shots 100] [--instrument bela]
+    python tools/bench/bench_invert.py --work DIR [--grid 10] [--photons 1e4] [--rounds 5]
+                                       [--shots 100] [--instrument bela]
 
 In ``DIR`` it builds, once (kept for the next run):
 
@@ -35,7 +35,8 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import loadavg  # noqa: E402
 
-PRESET = Path(__file__).resolve().parent.parent / "presets" / "study" / "gran_co2.yaml"
+#: The inversion study's granular CO2 family (the repository is three folders up).
+PRESET = Path(__file__).resolve().parents[2] / "presets" / "study" / "gran_co2.yaml"
 #: The injected surface: off every node of any grid of the ranges below.
 TRUTH = {"medium.inclusions[0].grain_size": "141 um", "medium.compacity": 0.55,
          "medium.thickness": "43 mm"}

@@ -2,9 +2,9 @@
 """The injection-recovery study of issue 14, simulation side: the databases that
 ``warpe-cl invert`` searches and the injected waveforms it is asked to recover.
 
-    python tools/inversion_study.py build FAMILY --work DIR [--photons N]
-    python tools/inversion_study.py inject FAMILY --work DIR [--count 50] [--seed 7]
-                                   [--photons N] [--instruments bela,gala]
+    python tools/studies/inversion_study.py build FAMILY --work DIR [--photons N]
+    python tools/studies/inversion_study.py inject FAMILY --work DIR [--count 50] [--seed 7]
+                                           [--photons N] [--instruments bela,gala]
 
 ``FAMILY`` names a preset of ``presets/study/`` (``gran_co2``, ``slab_h2o_co2``, ``gran_h2o``),
 a scenario preset with a ``sweep:`` block; ``--preset FILE`` takes another file instead.
@@ -52,8 +52,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-#: The repository's presets of the study.
-STUDY_PRESETS = Path(__file__).resolve().parent.parent / "presets" / "study"
+#: The repository's presets of the study (the repository is three folders up).
+STUDY_PRESETS = Path(__file__).resolve().parents[2] / "presets" / "study"
 #: A draw this close to a node in every dimension, as a fraction of each range, is redrawn.
 NODE_TOLERANCE = 0.02
 #: Seeds: surface of injection i = SURFACE_SEED + i; instrument j: INSTRUMENT_SEED + 1000 j + i.
@@ -378,7 +378,7 @@ def injection_preset(raw: dict, point: dict, name: str) -> dict:
     one = {k: copy.deepcopy(v) for k, v in raw.items() if k != "sweep"}
     apply_overrides(one, dict(point))
     one["name"] = name
-    one["description"] = (f"Injection {name} of tools/inversion_study.py: "
+    one["description"] = (f"Injection {name} of tools/studies/inversion_study.py: "
                           + ", ".join(f"{k} = {v}" for k, v in point.items()))
     return one
 
@@ -576,7 +576,7 @@ def parser() -> argparse.ArgumentParser:
 
 def run_verbs(arg_parser: argparse.ArgumentParser, argv, name: str) -> int:
     """Parse ``argv`` and run the chosen verb; a StudyError is one line on stderr and exit 2
-    (shared with tools/inversion_recovery.py)."""
+    (shared with tools/studies/inversion_recovery.py)."""
     args = arg_parser.parse_args(argv)
     try:
         return args.func(args)

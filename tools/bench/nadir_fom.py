@@ -1,25 +1,26 @@
 #!/usr/bin/env python3
 """Speed and figure of merit of the next-event (nadir) estimator on bench scene B1 (or --scene).
 
-    python tools/nadir_fom.py [--photons N] [--rounds R] [--roulettes 0,0.01,0.1,1]
-                              [--cones 1,3,12] [--scene B1] [--device SPEC] [--write [FILE]]
+    python tools/bench/nadir_fom.py [--photons N] [--rounds R] [--roulettes 0,0.01,0.1,1]
+                                    [--cones 1,3,12] [--scene B1] [--device SPEC] [--write [FILE]]
 
-Scene B1 of tools/bench.py (60 mm slab, tau0 = 60.3, omega = 0.99502, n = 1.3, g = 0.8,
+Scene B1 of tools/bench/bench.py (60 mm slab, tau0 = 60.3, omega = 0.99502, n = 1.3, g = 0.8,
 Lambertian floor A = 0.15, 5 ns cap) is walked with ``simulation.nadir: false`` and with the
 estimator at each ``simulation.nadir_roulette`` of --roulettes, in interleaved rounds: a round
 runs every configuration once, in one order, and the next round in the reverse order,
 after one untimed warm-up run of each configuration that builds its kernel, so that a drift
 of a shared machine's load falls on all alike. T is the engine's walk time
 (``get_engine().last_walk_s``: the launches, not the reduction). Each round prints its
-events/s and its exact T / T(off) per configuration (what tools/pool_rounds.py pools over
-sessions). Round i walks seed i (from 1) in every configuration, so the ratios are paired on
-the same rays and the FOMs' ranges over rounds carry the noise of their standard errors (32
-batches: about 13 % each, 25 % on a FOM), not only the machine's. Per configuration, median
+events/s and its exact T / T(off) per configuration (the rounds of several sessions were
+pooled by tools/pool_rounds.py, since retired: docs/performance.md, "Tools retired"). Round i
+walks seed i (from 1) in every configuration, so the ratios are paired on the same rays and the
+FOMs' ranges over rounds carry the noise of their standard errors (32 batches: about 13 %
+each, 25 % on a FOM), not only the machine's. Per configuration, median
 [min-max] over rounds:
 
 - scattering events/s, ``scattering_events`` / T, and the time ratio T / T(no estimator) of
   the same round;
-- the figure of merit FOM = 1 / ((sigma / value)^2 T) (1/s; relative sigma, as tools/bench.py
+- the figure of merit FOM = 1 / ((sigma / value)^2 T) (1/s; relative sigma, as tools/bench/bench.py
   writes its FOMs, so that estimates of slightly different values compare) of the
   time-integrated nadir estimate ``nadir_brdf`` of ``scattering`` and of ``bf_diffuse``, each
   with its own ``nadir_brdf_stderr`` (the spread of the walk's 32 batches), and of their sum,
@@ -51,10 +52,13 @@ from pathlib import Path
 import numpy as np
 
 import warpe_cl
-from bench import SCENES, fmt_spread, rounds_text, spread  # tools/ is first on sys.path
-from nadir_cones import (DIFFUSE, check_estimator, fov_cone, machine_line, nadir_sum,
-                         run_with_counts)
-from warpe_cl.api import get_engine
+from bench import SCENES, fmt_spread, rounds_text, spread  # tools/bench/ is first on sys.path
+
+# the estimator's checks and the FOV cones are the study's, tools/studies/nadir_cones.py
+sys.path.append(str(Path(__file__).resolve().parent.parent / "studies"))
+from nadir_cones import (DIFFUSE, check_estimator, fov_cone, machine_line,  # noqa: E402
+                         nadir_sum, run_with_counts)
+from warpe_cl.api import get_engine  # noqa: E402
 
 DEFAULT_OUT = Path("docs/bench/2026-11-23_nadir_fom.txt")
 QUANTITIES = ("scattering", "bf_diffuse", "diffuse")
@@ -108,7 +112,7 @@ def one_run(overrides: dict, photons: int, cones, device=None, scene_name: str =
 
 def measure(args) -> dict:
     """Warm-up, then --rounds interleaved rounds of every configuration, in turn in one order
-    and the reverse (as tools/bench_ab.py), so that a drift of the machine's speed within a
+    and the reverse (as tools/bench/bench_ab.py), so that a drift of the machine's speed within a
     round weighs on every configuration alike. Round i walks seed i (from 1): the same rays
     in every configuration of a round, other rays in the next."""
     configs = configurations(args.roulettes)
@@ -166,7 +170,7 @@ def table(runs: dict, args, header: str) -> list:
     """The report's lines."""
     off = runs["nadir off"]
     lines = [header,
-             f"# {args.scene_name} (tools/bench.py), {args.photons:.3g} photons per run, "
+             f"# {args.scene_name} (tools/bench/bench.py), {args.photons:.3g} photons per run, "
              f"{rounds_text(args.rounds)}, median [min-max]; T = walk time; "
              f"FOM = 1 / ((sigma / value)^2 T), 1/s",
              "",
@@ -224,7 +228,7 @@ def main(argv=None) -> int:
                    help="simulation.nadir_roulette values (default 0,0.01,0.1,1)")
     p.add_argument("--cones", default="1,3,12", help="FOV cones, whole degrees (default 1,3,12)")
     p.add_argument("--scene", dest="scene_name", default="B1", choices=sorted(SCENES),
-                   help="the bench scene of tools/bench.py (default B1)")
+                   help="the bench scene of tools/bench/bench.py (default B1)")
     p.add_argument("--device", default=None)
     p.add_argument("--write", nargs="?", const=str(DEFAULT_OUT), default=None, metavar="FILE",
                    help=f"also write the table (default file {DEFAULT_OUT})")
@@ -245,7 +249,7 @@ def main(argv=None) -> int:
     if args.write:
         out = Path(args.write)
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text("python tools/nadir_fom.py " + " ".join(argv or sys.argv[1:]) + "\n"
+        out.write_text("python tools/bench/nadir_fom.py " + " ".join(argv or sys.argv[1:]) + "\n"
                        + "\n".join(lines) + "\n")
         print(f"written: {out}")
     return 0

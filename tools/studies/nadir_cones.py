@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """The limit of small cones: the FOV estimate of the diffuse reflectance against the nadir one.
 
-    python tools/nadir_cones.py [--preset PATH] [--photons N] [--cones 1,3,6,12]
-                                [--rules history,time_window] [--solid-angle cone|projected]
-                                [--set KEY=VALUE ...] [--device SPEC]
-                                [--figure docs/figures/nadir_cones.png]
+    python tools/studies/nadir_cones.py [--preset PATH] [--photons N] [--cones 1,3,6,12]
+                                        [--rules history,time_window]
+                                        [--solid-angle cone|projected]
+                                        [--set KEY=VALUE ...] [--device SPEC]
+                                        [--figure docs/figures/nadir_cones.png]
 
 The paper estimates the diffuse reflectance (``bf_diffuse`` + ``scattering``) by counting the
 rays that leave inside a cone of half-angle theta about the zenith (12 deg for the background,
@@ -55,12 +56,15 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import loadavg  # tools/ is first on sys.path when run as a script
 import warpe_cl
 from warpe_cl.api import get_engine, walk_params
 from warpe_cl.errors import WarpeWarning
 from warpe_cl.nadir import _batch_error, mirror_below
 from warpe_cl.params import NADIR_ROWS, fixed_to_float
+
+# the load average is read as the benchmarks read it: tools/bench/_common.py
+sys.path.append(str(Path(__file__).resolve().parent.parent / "bench"))
+from _common import loadavg  # noqa: E402
 
 DEFAULT_PRESET = Path("presets/paper/fov_numerical.yaml")
 DIFFUSE = ("bf_diffuse", "scattering")

@@ -1,0 +1,154 @@
+"""The pure-Python helpers of ``tools/bench/bench.py``: the heavy-tail scene T1, the statistics
+over rounds and the reading of the toy walk's output; ``tools/bench/bench_ab.py``'s paired
+ratios; ``tools/bench/nadir_fom.py``'s order of rounds. Nothing here is timed and no toy is run
+(speed is measured by the tools, never in the unit tests). Outside the default run: ``python -m
+pytest tools/bench`` (this folder's conftest.py gives tests/conftest.py's helpers); the engine
+hook that ``bench_ab.py --kernel-only`` times other kernels through is product behaviour,
+tested in tests/test_engine_programs.py."""
+from __future__ import annotations
+
+import json
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+from conftest import BENCH
+
+sys.path.insert(0, str(BENCH))
+
+import bench  # noqa: E402
+
+from warpe_cl.api import walk_params  # noqa: E402
+from warpe_cl.config import load_preset  # noqa: E402
+
+
+def test_t1_is_the_heavy_tail_scene():
+    sim = bench.SCENES["T1"]["simulation"]
+    assert "max_time" not in sim and "max_flights" not in sim      # defaults: no 5 ns cap
+    p = walk_params(load_preset(bench.SCENES["T1"]))[0]
+    assert p.texture == "granular" and (p.g, p.n, p.albedo) == (0.0, 1.0, 0.0)
+    assert p.extinction * p.thickness == pytest.approx(1e5)
+    assert 1.0 - p.omega == pytest.approx(3e-7)
+    assert p.max_time == pytest.approx(1e5)                          # the last bin edge, ns
+    # a ray lives far longer than absorption lets it: 1e5 ns holds 5e10 flights of 0.6 um
+    flights_in_cap = p.max_time * 0.299792458 * p.extinction
+    assert flights_in_cap > 1e3 / (1.0 - p.omega)
+    assert p.max_flights >= 1e7
+
+
+def test_tail_scene_photons():
+    args = SimpleNamespace(photons=1e6, tail_photons=1e5, numpy_photons=2e3)
+    assert bench.scene_photons("B1", args) == (1_000_000, 2000)
+    assert bench.scene_photons("T1", args) == (100_000, 200)
+
+
+def test_spread_and_its_text():
+    s = bench.spread([3.0, 1.0, 2.0, 10.0, 2.5])
+    assert (s["median"], s["min"], s["max"]) == (2.5, 1.0, 10.0)
+    assert bench.fmt_spread(s, ".2f") == "2.50 [1.00–10.00]"
+    assert bench.fmt_spread(bench.spread([4.0])) == "4"
+    r = bench.ratios([{"x": 2.0}, {"x": 9.0}], [{"x": 1.0}, {"x": 3.0}], "x")
+    assert r["values"] == [2.0, 3.0] and r["median"] == 2.5
+    assert bench.rounds_text(1) == "1 round" and bench.rounds_text(5) == "5 rounds"
+
+
+def test_summary_keeps_the_keys_bench_ab_reads():
+    runs = [{"photons": 10, "seconds": s, "cpu_seconds": s, "photons_per_s": 10 / s,
+             "scattering_events_per_s": 900 / s, "scatterings_per_photon": 90.0,
+             "figure_of_merit": [{"t_min_ns": 0.0, "value": 0.1, "relative_stderr": 0.1,
+                                  "fom_per_s": 100 / s}]} for s in (1.0, 2.0, 4.0)]
+    out = bench.summarize_runs(runs)
+    assert out["scattering_events_per_s"] == 450.0 and out["photons_per_s"] == 5.0
+    assert out["range"]["scattering_events_per_s"] == [225.0, 900.0]
+    assert out["figure_of_merit"][0]["fom_per_s"] == 50.0
+    assert out["rounds"] == 3 and out["runs"] is runs
+
+
+def test_toy_speed_from_its_json():
+    doc = {"args": {"device_desc": "AMD EPYC | OpenCL 3.1 LINUX"},
+           "results": [{"variant": "vec8", "wall": 1.0, "nscat": 1, "nphot": 1},
+                       {"variant": "vec16", "wall": 2.0, "cpu": 3.5, "nscat": 8_000_000,
+                        "nexit": 1, "nbnd": 1, "stats_valid": True, "nphot": 40_000}]}
+    got = bench.parse_toy_output("", json.dumps(doc))
+    assert got["scat_per_s"] == 4e6 and got["photons_per_s"] == 2e4
+    assert got["scatterings_per_photon"] == 200.0 and got["device"].startswith("AMD EPYC")
+    assert got["source"] == "json"
+
+
+def test_toy_speed_from_its_report_line():
+    out = ("# device: AMD EPYC | OpenCL 3.1 LINUX | CUs=2\n"
+           "vec16        N=4e+06 wall=3.125s cpu=6.10s photons/s=1.28e+06 "
+           "photons/cpu-s=6.557e+05 scat/ph=213.1 bnd/ph=1.52 det=0.2010 scat/s=2.727e+08\n")
+    got = bench.parse_toy_output(out)
+    assert got["scat_per_s"] == 2.727e8 and got["photons_per_s"] == 1.28e6
+    assert got["scatterings_per_photon"] == 213.1 and got["photons"] == 4_000_000
+    assert got["seconds"] == 3.125 and got["source"] == "stdout"
+    with pytest.raises(bench.ToyUnavailable):
+        bench.parse_toy_output("vec16 N=1e+06 wall=1s photons/s=1e+06\n")
+
+
+def test_toy_script_path(tmp_path, monkeypatch):
+    script = tmp_path / "toy_walk.py"
+    script.write_text("")
+    monkeypatch.setenv("WARPE_TOY_WALK", str(script))
+    assert bench.toy_script_path(None) == script.resolve()
+    with pytest.raises(bench.ToyUnavailable, match="--toy-script"):
+        bench.toy_script_path(str(tmp_path / "missing.py"))
+    monkeypatch.delenv("WARPE_TOY_WALK")
+    with pytest.raises(bench.ToyUnavailable, match="WARPE_TOY_WALK"):
+        bench.toy_script_path(None)
+
+
+def test_toy_command_has_b1s_medium(tmp_path):
+    b1 = walk_params(load_preset(bench.SCENES["B1"]))[0]
+    cmd = bench.toy_command(tmp_path / "toy_walk.py", b1, 4_000_000, "Intel(R) OpenCL", "f.json")
+    opt = dict(zip(cmd[2::2], cmd[3::2]))
+    assert cmd[0] == sys.executable and opt["--variants"] == "vec16"
+    assert opt["--photons"] == "4e+06" and opt["--platform"] == "Intel(R) OpenCL"
+    assert opt["--wait"] == "block"      # the toy on every core, as ours
+    assert float(opt["--mus"]) == pytest.approx(1.0, rel=1e-5)
+    assert float(opt["--mua"]) == pytest.approx(0.005, rel=1e-3)
+    assert (opt["--g"], opt["--n"], opt["--h"], opt["--albedo"]) == ("0.8", "1.3", "60", "0.15")
+    assert (opt["--tend"], opt["--nbins"]) == ("5", "100")
+
+
+def test_paired_ratios_of_the_rounds():
+    """tools/bench/bench_ab.py's paired summary: the ratio B / A of each round, then their
+    median, quartiles and range; a drift common to both runs of a round cancels."""
+    import bench_ab
+    a = [1.0, 2.0, 4.0, 1.0, 3.0]               # the machine's speed drifts round to round
+    b = [1.1 * x for x in a[:4]] + [0.9 * a[4]]
+    p = bench_ab.paired_ratios(a, b)
+    assert p["median"] == pytest.approx(1.1)
+    assert (p["min"], p["max"]) == (pytest.approx(0.9), pytest.approx(1.1))
+    assert p["q1"] == pytest.approx(1.1) and len(p["values"]) == 5
+
+
+def test_nadir_fom_rounds_alternate(monkeypatch, capsys):
+    """tools/bench/nadir_fom.py: after the warm-up, the rounds walk the configurations in one
+    order, then in the reverse, round i with seed i in all of them, each configuration's runs kept
+    under its own label, and each round's line lists them in the usual order."""
+    import nadir_fom
+
+    walked, seeds = [], []
+
+    def fake_run(overrides, photons, cones, device=None, scene_name="B1"):
+        walked.append((photons, overrides.get("simulation.nadir_roulette", "off")))
+        seeds.append(overrides.get("simulation.seed"))
+        return {"events_per_s": float(len(walked)), "walk_s": float(len(walked))}
+    monkeypatch.setattr(nadir_fom, "one_run", fake_run)
+    args = SimpleNamespace(roulettes=[0.1, 1.0], photons=50_000, cones=[12], device=None,
+                           scene_name="B1", rounds=3)
+    runs = nadir_fom.measure(args)
+    labels = ["nadir off", "nadir, roulette 0.1", "nadir, roulette 1"]
+    timed = [r for p, r in walked if p == 50_000]
+    assert [p for p, _ in walked[:3]] == [10_000] * 3           # the warm-up, untimed
+    assert timed == ["off", 0.1, 1.0, 1.0, 0.1, "off", "off", 0.1, 1.0]
+    assert seeds == [None] * 3 + [1, 1, 1, 2, 2, 2, 3, 3, 3]     # a round's rays, shared
+    assert list(runs) == labels and all(len(runs[k]) == 3 for k in labels)
+    assert [row["events_per_s"] for row in runs["nadir off"]] == [4.0, 9.0, 10.0]
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("round")]
+    assert lines[1] == ("round 2/3: scattering events/s: nadir off 9, "
+                        "nadir, roulette 0.1 8, nadir, roulette 1 7; "
+                        "T / T(off): nadir, roulette 0.1 0.8889, nadir, roulette 1 0.7778")
