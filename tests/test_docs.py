@@ -10,6 +10,10 @@ forms the code uses: ``docs/physics.md §5.5``, ``(docs/physics.md §3.4, §3.5)
 sections is read as one line. The three docs the code cites most, physics.md, interface.md and
 instrument.md, are always written with their folder (``docs/physics.md``), except as the target
 of a Markdown link between files of docs/.
+
+Each check is one test that scans every file and lists every offending file and line in its
+one failure message; test_each_check_lists_every_planted_violation shows that each still
+fails, file by file and line by line, on violations planted in temporary files.
 """
 from __future__ import annotations
 
@@ -56,7 +60,11 @@ FILES = scanned_files()
 
 
 def _rel(path: Path) -> str:
-    return path.relative_to(REPO).as_posix()
+    """A repository file's path from the root; any other file's (a test's own) as it is."""
+    try:
+        return path.relative_to(REPO).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def resolve(name: str, citing: Path) -> Path | None:
@@ -110,40 +118,93 @@ def _checks_sections(name: str) -> bool:
     return "/" in name or name in UNIFORM
 
 
-@pytest.mark.parametrize("path", FILES, ids=_rel)
-def test_cited_docs_and_sections_exist(path):
+def missing_citations(paths) -> list:
+    """``FILE:LINE: ...`` for every cited doc that is not a file of the repository, and every
+    cited section or decision label that its doc lacks, in ``paths``."""
     problems = []
-    for line, name, sections, _ in citations(path):
-        doc = resolve(name, path)
-        if doc is None:
-            problems.append(f"line {line}: {name} is not a file of the repository")
-            continue
-        if not _checks_sections(name) or doc.suffix != ".md":
-            continue
-        have = anchors(doc)
-        for section in sections:
-            if section not in have:
-                kind = "decision label" if section.startswith("A") else "heading"
-                problems.append(f"line {line}: {name} has no {kind} {section}")
-    assert not problems, f"{_rel(path)}: " + "; ".join(problems)
+    for path in paths:
+        for line, name, sections, _ in citations(path):
+            doc = resolve(name, path)
+            if doc is None:
+                problems.append(f"{_rel(path)}:{line}: {name} is not a file of the repository")
+                continue
+            if not _checks_sections(name) or doc.suffix != ".md":
+                continue
+            have = anchors(doc)
+            for section in sections:
+                if section not in have:
+                    kind = "decision label" if section.startswith("A") else "heading"
+                    problems.append(f"{_rel(path)}:{line}: {name} has no {kind} {section}")
+    return problems
 
 
-@pytest.mark.parametrize("path", FILES, ids=_rel)
-def test_no_private_paths(path):
-    text = path.read_text(encoding="utf-8")
-    found = [(text.count("\n", 0, text.index(p)) + 1, p) for p in PRIVATE if p in text]
-    assert not found, (f"{_rel(path)}: mentions a folder users never get: "
-                       + ", ".join(f"line {line}: {p}" for line, p in found)
-                       + "; cite the repository's docs (docs/physics.md, docs/interface.md, "
-                         "docs/instrument.md) or tools instead")
+def private_paths(paths) -> list:
+    """``FILE:LINE: PATH`` for every mention of a private folder in ``paths`` (every line, not
+    only a file's first)."""
+    problems = []
+    for path in paths:
+        for number, text in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            problems += [f"{_rel(path)}:{number}: {p}" for p in PRIVATE if p in text]
+    return problems
 
 
-@pytest.mark.parametrize("path", FILES, ids=_rel)
-def test_citations_name_the_docs_folder(path):
-    bare = [(line, name) for line, name, _, link in citations(path)
+def bare_citations(paths) -> list:
+    """``FILE:LINE: NAME`` for every citation of a UNIFORM doc without its folder in ``paths``
+    (a Markdown link between files of docs/ excepted)."""
+    return [f"{_rel(path)}:{line}: {name}" for path in paths
+            for line, name, _, link in citations(path)
             if name in UNIFORM and not (link and path.suffix == ".md")]
-    assert not bare, (f"{_rel(path)}: write docs/NAME: "
-                      + ", ".join(f"line {line}: {name}" for line, name in bare))
+
+
+def _report(problems: list, what: str) -> str:
+    return f"{len(problems)} {what}:\n" + "\n".join(problems)
+
+
+def test_cited_docs_and_sections_exist():
+    problems = missing_citations(FILES)
+    if problems:
+        pytest.fail(_report(problems, "citations of a missing doc, heading or label"))
+
+
+def test_no_private_paths():
+    problems = private_paths(FILES)
+    if problems:
+        pytest.fail(_report(problems, "mentions of a folder users never get (cite the "
+                            "repository's docs, docs/physics.md, docs/interface.md, "
+                            "docs/instrument.md, or tools instead)"))
+
+
+def test_citations_name_the_docs_folder():
+    problems = bare_citations(FILES)
+    if problems:
+        pytest.fail(_report(problems, "citations without their folder (write docs/NAME)"))
+
+
+def test_each_check_lists_every_planted_violation(tmp_path):
+    """A check that stopped at the first offence, or at the first file, would hide the rest:
+    each scanner reports every file and line of violations planted in temporary files, and
+    nothing in a clean one."""
+    one, two, clean = tmp_path / "one.py", tmp_path / "two.md", tmp_path / "clean.h"
+    one.write_text("# docs/physics.md §3.4 holds\n"
+                   "# docs/no_such_doc.md\n"
+                   "# docs/physics.md §99.9 and A999\n"
+                   "# physics.md §3.4, " + "shared" + "/docs/x\n", encoding="utf-8")
+    two.write_text("See interface.md §5.\n\nAlso ../" + "shared" + "/bench, twice: "
+                   + "shared" + "/seed.\n[the physics](physics.md)\n", encoding="utf-8")
+    clean.write_text("/* docs/physics.md §3.4, docs/interface.md §5 */\n", encoding="utf-8")
+    o, t = str(one), str(two)
+    assert missing_citations([one, two, clean]) == [
+        f"{o}:2: docs/no_such_doc.md is not a file of the repository",
+        f"{o}:3: docs/physics.md has no heading 99.9",
+        f"{o}:3: docs/physics.md has no decision label A999"]
+    assert private_paths([one, two, clean]) == [
+        f"{o}:4: " + "shared" + "/docs",
+        f"{t}:3: " + "shared" + "/bench", f"{t}:3: " + "shared" + "/seed",
+        f"{t}:3: ../" + "shared"]
+    # the bare name in a .py file and in prose of a .md file; a link between docs is allowed
+    assert bare_citations([one, two, clean]) == [f"{o}:4: physics.md", f"{t}:1: interface.md"]
+    for found in (missing_citations, private_paths, bare_citations):
+        assert found([clean]) == []
 
 
 def test_the_scanner_finds_the_citations(tmp_path):
