@@ -32,7 +32,7 @@ from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, IFACE_REAL_COLU
                      tally_shapes)
 
 WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "score.h", "tally.h",
-              "walk.cl")
+              "rays.h", "layers.h", "nadir.h", "carry.h", "exits.h", "walk.cl")
 MAX_LAUNCH = 2 ** 31 - 1
 #: Events per work-item of a walk's first launch; later launches scale it to take about
 #: ``target_launch_s`` (docs/walk.md §5)
