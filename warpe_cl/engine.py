@@ -466,7 +466,7 @@ class Engine:
     def use_program(self, program, key: tuple):
         """Walk the structure ``key`` (:func:`kernel_key`) with ``program``'s kernels from now
         on; returns its ``walk`` kernel. :meth:`kernel` calls it with the program it built;
-        tools/bench_ab.py --kernel-only with programs built from other trees' sources (in
+        tools/bench/bench_ab.py --kernel-only with programs built from other trees' sources (in
         this engine's context, with :meth:`program_options` of the key), to time them in one
         process."""
         import pyopencl as cl

@@ -244,7 +244,7 @@ def compare_counts(ker, ref, precision: str) -> str | None:
 
 
 def _b1_params():
-    """Scene B1 of tools/bench.py (60 mm slab, tau0 = 60.3, omega = 0.995): the speed probe."""
+    """Scene B1 of tools/bench/bench.py (60 mm slab, tau0 = 60.3, omega = 0.995): the speed probe."""
     from .params import WalkParams
     edges = 1e-6 * 10 ** (np.arange(0, 221) / 20)
     return WalkParams(texture="slab", thickness=0.06, extinction=1005.0, omega=0.99502, g=0.8,
