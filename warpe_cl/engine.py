@@ -24,12 +24,12 @@ from . import device as devmod
 from . import stops
 from .buffers import check_walk_buffers, walk_buffer_bytes
 from .errors import WeightError
-from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, IFACE_REAL_COLUMNS,
-                     ITEM_STATS, LAYER_REAL_COLUMNS, LAYER_STATS, NADIR_BATCHES, NADIR_ROWS,
-                     RECORD_FIELDS,
-                     RECORD_INT_COLUMNS, RECORD_REAL_COLUMNS, STATE_INT_COLUMNS,
+from .nadir import mirror_table, nadir_min_score, nadir_new_cell_score, view_table
+from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, ITEM_STATS, LAYER_STATS,
+                     NADIR_BATCHES, NADIR_ROWS, RECORD_FIELDS, RECORD_INT_COLUMNS, RECORD_REAL_COLUMNS, STATE_INT_COLUMNS,
                      STATE_REAL_COLUMNS, Counts, WalkParams, batch_photons, kernel_layout,
                      tally_shapes)
+from .stack import layer_tables
 
 WALK_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "score.h", "tally.h",
               "rays.h", "layers.h", "nadir.h", "carry.h", "exits.h", "walk.cl")
@@ -211,8 +211,8 @@ WALK_ARGS = (
     KernelArg("view", "__global const REAL *", only="nadir"),
     KernelArg("mirror", "__global const REAL *", only="nadir"),
     KernelArg("n_mirror", "int", only="nadir"),
-    KernelArg("nadir_min", "REAL", lambda p: p.nadir_min_score, only="nadir"),
-    KernelArg("nadir_min_new", "REAL", lambda p: p.nadir_new_cell_score, only="nadir"),
+    KernelArg("nadir_min", "REAL", nadir_min_score, only="nadir"),
+    KernelArg("nadir_min_new", "REAL", nadir_new_cell_score, only="nadir"),
     KernelArg("bin_log", "int", only="nadir"),
     KernelArg("bin_a", "REAL", only="nadir"),
     KernelArg("bin_b", "REAL", only="nadir"),
@@ -244,51 +244,6 @@ def argument_values(args, params: WalkParams, launch: dict, real) -> list:
         value = a.value(params) if a.value is not None else launch[a.name]
         out.append(value if a.is_buffer else _SCALAR_TYPES.get(a.ctype, real)(value))
     return out
-
-
-def gap_face(params: WalkParams) -> tuple:
-    """The index (n, k) of the gap medium under a stack's last layer (docs/walk.md §7.1): the
-    substrate's; vacuum under a slab over a vacuum gap; the last layer's own face (a floor in
-    contact, no interface) under a slab with ``bottom_interface: none`` or a granular layer."""
-    last = params.stack[-1]
-    if params.substrate is not None:
-        return (float(params.substrate[0]), float(params.substrate[1]))
-    if last.texture == "slab" and params.bottom_interface == "fresnel":
-        return (1.0, 0.0)
-    return last.face
-
-
-def layer_tables(params: WalkParams, real) -> dict:
-    """The tables the layered kernel reads (docs/walk.md §7.3), as NumPy arrays.
-
-    Returns
-    -------
-    dict
-        ``layer_real`` (N, len(LAYER_REAL_COLUMNS)) of dtype ``real``: z_top, z_bottom (m),
-        E (1/m), g, n_i / n_0; ``layer_words`` (N,) uint64: T_omega; ``iface_real``
-        (N + 1, len(IFACE_REAL_COLUMNS)) of dtype ``real``: for a ray going down, then up,
-        the real index on its side and the complex index of the far side; ``iface_kind``
-        (N + 1,) int32: 0 transparent (equal faces), 1 Fresnel.
-    """
-    layers = params.stack
-    depth = np.concatenate([[0.0], np.cumsum([x.thickness for x in layers])]).astype(real)
-    n0 = float(layers[0].n)
-    rows = {"z_top": depth[:-1], "z_bottom": depth[1:],
-            "extinction": [x.extinction for x in layers], "g": [x.g for x in layers],
-            "time_scale": [float(x.n) / n0 for x in layers]}
-    layer_real = np.stack([np.asarray(rows[c], dtype=real) for c in LAYER_REAL_COLUMNS], axis=1)
-    faces = [(1.0, 0.0)] + [x.face for x in layers] + [gap_face(params)]
-    iface, kind = [], []
-    for j in range(len(layers) + 1):
-        above, below = faces[j], faces[j + 1]
-        cols = {"down_near": above[0], "down_far_n": below[0], "down_far_k": below[1],
-                "up_near": below[0], "up_far_n": above[0], "up_far_k": above[1]}
-        iface.append([cols[c] for c in IFACE_REAL_COLUMNS])
-        kind.append(0 if above == below else 1)
-    return {"layer_real": np.ascontiguousarray(layer_real),
-            "layer_words": np.array([x.omega_words for x in layers], dtype=np.uint64),
-            "iface_real": np.asarray(iface, dtype=real),
-            "iface_kind": np.asarray(kind, dtype=np.int32)}
 
 
 def requested_lanes() -> int | None:
@@ -606,7 +561,6 @@ class Engine:
                                                size=8 * len(LAYER_STATS) * gsize)
         nadir_shape = (slices, NADIR_BATCHES, len(NADIR_ROWS), n_time + 2)
         if nadir:
-            from .nadir import mirror_table, view_table
             buffers["view"] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                         hostbuf=view_table(params).astype(real))
             mirror = mirror_table(params)

@@ -24,11 +24,13 @@ import math
 
 import numpy as np
 
-from .params import MIRROR_COLUMNS, MIRROR_KINDS, NADIR_ROWS, VIEW_COLUMNS, WalkParams, \
-    fixed_to_float
+from .params import (COMPONENTS, MIRROR_COLUMNS, MIRROR_KINDS, NADIR_ROWS, VIEW_COLUMNS,
+                     WalkParams, fixed_to_float)
 from .radiative import fresnel_external, fresnel_internal
+from .stack import gap_face
 
-__all__ = ["view_table", "mirror_table", "up_transmission", "reduce_nadir", "mirror_below"]
+__all__ = ["view_table", "mirror_table", "up_transmission", "reduce_nadir", "mirror_below",
+           "nadir_min_score", "nadir_new_cell_score"]
 
 #: The mirror table leaves out the virtual paths whose factor (the product of their
 #: reflections, transmissions and e^-tau of their whole crossings) is below this fraction of the
@@ -218,7 +220,6 @@ def mirror_table(params: WalkParams) -> np.ndarray:
 
 def _faces(params: WalkParams) -> tuple:
     """The face index (n, k) of each layer (top first), and of the gap medium below."""
-    from .engine import gap_face
     return [layer.face for layer in params.stack], gap_face(params)
 
 
@@ -285,6 +286,53 @@ def view_table(params: WalkParams) -> np.ndarray:
     return table
 
 
+def nadir_min_score(params: WalkParams) -> float:
+    """s_min of the analog walk's roulette of small nadir scores (docs/walk.md §8.3), sr^-1.
+
+    ``params.nadir_roulette`` times the score of a scattering at the top of the first layer
+    straight back up, p(pi) T_0 / (m_0^2 mu_0), p the HG phase function of its g.
+
+    Parameters
+    ----------
+    params : WalkParams
+
+    Returns
+    -------
+    float
+        The threshold; 0 (no roulette) in the weighted mode or where ``nadir_roulette`` is 0.
+    """
+    if params.weighted or not params.nadir_roulette > 0:
+        return 0.0
+    g = float(params.stack[0].g)
+    back = (1.0 - g * g) / (4.0 * np.pi * (1.0 + g) ** 3)      # p(pi)
+    return float(params.nadir_roulette) * float(view_table(params)[0, -1]) * back
+
+
+def nadir_new_cell_score(params: WalkParams) -> float:
+    """s_new of the roulette for a nadir score that would open a new pending cell
+    (docs/walk.md §8.3), sr^-1.
+
+    s_min (:func:`nadir_min_score`) times the ratio of the HG phase function's mean
+    1/(4 pi) to its backscatter p(pi), (1 + g)^2 / (1 - g), kept between s_min and
+    s_min / nadir_roulette (the score of a scattering at the top straight back up).
+
+    Parameters
+    ----------
+    params : WalkParams
+
+    Returns
+    -------
+    float
+        The threshold; 0 where s_min is 0.
+    """
+    s_min = nadir_min_score(params)
+    if not s_min > 0:
+        return 0.0
+    g = float(params.stack[0].g)
+    r = float(params.nadir_roulette)
+    return s_min * min(max((1.0 + g) ** 2 / (1.0 - g), 1.0), 1.0 / r)
+
+
 def _batch_error(sums: np.ndarray, batch_photons: np.ndarray) -> np.ndarray:
     """Standard error of sum_b S_b / N from the spread of the batch means (docs/walk.md §8):
     with m_b = S_b / n_b and m = sum S_b / N over the B batches that hold photons,
@@ -328,7 +376,6 @@ def reduce_nadir(counts, params: WalkParams, fov: dict) -> dict:
         ``nadir_order_reflectance``, ``nadir_order_reflectance_stderr`` (1, n_time) and
         ``nadir_order_brdf``, ``nadir_order_brdf_stderr`` (1,): the virtual paths of order 1.
     """
-    from .params import COMPONENTS
     n = counts.photons
     width = np.diff(np.asarray(params.time_edges, dtype=float))
     sums = fixed_to_float(counts.nadir_sum)                  # (B, rows, n_time + 2)

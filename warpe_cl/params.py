@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import bisect
 import math
+from fractions import Fraction
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -233,8 +234,6 @@ def word_threshold(probability: float) -> int:
     int
         T in [0, 2**32]: 0 for P = 0 (the event always happens), 2**32 for P = 1 (never).
     """
-    from fractions import Fraction
-    import math
     p = float(probability)
     if not p > 0.0:          # 0, negative or NaN: the event always happens
         return 0
@@ -342,9 +341,9 @@ class WalkParams:
         estimator; the incident beam is always vertical.
     nadir_roulette : float
         Analog walk: nadir scores below this fraction of the score of a scattering at the
-        top straight back up (:attr:`nadir_min_score`) play an unbiased roulette
+        top straight back up (:func:`warpe_cl.nadir.nadir_min_score`) play an unbiased roulette
         (docs/walk.md §8.3), those that would open a new pending cell against
-        :attr:`nadir_new_cell_score`; 0: every score counts.
+        :func:`warpe_cl.nadir.nadir_new_cell_score`; 0: every score counts.
     """
 
     texture: str
@@ -435,32 +434,6 @@ class WalkParams:
         return 2.0 * self.thickness * self.n / C_M_PER_NS
 
     @property
-    def nadir_min_score(self) -> float:
-        """s_min of the analog walk's roulette of small nadir scores (docs/walk.md §8.3), sr^-1:
-        ``nadir_roulette`` times the score of a scattering at the top of the first layer
-        straight back up, p(pi) T_0 / (m_0^2 mu_0), p the HG phase function of its g; 0 (no
-        roulette) in the weighted mode."""
-        if self.weighted or not self.nadir_roulette > 0:
-            return 0.0
-        from .nadir import view_table
-        g = float(self.stack[0].g)
-        back = (1.0 - g * g) / (4.0 * np.pi * (1.0 + g) ** 3)      # p(pi)
-        return float(self.nadir_roulette) * float(view_table(self)[0, -1]) * back
-
-    @property
-    def nadir_new_cell_score(self) -> float:
-        """s_new of the roulette for a nadir score that would open a new pending cell (docs/walk.md
-        §8.3), sr^-1: s_min times the ratio of the HG phase function's mean 1/(4 pi) to its
-        backscatter p(pi), (1 + g)^2 / (1 - g), kept between s_min and s_min / nadir_roulette
-        (the score of a scattering at the top straight back up); 0 where s_min is 0."""
-        s_min = self.nadir_min_score
-        if not s_min > 0:
-            return 0.0
-        g = float(self.stack[0].g)
-        r = float(self.nadir_roulette)
-        return s_min * min(max((1.0 + g) ** 2 / (1.0 - g), 1.0), 1.0 / r)
-
-    @property
     def cos_fov(self) -> np.ndarray:
         """cos of each component's field of view; -1 for 'any angle' (fov >= 90 deg)."""
         f = np.asarray(self.fov, dtype=float)
@@ -515,7 +488,6 @@ def _exact_zeros(*shape):
 
 def fixed_point(weight: float) -> int:
     """floor(weight * 2**FIXED_SHIFT), the integer a weighted tally adds (weight >= 0)."""
-    import math
     return int(math.ldexp(weight, FIXED_SHIFT)) if weight > 0 else 0
 
 

@@ -1,4 +1,9 @@
-"""The per-layer outputs of a walk: where rays are absorbed, and when the direct echoes arrive.
+"""A layered stack's physics on the host: the faces and tables the layered walk reads, and the
+per-layer outputs of a walk (where rays are absorbed, when the direct echoes arrive).
+
+:func:`gap_face` and :func:`layer_tables` give the medium under the last layer and the
+per-layer, per-interface tables of the layered kernel (docs/walk.md §7), which
+:class:`~warpe_cl.engine.Engine` uploads and :mod:`warpe_cl.nadir` mirrors.
 
 A result carries one entry per layer of its configuration, top first (dimension ``layer``),
 also for a single medium (one layer) and for the layers of zero thickness a sweep may hold
@@ -15,9 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .params import FATES, Counts, WalkParams
+from .params import FATES, IFACE_REAL_COLUMNS, LAYER_REAL_COLUMNS, Counts, WalkParams
 
-__all__ = ["configured_layers", "layer_variables"]
+__all__ = ["configured_layers", "gap_face", "layer_tables", "layer_variables"]
 
 #: The radiative parameters a result gives per layer (``layer_`` + name).
 RADIATIVE = ("tau0", "omega", "n_eff", "k_eff")
@@ -95,3 +100,48 @@ def layer_variables(counts: Counts, params: WalkParams, derived: dict) -> tuple:
             "units": "m", "long_name": "physical thickness of the layer"}),
     }
     return variables, coords
+
+
+def gap_face(params: WalkParams) -> tuple:
+    """The index (n, k) of the gap medium under a stack's last layer (docs/walk.md §7.1): the
+    substrate's; vacuum under a slab over a vacuum gap; the last layer's own face (a floor in
+    contact, no interface) under a slab with ``bottom_interface: none`` or a granular layer."""
+    last = params.stack[-1]
+    if params.substrate is not None:
+        return (float(params.substrate[0]), float(params.substrate[1]))
+    if last.texture == "slab" and params.bottom_interface == "fresnel":
+        return (1.0, 0.0)
+    return last.face
+
+
+def layer_tables(params: WalkParams, real) -> dict:
+    """The tables the layered kernel reads (docs/walk.md §7.3), as NumPy arrays.
+
+    Returns
+    -------
+    dict
+        ``layer_real`` (N, len(LAYER_REAL_COLUMNS)) of dtype ``real``: z_top, z_bottom (m),
+        E (1/m), g, n_i / n_0; ``layer_words`` (N,) uint64: T_omega; ``iface_real``
+        (N + 1, len(IFACE_REAL_COLUMNS)) of dtype ``real``: for a ray going down, then up,
+        the real index on its side and the complex index of the far side; ``iface_kind``
+        (N + 1,) int32: 0 transparent (equal faces), 1 Fresnel.
+    """
+    layers = params.stack
+    depth = np.concatenate([[0.0], np.cumsum([x.thickness for x in layers])]).astype(real)
+    n0 = float(layers[0].n)
+    rows = {"z_top": depth[:-1], "z_bottom": depth[1:],
+            "extinction": [x.extinction for x in layers], "g": [x.g for x in layers],
+            "time_scale": [float(x.n) / n0 for x in layers]}
+    layer_real = np.stack([np.asarray(rows[c], dtype=real) for c in LAYER_REAL_COLUMNS], axis=1)
+    faces = [(1.0, 0.0)] + [x.face for x in layers] + [gap_face(params)]
+    iface, kind = [], []
+    for j in range(len(layers) + 1):
+        above, below = faces[j], faces[j + 1]
+        cols = {"down_near": above[0], "down_far_n": below[0], "down_far_k": below[1],
+                "up_near": below[0], "up_far_n": above[0], "up_far_k": above[1]}
+        iface.append([cols[c] for c in IFACE_REAL_COLUMNS])
+        kind.append(0 if above == below else 1)
+    return {"layer_real": np.ascontiguousarray(layer_real),
+            "layer_words": np.array([x.omega_words for x in layers], dtype=np.uint64),
+            "iface_real": np.asarray(iface, dtype=real),
+            "iface_kind": np.asarray(kind, dtype=np.int32)}
