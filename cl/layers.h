@@ -6,7 +6,7 @@
  * starts in the layer (walk.md §8.1).
  *
  * The host module that pairs with it is warpe_cl/stack.py (the layer, interface and view
- * tables, docs/physics-layers.md); the physics is docs/physics.md §5.5-§5.6. The stack's steps
+ * tables, docs/physics.md §11); the physics is docs/physics.md §5.5-§5.6. The stack's steps
  * have stand-ins in the one-layer builds (empty, or the one layer's value), so that the walk
  * calls them unconditionally. After rays.h; before nadir.h, carry.h and exits.h, which call its
  * steps.
@@ -168,7 +168,7 @@ WALK_STEP VREAL flight_to_face(VMASK fl, VREAL u0, const scene_t *sc, rays_t *r,
 
 /* The lanes in bnd at interface j of the stack, j = l + 1 going down and l going up, with the
  * words u1 (x1), u2 and the azimuth (cos psi, sin psi) = u3 of their block (walk.md §7.1-§7.2,
- * docs/physics-layers.md). A Fresnel interface: total internal reflection, or reflect iff
+ * docs/physics.md §11). A Fresnel interface: total internal reflection, or reflect iff
  * u1 <= R(mu) (R_int towards vacuum, else R_ext with the relative index); a transmitted ray
  * refracts. A transparent one lets it through unchanged. At j = 0 the ray exits; at j = N it
  * enters the gap (Fresnel) or meets a floor in contact (transparent). Counts the

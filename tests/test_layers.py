@@ -1,4 +1,4 @@
-"""The layered walk on the OpenCL kernel (docs/walk.md §7, docs/physics-layers.md).
+"""The layered walk on the OpenCL kernel (docs/walk.md §7, docs/physics.md §11).
 
 Every Monte Carlo assertion states its tolerance next to it: 5 standard errors of a binomial
 count (conftest.binomial_sigma), or a two-sample chi-square at the 5-sigma level.
@@ -66,7 +66,7 @@ def r_normal(a: float, b: float) -> float:
 
 
 def test_exact_direct_echoes_of_two_slabs(engine):
-    """docs/physics-layers.md §4: without scattering (omega = 0) the rays stay vertical and
+    """docs/physics.md §11.4: without scattering (omega = 0) the rays stay vertical and
     each echo's fraction is a product of Fresnel factors and exp(-2 tau) terms; h n of the two
     slabs are incommensurate, so each echo has its own time bin. 5 sigma of the binomial."""
     n0, n1, h0, h1, e0, e1 = 1.3, 1.6, 0.01, 0.0137, 5.0, 8.0
@@ -94,7 +94,7 @@ def test_exact_direct_echoes_of_two_slabs(engine):
 
 @pytest.mark.parametrize("texture", ["granular", "slab"])
 def test_two_identical_layers_are_one(engine, texture):
-    """docs/physics-layers.md §5: the contact between equal faces is transparent; time and
+    """docs/physics.md §11.5: the contact between equal faces is transparent; time and
     angular histograms of the split layer and of the whole one agree (two-sample chi2, 5 sigma)."""
     whole = Layer(texture, 0.02, 150.0, 0.97, 0.6, 1.31, 1e-5)
     half = Layer(texture, 0.01, 150.0, 0.97, 0.6, 1.31, 1e-5)
@@ -107,7 +107,7 @@ def test_two_identical_layers_are_one(engine, texture):
 
 
 def test_transparent_layer_of_no_extinction_only_delays(engine):
-    """docs/physics-layers.md §5: a tau = 0 layer with the face of the slab under it adds path
+    """docs/physics.md §11.5: a tau = 0 layer with the face of the slab under it adds path
     and nothing else: the same fractions and angles (chi2, 5 sigma), and the bf_direct rays of
     a non-scattering slab, which stay vertical, arrive exactly 2 h n / c later."""
     ice = Layer("slab", 0.01, 30.0, 0.0, 0.0, 1.31, 0.0)

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Run the layered presets and draw their figures (docs/physics-layers.md, docs/figures).
+"""Run the layered presets and draw their figures (docs/physics.md §11, docs/figures).
 
     python tools/layer_figures.py [--photons N] [--out docs/figures] [--only NAME ...]
 

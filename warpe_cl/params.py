@@ -250,7 +250,7 @@ class Layer:
     ----------
     texture : {"slab", "granular"}
         A slab has flat faces: Fresnel contacts with its neighbours of another index. A
-        granular layer shows its pores (index 1) to its neighbours (docs/physics-layers.md).
+        granular layer shows its pores (index 1) to its neighbours (docs/physics.md §11).
     thickness : float
         Physical thickness h_i, m (> 0).
     extinction : float
@@ -280,7 +280,7 @@ class Layer:
     @property
     def face(self) -> tuple:
         """The index (n, k) a neighbour sees at this layer's faces: its own for a slab, the
-        pores' (1, 0) for a granular layer (docs/physics-layers.md §2)."""
+        pores' (1, 0) for a granular layer (docs/physics.md §11.2)."""
         return (float(self.n), float(self.k)) if self.texture == "slab" else (1.0, 0.0)
 
 
@@ -387,7 +387,7 @@ class WalkParams:
     @property
     def echo_times(self) -> np.ndarray:
         """Direct-echo delays 2 sum_{i<=j} h_i n_i / c of the bottom of each layer j, ns
-        (docs/physics-layers.md §4): where the back-and-forth echoes of the interfaces and
+        (docs/physics.md §11.4): where the back-and-forth echoes of the interfaces and
         of the floor arrive at nadir."""
         legs = [2.0 * layer.thickness * layer.n / C_M_PER_NS for layer in self.stack]
         return np.cumsum(legs)

@@ -8,13 +8,13 @@ per-layer, per-interface tables of the layered kernel (docs/walk.md §7), which
 A result carries one entry per layer of its configuration, top first (dimension ``layer``),
 also for a single medium (one layer) and for the layers of zero thickness a sweep may hold
 (``medium.layers[0].thickness: ["0 cm", ...]``): such a layer is no layer for the walk
-(docs/physics-layers.md §5), absorbs nothing, and its echo coincides with the one above it,
+(docs/physics.md §11.5), absorbs nothing, and its echo coincides with the one above it,
 so that every scenario of a sweep has the same ``layer`` dimension.
 
 * ``layer_fate_fraction`` (layer): rays absorbed by the medium of each layer, per launched
   ray (their sum is ``fate_fraction`` of ``absorbed_medium``, ray for ray: docs/walk.md §7.4);
 * ``echo_time`` (layer): the direct-echo delay of the bottom of each layer at nadir,
-  2 sum_{i<=j} h_i n_i / c, ns (docs/physics-layers.md §4).
+  2 sum_{i<=j} h_i n_i / c, ns (docs/physics.md §11.4).
 """
 from __future__ import annotations
 

@@ -83,7 +83,7 @@ from warpe_cl.api import get_engine, walk_params
 from warpe_cl.config import load_preset
 
 #: tools/studies/, where mcxcl_compare.py lives: the host side of --compare mcxcl is also the
-#: layered study's (docs/validation-layers.md); imported from there, after this folder.
+#: layered study's (docs/validation.md §5); imported from there, after this folder.
 STUDIES = Path(__file__).resolve().parent.parent / "studies"
 if str(STUDIES) not in sys.path:
     sys.path.append(str(STUDIES))

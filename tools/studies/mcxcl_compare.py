@@ -10,7 +10,7 @@ walk, prints the time-resolved reflectance per photon entering window by window 
 and exits with status 1 if a judged window (or the total reflectance, or the bottom's
 transmittance) differs by more than 5 standard errors (3 if MCX-CL cannot run). ``faces`` is the
 probe that shows why the stack lies in a frame of vacuum voxels in MCX's box. Both are described,
-with their results, in docs/validation-layers.md.
+with their results, in docs/validation.md §5.
 
 MCX-CL (pmcxcl 0.7.5, Qianqian Fang), run on PoCL, is the project's speed anchor
 (docs/performance.md, "MCX-CL anchor"). It runs in its own virtual environment
@@ -285,7 +285,7 @@ Z_LIMIT = 5.0
 #: vacuum medium (label N + 1: mua = mus = 0, n = 1) on all six faces, so that every face of the
 #: stack is an internal voxel boundary, where MCX-CL applies Fresnel for every medium;
 #: ``none``: the stack touches the box's faces, where this MCX-CL (pmcxcl 0.7.5 on PoCL)
-#: applies Fresnel only to medium 1 (docs/validation-layers.md, "MCX-CL's box faces").
+#: applies Fresnel only to medium 1 (docs/validation.md §5.3).
 PADDINGS = ("vacuum", "none")
 #: MCX's time gate is this much longer than ours, so that a photon that left the stack before
 #: our gate and crosses the vacuum padding after it is still saved (its time is the stack's).
@@ -315,7 +315,7 @@ def layered_params(layers_mm=LAYERS_MM, t_max_ns: float = LAYER_T_MAX_NS,
 
 def control_layers(layers_mm=LAYERS_MM) -> tuple:
     """The control: the same stack with every layer at the top layer's index, so that each
-    contact is transparent (docs/physics-layers.md §2) and only the media change."""
+    contact is transparent (docs/physics.md §11.2) and only the media change."""
     n0 = layers_mm[0][4]
     return tuple(tuple(row[:4]) + (n0,) for row in layers_mm)
 
@@ -588,7 +588,7 @@ def parse_layers_args(argv):
     p = argparse.ArgumentParser(
         prog="python tools/studies/mcxcl_compare.py layers",
         description="Two slab layers against MCX-CL: time-resolved reflectance per photon "
-                    "entering, window by window (docs/validation-layers.md). Exit status 0 if "
+                    "entering, window by window (docs/validation.md §5). Exit status 0 if "
                     "every judged row agrees within --z-limit standard errors, 1 if one does "
                     "not, 3 if MCX-CL cannot run.")
     p.add_argument("--photons", type=float, default=1e6, help="MCX-CL photons (default 1e6)")
