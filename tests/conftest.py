@@ -97,8 +97,8 @@ def binomial_sigma(p: float, n: int) -> float:
 def engine():
     """The OpenCL engine on the device `auto` picks (a usable device is required: the
     kernels are what this project is)."""
-    from warpe_cl.engine import Engine
-    return Engine()
+    from warpe_cl.api import get_engine
+    return get_engine()
 
 
 @pytest.fixture(scope="session")

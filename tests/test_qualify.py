@@ -35,9 +35,9 @@ def _fresh_engine(engine):
     from warpe_cl.engine import Engine
     e = Engine.__new__(Engine)
     e.__dict__.update(engine.__dict__)
-    e._lanes = {}
     e._kernels = {}
-    e.qualifier = qualify.Qualifier(engine.info, cache=qualify.VerdictCache(), say=lambda m: None)
+    e.choose_lanes = qualify.LaneChooser(
+        qualify.Qualifier(engine.info, cache=qualify.VerdictCache(), say=lambda m: None))
     return e
 
 
@@ -173,13 +173,13 @@ def test_auto_picks_the_fastest_qualified_device(monkeypatch):
     monkeypatch.setattr(devmod, "list_devices", lambda: [(i, i.device) for i in infos])
     monkeypatch.setattr(devmod, "probe", lambda dev: None)
     speeds = {"dev0": 1e8, "dev1": 3e8, "dev2": None}
-    monkeypatch.setattr(devmod, "qualification", lambda info, say=None: devmod.Qualification(
+    monkeypatch.setattr(qualify, "qualification", lambda info, say=None: qualify.Qualification(
         speeds[info.device] is not None, 16, speeds[info.device],
         None if speeds[info.device] else "wrong rays"))
-    assert devmod.select_device("auto")[0].device == "dev1"
-    assert devmod.select_device("dev0")[0].device == "dev0"
+    assert qualify.select_device("auto")[0].device == "dev1"
+    assert qualify.select_device("dev0")[0].device == "dev0"
     with pytest.raises(DeviceError, match="dev2.*wrong rays"):
-        devmod.select_device("dev2")
+        qualify.select_device("dev2")
 
 
 def test_devices_shows_the_verdicts(engine):

@@ -268,7 +268,7 @@ def test_devices_says_not_checked_yet_instead_of_qualified(cache, monkeypatch):
     rank = qualify.RANK_COMBO
     cache.put([(key(8, rank), passed(speed=1.2e8))])
     FakeChild(monkeypatch, {16: "timeout"})
-    status = devmod.qualification(CPU, say=lambda m: None)
+    status = qualify.qualification(CPU, say=lambda m: None)
     assert status.usable and status.lanes == 8 and status.events_per_s == 1.2e8
     assert status.failures == () and [w for w, _ in status.unchecked] == [16]
     lines = report.device_status_lines(None, status)
@@ -339,7 +339,7 @@ def test_a_forged_speed_does_not_win_auto(cache, monkeypatch):
     _edit(cache, k, events_per_s=1e20)
     child = FakeChild(monkeypatch, {16: passed(speed=1.1e8)})
     with pytest.warns(WarpeWarning, match="events_per_s 1e\\+20"):
-        status = devmod.qualification(CPU, say=lambda m: None)
+        status = qualify.qualification(CPU, say=lambda m: None)
     assert child.calls == [16] and status.events_per_s == 1.1e8
     assert cache.get(k)["events_per_s"] == 1.1e8
 
@@ -436,7 +436,7 @@ def _engine(q):
     """An Engine with only what ``lanes_for`` reads (no OpenCL)."""
     from warpe_cl.engine import Engine
     eng = Engine.__new__(Engine)
-    eng.info, eng.qualifier, eng._lanes = CPU, q, {}
+    eng.info, eng.choose_lanes = CPU, qualify.LaneChooser(q)
     return eng
 
 
@@ -473,7 +473,7 @@ def test_a_usable_qualification_is_made_of_a_passed_entry(cache, monkeypatch):
     rank = qualify.RANK_COMBO
     cache.put([(key(8, rank), passed(speed=None))])
     child = FakeChild(monkeypatch, {16: "timeout", 8: "timeout"})
-    status = devmod.qualification(CPU, say=lambda m: None)
+    status = qualify.qualification(CPU, say=lambda m: None)
     assert child.calls == [16, 8]
     assert status.usable and status.lanes == 8 and status.events_per_s is None
     q = qualify.qualifier_for(CPU)

@@ -23,11 +23,15 @@ import time
 
 from . import io, tally
 from .config import Config, load_preset, time_edges
+from .device import resolve_spec
+from .engine import Engine
 from .materials import table_attrs
 from .nadir import mirror_below
 from .params import Layer, WalkParams, stack_params
 from .progress import Progress
+from .qualify import LaneChooser, qualifier_for, select_device
 from .radiative import radiative_parameters
+from .reference import ReferenceEngine
 
 _engines: dict = {}
 #: The walks kept by :func:`reusing_walks` (None: none kept), by :func:`_walk_key`.
@@ -199,17 +203,35 @@ def parse_key(value) -> int:
 
 
 def get_engine(device: str | None = None):
-    """An :class:`~warpe_cl.engine.Engine` for ``device`` (kept for the process), or the
-    reference walk for ``"numpy"``."""
-    from .device import resolve_spec
+    """The engine for ``device``, kept for the process.
+
+    Parameters
+    ----------
+    device : str, optional
+        A device spec (:func:`warpe_cl.device.resolve_spec`: ``None`` reads
+        ``$WARPE_CL_DEVICE``, then ``$PYOPENCL_CTX``, else ``auto``); ``"numpy"`` for the
+        reference walk.
+
+    Returns
+    -------
+    Engine or ReferenceEngine
+        An :class:`~warpe_cl.engine.Engine` on the device that
+        :func:`warpe_cl.qualify.select_device` chose, with the lane chooser of its
+        qualification (:class:`warpe_cl.qualify.LaneChooser`); or the
+        :class:`~warpe_cl.reference.ReferenceEngine`.
+
+    Raises
+    ------
+    DeviceError
+        No usable device matches (exit 3).
+    """
     spec = resolve_spec(device)
     if spec not in _engines:
         if spec == "numpy":
-            from .reference import ReferenceEngine  # noqa: PLC0415 - only when asked for
             _engines[spec] = ReferenceEngine()
         else:
-            from .engine import Engine
-            _engines[spec] = Engine(spec)
+            info, dev = select_device(spec)
+            _engines[spec] = Engine(info, dev, choose_lanes=LaneChooser(qualifier_for(info)))
     return _engines[spec]
 
 

@@ -335,7 +335,8 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_devices(args) -> int:
-    from .device import INSTALL_HINT, list_devices, probe, qualification, resolve_spec, select_device
+    from .device import INSTALL_HINT, list_devices, probe, resolve_spec
+    from .qualify import qualification, select_device
     devices = list_devices()
     if not devices:
         print(f"no OpenCL platform found; {INSTALL_HINT}")

@@ -1,4 +1,4 @@
-"""OpenCL platforms and devices: listing, choosing, probing, and building programs.
+"""OpenCL platforms and devices: listing, probing, and building programs.
 
 The kernels live in ``cl/`` (installed as the package data ``warpe_cl.cl``). A program is
 the concatenation of its files in a fixed order, each preceded by a ``#line 1 "file"``
@@ -6,10 +6,12 @@ directive so that compiler messages name the real file and line (the sasmodels w
 of the files' contents and the build options (:func:`source_hash`, not of that text, which
 carries the install path) identifies the kernel in every output file.
 
-A device is *usable* only once it has compiled our self-test program and passed the
-known-answer walk of :mod:`warpe_cl.qualify` (ray by ray against the NumPy reference, in a
-child process, cached per user): an OpenCL driver that lists a device but cannot build for it,
-or builds kernels that compute wrong numbers (PoCL 3.0 from pip on AVX-512 CPUs that its
+This module knows what a device is, never whether to trust it: choosing one
+(:func:`warpe_cl.qualify.select_device`) and its verdicts live in :mod:`warpe_cl.qualify`,
+which builds on this one. A device is *usable* only once it has compiled our self-test
+program (:func:`probe`) and passed the known-answer walk of :mod:`warpe_cl.qualify` (ray by
+ray against the NumPy reference, in a child process, cached per user): an OpenCL driver that
+lists a device but cannot build for it, or builds kernels that compute wrong numbers (PoCL 3.0 from pip on AVX-512 CPUs that its
 LLVM 14 does not know: every ray "specular" at 8 lanes, an abort at 16), is skipped or held to
 the lane widths that pass, with its reason.
 """
@@ -20,8 +22,10 @@ import os
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
+from importlib.resources import files
 from pathlib import Path
 
+from .drivers import register
 from .errors import DeviceError
 
 SELFTEST_FILES = ("real.h", "lanes.h", "philox.h", "fresnel.h", "scatter.h", "score.h",
@@ -46,7 +50,6 @@ def kernel_dir() -> Path:
         if (folder / "walk.cl").is_file():
             return folder
     try:
-        from importlib.resources import files
         path = Path(str(files("warpe_cl.cl")))
         if (path / "walk.cl").is_file():
             return path
@@ -135,7 +138,6 @@ class DeviceInfo:
 
 
 def _cl():
-    from .drivers import register
     register()          # pip-installed drivers (Intel's CPU runtime), before the first CL call
     import pyopencl as cl
     return cl
@@ -270,102 +272,3 @@ def resolve_spec(spec: str | None = None) -> str:
         if value is not None and str(value).strip() != "":
             return str(value).strip()
     return "auto"
-
-
-def select_device(spec: str | None = None, qualify: bool = True):
-    """Choose a usable OpenCL device.
-
-    Parameters
-    ----------
-    spec : str, optional
-        ``auto``, ``cpu``, ``gpu``, ``P:D`` (platform and device index), or a substring of the
-        device or platform name. ``None`` reads ``$WARPE_CL_DEVICE``, then ``$PYOPENCL_CTX``.
-    qualify : bool
-        Require the device to pass the known-answer walk (:mod:`warpe_cl.qualify`) at some
-        lane width; ``auto``, ``cpu`` and ``gpu`` then pick the fastest qualified device
-        (scattering events/s on scene B1, measured once and cached). ``False`` only builds
-        the self-test program (the qualification's own child process uses this).
-
-    Returns
-    -------
-    (DeviceInfo, pyopencl.Device)
-
-    Raises
-    ------
-    DeviceError
-        When nothing matches, or nothing that matches is usable; the message says why and
-        what to install.
-    """
-    spec = resolve_spec(spec)
-    devices = list_devices()
-    if not devices:
-        raise DeviceError(f"no OpenCL platform found; {INSTALL_HINT}")
-    matches = candidates(spec, devices)
-    if not matches:
-        listing = "; ".join(d[0].describe() for d in devices)
-        raise DeviceError(f"--device {spec}: no OpenCL device matches; available: {listing}")
-    reasons, ranked = [], []
-    for info, dev in matches:
-        reason = probe(dev)
-        if reason is None and qualify:
-            status = qualification(info)
-            reason = None if status.usable else status.reason
-            if reason is None:
-                ranked.append((status.events_per_s or 0.0, info, dev))
-                if spec not in ("auto", "cpu", "gpu"):
-                    break
-                continue
-        elif reason is None:
-            return info, dev
-        reasons.append(f"{info.spec} {info.device} ({info.platform} {info.platform_version}): {reason}")
-    if ranked:
-        best = max(ranked, key=lambda r: r[0])       # the first of equals: list order
-        return best[1], best[2]
-    raise DeviceError(f"--device {spec}: no usable OpenCL device: " + "; ".join(reasons)
-                      + f"; {INSTALL_HINT}")
-
-
-@dataclass(frozen=True)
-class Qualification:
-    """A device's verdict for the ranking kernel (slab, single precision, analog)."""
-
-    usable: bool
-    lanes: int | None
-    events_per_s: float | None
-    reason: str | None
-    failures: tuple = ()
-    seconds: float | None = None     # wall time of the passing check (child process, builds,
-                                     # known-answer walk, speed)
-    date: str | None = None          # when it ran
-    #: widths above ``lanes`` (all, when none is usable) whose check came to no verdict --
-    #: timed out, or killed from outside -- as ``(lanes, reason)``: checked again after a day
-    unchecked: tuple = ()
-
-
-def qualification(info, say=None) -> Qualification:
-    """Qualify ``info`` for the ranking kernel at its widest passing lane width (cached).
-
-    A width whose check came to no verdict (timed out on a busy machine) is no failure: the
-    next narrower qualified width is used and the width is listed in ``unchecked``; where no
-    width is usable because of it, the reason says "not checked yet".
-    """
-    from .qualify import RANK_COMBO, qualifier_for
-    q = qualifier_for(info, say=say)
-    choice = q.choose(RANK_COMBO, measure=True)
-    if choice.lanes is None:
-        unchecked_only = not choice.failures
-        return Qualification(False, None, None,
-                             ("not checked yet at any lane width (checked again after a day, "
-                              "or with `warpe-cl devices --requalify`): "
-                              if unchecked_only else
-                              "failed the known-answer walk at every lane width: ")
-                             + "; ".join(f"{w} lanes: {r}" for w, r in
-                                         sorted(choice.failures + choice.unchecked,
-                                                reverse=True)),
-                             choice.failures, unchecked=choice.unchecked)
-    entry = choice.entry                   # the passed verdict the choice was made of
-    if entry is None or not entry["passed"]:
-        raise AssertionError(f"lane choice {choice.lanes} without a passed verdict")
-    return Qualification(True, choice.lanes, entry.get("events_per_s"), None, choice.failures,
-                         entry.get("child_wall_s", entry.get("seconds")), entry.get("date"),
-                         choice.unchecked)

@@ -23,7 +23,7 @@ import numpy as np
 from . import device as devmod
 from . import stops
 from .buffers import check_walk_buffers, walk_buffer_bytes
-from .errors import WeightError
+from .errors import ConfigError, DeviceError, WeightError
 from .nadir import mirror_table, nadir_min_score, nadir_new_cell_score, view_table
 from .params import (COMPONENTS, FATES, FIXED_WORDS, HISTOGRAMS, ITEM_STATS, LAYER_STATS,
                      NADIR_BATCHES, NADIR_ROWS, RECORD_FIELDS, RECORD_INT_COLUMNS, RECORD_REAL_COLUMNS, STATE_INT_COLUMNS,
@@ -254,7 +254,6 @@ def requested_lanes() -> int | None:
     if not env:
         return None
     if not env.isdigit() or int(env) not in LANE_WIDTHS:
-        from .errors import ConfigError
         raise ConfigError(f"{env!r} is not allowed; give one of "
                           f"{', '.join(map(str, LANE_WIDTHS))} (photons per work-item)",
                           key="WARPE_CL_LANES", source="environment")
@@ -290,10 +289,21 @@ def default_lanes(kind: str, precision: str, preferred: int = 1) -> int:
 class Engine:
     """Runs walks on one OpenCL device.
 
+    The engine neither chooses its device nor judges it: :func:`warpe_cl.api.get_engine` hands
+    it a device that :func:`warpe_cl.qualify.select_device` chose and a lane chooser
+    (:class:`warpe_cl.qualify.LaneChooser`) that knows which lane widths qualified there.
+
     Parameters
     ----------
-    device : str or None
-        A device spec for :func:`warpe_cl.device.select_device` (``None``: environment, then auto).
+    info : DeviceInfo
+        The device, described (:class:`warpe_cl.device.DeviceInfo`).
+    device : pyopencl.Device
+        The device itself.
+    choose_lanes : callable, optional
+        ``choose_lanes(texture, precision, weighted, lanes)`` -> the lane width to walk a
+        kernel with, qualified on the device (:class:`warpe_cl.qualify.LaneChooser`); ``None``
+        walks the width asked for, else :func:`default_lanes`, unchecked (the known-answer
+        walk of :mod:`warpe_cl.qualify` itself).
     target_launch_s : float
         Wanted duration of one launch, s (0.1-1 s keeps the progress bar and Ctrl-C responsive
         and stays far below GPU watchdog limits).
@@ -301,9 +311,9 @@ class Engine:
 
     name = "opencl"
 
-    def __init__(self, device: str | None = None, target_launch_s: float = 0.3,
-                 qualify: bool = True):
-        self.info, self.device = devmod.select_device(device, qualify=qualify)
+    def __init__(self, info, device, choose_lanes: Callable | None = None,
+                 target_launch_s: float = 0.3):
+        self.info, self.device = info, device
         self.context, self.queue = devmod.context_and_queue(self.device)
         self.target_launch_s = target_launch_s
         self.kernel_hash = None
@@ -316,11 +326,7 @@ class Engine:
         self._folds = {}      # the nadir_fold kernel of each nadir build (same keys)
         self._nadir_sums = None   # (shape, sums, visits) of the last nadir walk, kept
         self._warmed = set()
-        self.qualifier = None
-        if qualify:
-            from .qualify import qualifier_for
-            self.qualifier = qualifier_for(self.info)
-        self._lanes = {}
+        self.choose_lanes = choose_lanes
 
     def lanes_for(self, texture: str, precision: str, weighted: bool,
                   lanes: int | None = None, check: bool = True) -> int:
@@ -330,51 +336,16 @@ class Engine:
         otherwise :class:`~warpe_cl.errors.DeviceError` says why. Without a request, the widest
         width that qualifies, from :func:`widest_lanes` (16, 8 in double, or the driver's narrower
         preferred vector width; 1 on GPUs) down through 8, 4 and 1; a fallback is said in one
-        warning line. ``check=False`` (the known-answer walk itself),
-        or an engine made with ``qualify=False``: the width asked for, else
+        warning line (both: :attr:`choose_lanes`). ``check=False`` (the known-answer walk
+        itself), or an engine without a lane chooser: the width asked for, else
         :func:`default_lanes`, unchecked.
         """
         if lanes is None:
             lanes = requested_lanes()
-        if not check or self.qualifier is None:
+        if not check or self.choose_lanes is None:
             return int(lanes or default_lanes(self.info.kind, precision,
                                               self.info.preferred_width(precision)))
-        from .qualify import (UNCHECKED_TTL_S, Combo, describe_short, fallback_message,
-                              is_unchecked)
-        combo = Combo(texture, precision, bool(weighted))
-        key = (combo, lanes)
-        if key in self._lanes:
-            return self._lanes[key]
-        if lanes is not None:
-            entry = self.qualifier.verdicts(int(lanes), [combo], measure=False)[combo]
-            if is_unchecked(entry):
-                raise devmod.DeviceError(
-                    f"{describe_short(self.info)}: {combo.label} at {lanes} lanes (asked for) "
-                    f"is not checked yet: the check timed out or was stopped "
-                    f"({entry['reason'].removeprefix('not checked yet: ')}); run again after "
-                    f"{UNCHECKED_TTL_S // 3600} h or `warpe-cl devices --requalify` (on a "
-                    "machine less busy), or unset WARPE_CL_LANES to walk a qualified width")
-            if not entry["passed"]:
-                raise devmod.DeviceError(
-                    f"{describe_short(self.info)} failed qualification at {lanes} lanes for "
-                    f"{combo.label}: "
-                    f"{entry['reason']}")
-            chosen = int(lanes)
-        else:
-            choice = self.qualifier.choose(combo)
-            chosen = choice.lanes
-            if chosen is None:
-                raise devmod.DeviceError(
-                    f"{describe_short(self.info)} is not usable for {combo.label}: "
-                    + "; ".join(f"{w} lanes: {r}" for w, r in
-                                sorted(choice.failures + choice.unchecked, reverse=True)))
-            message = fallback_message(self.info, combo, choice)   # one line, both kinds
-            if message:
-                import warnings
-                from .errors import WarpeWarning
-                warnings.warn(message, WarpeWarning, stacklevel=2)
-        self._lanes[key] = chosen
-        return chosen
+        return self.choose_lanes(texture, precision, weighted, lanes)
 
     @property
     def provenance(self) -> dict:
@@ -395,14 +366,14 @@ class Engine:
                weighted: bool = False, nadir: bool = False):
         """The walk kernel for this structure; programs are built once per process."""
         if precision == "double" and not self.info.fp64:
-            raise devmod.DeviceError(f"{self.info.device} has no double precision; "
+            raise DeviceError(f"{self.info.device} has no double precision; "
                                      "use simulation.precision: single")
         if weighted and "cl_khr_int64_base_atomics" not in self.device.extensions:
-            raise devmod.DeviceError(f"{self.info.device} has no 64-bit atomics "
+            raise DeviceError(f"{self.info.device} has no 64-bit atomics "
                                      "(cl_khr_int64_base_atomics), which the weighted mode's "
                                      "exact tallies need; use simulation.mode: analog")
         if nadir and "cl_khr_int64_base_atomics" not in self.device.extensions:
-            raise devmod.DeviceError(f"{self.info.device} has no 64-bit atomics "
+            raise DeviceError(f"{self.info.device} has no 64-bit atomics "
                                      "(cl_khr_int64_base_atomics), which the nadir "
                                      "estimator's exact sums need; use simulation.nadir: false")
         self.kernel_hash = walk_source_hash()

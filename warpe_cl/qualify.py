@@ -50,13 +50,27 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from .params import KERNEL_TEXTURES, RECORD_INT_COLUMNS
+from . import device as devmod
+from .config.schema import FIELDS
+from .device import INSTALL_HINT
+from .drivers import usable_cache_dir
+from .engine import WALK_FILES, Engine, kernel_key, walk_options, widest_lanes
+from .errors import DeviceError, WarpeWarning
+from .io import write_text
+from .params import KERNEL_TEXTURES, RECORD_INT_COLUMNS, Layer, WalkParams, stack_params
+from .reference import simulate_reference
+
+try:
+    import fcntl
+except ImportError:          # no POSIX locks (Windows): the cache is written unlocked
+    fcntl = None
 
 #: bump when the check itself changes meaning (the hash of this file is in the key as well)
 QUALIFY_VERSION = 1
@@ -103,7 +117,6 @@ class Combo:
 
     @classmethod
     def parse(cls, text: str) -> "Combo":
-        from .config.schema import FIELDS
         texture, precision, mode = text.split(":")
         if texture not in KERNEL_TEXTURES or precision not in FIELDS["simulation.precision"].choices \
                 or mode not in FIELDS["simulation.mode"].choices:
@@ -129,7 +142,6 @@ def _scenes(combo: Combo) -> dict:
     nadir estimate (docs/walk.md §8), which every run makes by default (its build holds the
     whole walk and the estimator, with the mirror paths of a slab over a gap and of a stack's
     Fresnel contacts)."""
-    from .params import Layer, WalkParams, stack_params
     edges = 1e-6 * 10 ** (np.arange(0, 221) / 20)          # 1e-6 .. 1e5 ns
     base = dict(thickness=0.01, time_edges=edges, seed=7, bottom_interface="fresnel",
                 nadir=True)
@@ -245,7 +257,6 @@ def compare_counts(ker, ref, precision: str) -> str | None:
 
 def _b1_params():
     """Scene B1 of tools/bench/bench.py (60 mm slab, tau0 = 60.3, omega = 0.995): the speed probe."""
-    from .params import WalkParams
     edges = 1e-6 * 10 ** (np.arange(0, 221) / 20)
     return WalkParams(texture="slab", thickness=0.06, extinction=1005.0, omega=0.99502, g=0.8,
                       n=1.3, k=0.0, albedo=0.15, time_edges=edges, seed=1, max_time=5.0,
@@ -271,7 +282,6 @@ def check(engine, lanes: int, combo: Combo, measure: bool = True, corrupt: bool 
 
     ``corrupt`` stands in for a miscompiling driver (every ray reported specular, as pip's
     PoCL 3.0 did at 8 lanes on AVX-512 CPUs): the test of the check itself."""
-    from .reference import simulate_reference
     t0 = time.perf_counter()
     entry = {"passed": False, "reason": None, "events_per_s": None}
     try:
@@ -309,8 +319,6 @@ def _source_digest() -> str:
     """Hash of everything that decides a verdict besides the device and the build options:
     kernel sources (their contents, wherever they are installed), the reference walk, its
     random numbers, and this check (read once per process)."""
-    from . import device as devmod
-    from .engine import WALK_FILES
     h = hashlib.sha256(devmod.source_hash(WALK_FILES).encode())
     here = Path(__file__).resolve().parent
     for name in ("reference.py", "rng.py", "params.py", "qualify.py"):
@@ -320,7 +328,6 @@ def _source_digest() -> str:
 
 def combo_key(info, lanes: int, combo: Combo) -> dict:
     """Everything a verdict depends on."""
-    from .engine import kernel_key, walk_options
     fault = _fault(lanes)
     key = {"fault": fault} if fault else {}
     structure = kernel_key(combo.texture, combo.precision, False, lanes, combo.weighted)
@@ -535,7 +542,6 @@ class VerdictCache:
     """
 
     def __init__(self, folder: Path | None = None):
-        from .drivers import usable_cache_dir
         self.folder = Path(folder) if folder else usable_cache_dir()
         self.path = self.folder / "qualification.json"
 
@@ -544,9 +550,9 @@ class VerdictCache:
         self.folder.mkdir(parents=True, exist_ok=True)
         with open(self.folder / "qualification.lock", "a+") as fh:
             try:
-                import fcntl
-                fcntl.flock(fh, fcntl.LOCK_EX)
-            except (ImportError, OSError):
+                if fcntl is not None:
+                    fcntl.flock(fh, fcntl.LOCK_EX)
+            except OSError:
                 pass
             yield
 
@@ -570,8 +576,6 @@ class VerdictCache:
                 and str(self.path) not in _warned_invalid:
             # an entry of warpe-cl <= 0.x had no hash: replaced quietly; others are said
             _warned_invalid.add(str(self.path))
-            import warnings
-            from .errors import WarpeWarning
             warnings.warn(f"{self.path}: a cached verdict ({key.get('combo')} at "
                           f"{key.get('lanes')} lanes) is not valid ({problem}): ignored, "
                           "checked again", WarpeWarning, stacklevel=2)
@@ -591,7 +595,6 @@ class VerdictCache:
                     stored = {**entry, "key": key}
                     stored["sha256"] = entry_hash(stored, key)
                     data[_key_id(key)] = stored
-                from .io import write_text
                 write_text(self.path, json.dumps(data, indent=1, sort_keys=True))
         except OSError:
             pass   # a cache that cannot be written costs time, never correctness
@@ -672,7 +675,6 @@ class Qualifier:
     def lane_chain(self, precision: str) -> tuple:
         """The lane widths tried, widest first (engine.widest_lanes: a vector of 512 bits on
         CPUs, or the driver's preferred vector width where narrower; one on GPUs)."""
-        from .engine import widest_lanes
         widest = widest_lanes(self.info.kind, precision, self.info.preferred_width(precision))
         return (widest,) + tuple(w for w in FALLBACK_LANES if w < widest)
 
@@ -808,8 +810,6 @@ class Qualifier:
             return None, sorted(choice.failures + choice.unchecked, reverse=True)
         message = fallback_message(self.info, combo, choice)
         if message:
-            import warnings
-            from .errors import WarpeWarning
             warnings.warn(message, WarpeWarning, stacklevel=3)
         return choice.lanes, list(choice.failures)
 
@@ -888,6 +888,180 @@ def _stderr(message: str) -> None:
     print(f"warpe-cl: {message}", file=sys.stderr, flush=True)
 
 
+class LaneChooser:
+    """The lane width an :class:`~warpe_cl.engine.Engine` walks each kernel with, qualified on
+    its device (docs/devices.md): what :func:`warpe_cl.api.get_engine` hands the engine.
+
+    Parameters
+    ----------
+    qualifier : Qualifier
+        The device's verdicts (:func:`qualifier_for`).
+    """
+
+    def __init__(self, qualifier: Qualifier):
+        self.qualifier = qualifier
+        self.info = qualifier.info
+        self._lanes = {}
+
+    def __call__(self, texture: str, precision: str, weighted: bool,
+                 lanes: int | None = None) -> int:
+        """The lane width for this kernel.
+
+        Parameters
+        ----------
+        texture, precision, weighted
+            The kernel's combination (:class:`Combo`).
+        lanes : int, optional
+            One width asked for (``lanes=`` or ``$WARPE_CL_LANES``): used if it qualifies,
+            otherwise :class:`~warpe_cl.errors.DeviceError` says why. Without it, the widest
+            width that qualifies (:meth:`Qualifier.choose`); a fallback is said in one warning
+            line.
+
+        Returns
+        -------
+        int
+
+        Raises
+        ------
+        DeviceError
+            The width asked for failed or is not checked yet, or no width is usable.
+        """
+        combo = Combo(texture, precision, bool(weighted))
+        key = (combo, lanes)
+        if key in self._lanes:
+            return self._lanes[key]
+        if lanes is not None:
+            entry = self.qualifier.verdicts(int(lanes), [combo], measure=False)[combo]
+            if is_unchecked(entry):
+                raise DeviceError(
+                    f"{describe_short(self.info)}: {combo.label} at {lanes} lanes (asked for) "
+                    f"is not checked yet: the check timed out or was stopped "
+                    f"({entry['reason'].removeprefix('not checked yet: ')}); run again after "
+                    f"{UNCHECKED_TTL_S // 3600} h or `warpe-cl devices --requalify` (on a "
+                    "machine less busy), or unset WARPE_CL_LANES to walk a qualified width")
+            if not entry["passed"]:
+                raise DeviceError(
+                    f"{describe_short(self.info)} failed qualification at {lanes} lanes for "
+                    f"{combo.label}: "
+                    f"{entry['reason']}")
+            chosen = int(lanes)
+        else:
+            choice = self.qualifier.choose(combo)
+            chosen = choice.lanes
+            if chosen is None:
+                raise DeviceError(
+                    f"{describe_short(self.info)} is not usable for {combo.label}: "
+                    + "; ".join(f"{w} lanes: {r}" for w, r in
+                                sorted(choice.failures + choice.unchecked, reverse=True)))
+            message = fallback_message(self.info, combo, choice)   # one line, both kinds
+            if message:
+                # stacklevel 3: the line that called Engine.lanes_for
+                warnings.warn(message, WarpeWarning, stacklevel=3)
+        self._lanes[key] = chosen
+        return chosen
+
+
+# --------------------------------------------------------------------------------------------
+# choosing a device
+
+def select_device(spec: str | None = None, qualify: bool = True):
+    """Choose a usable OpenCL device.
+
+    Parameters
+    ----------
+    spec : str, optional
+        ``auto``, ``cpu``, ``gpu``, ``P:D`` (platform and device index), or a substring of the
+        device or platform name. ``None`` reads ``$WARPE_CL_DEVICE``, then ``$PYOPENCL_CTX``.
+    qualify : bool
+        Require the device to pass the known-answer walk (:mod:`warpe_cl.qualify`) at some
+        lane width; ``auto``, ``cpu`` and ``gpu`` then pick the fastest qualified device
+        (scattering events/s on scene B1, measured once and cached). ``False`` only builds
+        the self-test program (the qualification's own child process uses this).
+
+    Returns
+    -------
+    (DeviceInfo, pyopencl.Device)
+
+    Raises
+    ------
+    DeviceError
+        When nothing matches, or nothing that matches is usable; the message says why and
+        what to install.
+    """
+    spec = devmod.resolve_spec(spec)
+    devices = devmod.list_devices()
+    if not devices:
+        raise DeviceError(f"no OpenCL platform found; {INSTALL_HINT}")
+    matches = devmod.candidates(spec, devices)
+    if not matches:
+        listing = "; ".join(d[0].describe() for d in devices)
+        raise DeviceError(f"--device {spec}: no OpenCL device matches; available: {listing}")
+    reasons, ranked = [], []
+    for info, dev in matches:
+        reason = devmod.probe(dev)
+        if reason is None and qualify:
+            status = qualification(info)
+            reason = None if status.usable else status.reason
+            if reason is None:
+                ranked.append((status.events_per_s or 0.0, info, dev))
+                if spec not in ("auto", "cpu", "gpu"):
+                    break
+                continue
+        elif reason is None:
+            return info, dev
+        reasons.append(f"{info.spec} {info.device} ({info.platform} {info.platform_version}): {reason}")
+    if ranked:
+        best = max(ranked, key=lambda r: r[0])       # the first of equals: list order
+        return best[1], best[2]
+    raise DeviceError(f"--device {spec}: no usable OpenCL device: " + "; ".join(reasons)
+                      + f"; {INSTALL_HINT}")
+
+
+@dataclass(frozen=True)
+class Qualification:
+    """A device's verdict for the ranking kernel (slab, single precision, analog)."""
+
+    usable: bool
+    lanes: int | None
+    events_per_s: float | None
+    reason: str | None
+    failures: tuple = ()
+    seconds: float | None = None     # wall time of the passing check (child process, builds,
+                                     # known-answer walk, speed)
+    date: str | None = None          # when it ran
+    #: widths above ``lanes`` (all, when none is usable) whose check came to no verdict --
+    #: timed out, or killed from outside -- as ``(lanes, reason)``: checked again after a day
+    unchecked: tuple = ()
+
+
+def qualification(info, say=None) -> Qualification:
+    """Qualify ``info`` for the ranking kernel at its widest passing lane width (cached).
+
+    A width whose check came to no verdict (timed out on a busy machine) is no failure: the
+    next narrower qualified width is used and the width is listed in ``unchecked``; where no
+    width is usable because of it, the reason says "not checked yet".
+    """
+    q = qualifier_for(info, say=say)
+    choice = q.choose(RANK_COMBO, measure=True)
+    if choice.lanes is None:
+        unchecked_only = not choice.failures
+        return Qualification(False, None, None,
+                             ("not checked yet at any lane width (checked again after a day, "
+                              "or with `warpe-cl devices --requalify`): "
+                              if unchecked_only else
+                              "failed the known-answer walk at every lane width: ")
+                             + "; ".join(f"{w} lanes: {r}" for w, r in
+                                         sorted(choice.failures + choice.unchecked,
+                                                reverse=True)),
+                             choice.failures, unchecked=choice.unchecked)
+    entry = choice.entry                   # the passed verdict the choice was made of
+    if entry is None or not entry["passed"]:
+        raise AssertionError(f"lane choice {choice.lanes} without a passed verdict")
+    return Qualification(True, choice.lanes, entry.get("events_per_s"), None, choice.failures,
+                         entry.get("child_wall_s", entry.get("seconds")), entry.get("date"),
+                         choice.unchecked)
+
+
 # --------------------------------------------------------------------------------------------
 # the child
 
@@ -915,8 +1089,8 @@ def _child(argv=None) -> int:
     parser.add_argument("--expect", default=None, help="the device name P:D must have")
     parser.add_argument("--no-measure", action="store_true")
     args = parser.parse_args(argv)
-    from .engine import Engine
-    engine = Engine(args.device, qualify=False)
+    info, dev = select_device(args.device, qualify=False)
+    engine = Engine(info, dev)         # no lane chooser: the widths asked for, unchecked
     if args.expect is not None and engine.info.device != args.expect:
         print(f"device {args.device} is {engine.info.device!r}, not {args.expect!r}",
               file=sys.stderr)

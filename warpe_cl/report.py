@@ -175,7 +175,7 @@ def device_status_lines(reason: str | None, status=None) -> list:
     reason : str or None
         Why the self-test program does not build (:func:`warpe_cl.device.probe`), or None.
     status : optional
-        The device's qualification (:func:`warpe_cl.device.qualification`) where it builds.
+        The device's qualification (:func:`warpe_cl.qualify.qualification`) where it builds.
 
     Returns
     -------

@@ -101,9 +101,10 @@ def kernel_only(trees: dict, args, say) -> dict:
     from warpe_cl import device as devmod
     from warpe_cl.api import walk_params
     from warpe_cl.config import load_preset
-    from warpe_cl.engine import WALK_FILES, Engine, kernel_key
+    from warpe_cl.api import get_engine
+    from warpe_cl.engine import WALK_FILES, kernel_key
 
-    engine = Engine(args.device)
+    engine = get_engine(args.device)
     say(f"# host {REPO}; device {engine.info.device} | {engine.info.platform} "
         f"{engine.info.platform_version}")
     sources = {}

@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
 
     from warpe_cl import device as devmod, qualify
-    from warpe_cl.engine import Engine
+    from warpe_cl.api import get_engine
 
     # qualification from an empty cache, timed
     os.environ["WARPE_CL_CACHE_DIR"] = tempfile.mkdtemp(prefix="warpe-bench-cache-")
@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     rows = {}
     for info in chosen:
         t0 = time.perf_counter()
-        status = devmod.qualification(info, say=lambda m: None)
+        status = qualify.qualification(info, say=lambda m: None)
         wall = time.perf_counter() - t0
         label = f"{info.spec} {info.device} ({info.platform_version.split(',')[0].strip()})"
         print(f"# {label}: qualification from an empty cache {wall:.1f} s: "
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
             rows[label] = {"spec": info.spec, "lanes": status.lanes,
                            "qualification_s": round(wall, 2), "scenes": {}}
 
-    engines = {label: Engine(row["spec"]) for label, row in rows.items()}
+    engines = {label: get_engine(row["spec"]) for label, row in rows.items()}
     scenes = {s: walk_params(load_preset(SCENES[s]))[0] for s in args.scenes.split(",")}
     n = int(args.photons)
     for engine in engines.values():                    # builds, outside the timing

@@ -623,7 +623,7 @@ def main_layers(argv) -> int:
     import time
     args = parse_layers_args(argv)
     t_start = time.perf_counter()
-    from warpe_cl.engine import Engine
+    from warpe_cl.api import get_engine
     try:
         python = ensure_venv(venv_path(args.mcxcl_venv))
         wd = workdir()
@@ -631,7 +631,7 @@ def main_layers(argv) -> int:
     except McxclUnavailable as err:
         print(f"mcxcl_compare layers: {err}", file=sys.stderr)
         return 3
-    engine = Engine(args.device)
+    engine = get_engine(args.device)
     cases = [("two layers", LAYERS_MM)]
     if not args.no_control:
         cases.append(("control, one index", control_layers(LAYERS_MM)))
