@@ -35,14 +35,22 @@ def check_bits(folder: str, names, device: str | None = None) -> dict:
     return {name.split("/", 1)[1]: combined(variables) for name, variables in prints.items()}
 
 
-def tree_name(repo: Path = REPO) -> str:
-    """``git describe --always --dirty`` of ``repo``, or ``unknown`` outside a checkout."""
-    try:
-        return subprocess.run(["git", "-C", str(repo), "describe", "--always", "--dirty",
-                               "--abbrev=12"], capture_output=True, text=True,
+def tree_name(repo: Path = REPO, outputs: Path | None = None) -> str:
+    """The commit of ``repo`` (``git describe --always``), with ``-dirty`` when a tracked file
+    other than those under ``outputs`` (the figures being written) differs from it; ``unknown``
+    outside a checkout."""
+    def git(*args):
+        return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True,
                               check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
+    try:
+        name = git("describe", "--always", "--abbrev=12")
+        spec = ["--", "."]
+        if outputs is not None:
+            spec.append(f":(exclude){Path(outputs).resolve().relative_to(repo.resolve())}")
+        changed = git("status", "--porcelain", "--untracked-files=no", *spec)
+    except (OSError, ValueError, subprocess.CalledProcessError):
         return "unknown"
+    return name + ("-dirty" if changed else "")
 
 
 def write_provenance(path: Path, folder: str, presets: list, photons, device: str,
@@ -72,7 +80,7 @@ def write_provenance(path: Path, folder: str, presets: list, photons, device: st
         except (OSError, ValueError, AttributeError):
             entries = {}
     bits = check_bits(folder, presets)
-    tree = tree_name()
+    tree = tree_name(outputs=path.parent)
     for name in presets:
         entries[f"{folder}/{name}"] = {
             "tree": tree, "photons": photons, "device": device, "command": command,
