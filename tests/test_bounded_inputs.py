@@ -223,7 +223,7 @@ def test_deep_override_is_refused(tmp_path):
 
 
 def test_instrument_file_is_capped(tmp_path, capsys):
-    from warpe_cl.instrument.params import resolve_instrument
+    from warpe_cl.config.instrument_fields import resolve_instrument
     from warpe_cl.config.validate import MAX_FILE_BYTES
     big = tmp_path / "big.yaml"
     big.write_text("name: big\n# " + "x" * MAX_FILE_BYTES + "\n")
@@ -385,7 +385,7 @@ def test_a_bundled_instrument_named_by_the_file_is_the_bundled_file(tmp_path, mo
     """instrument_name: bela with a file ./bela in the current folder: the bundled preset is
     read, never the decoy (load_instrument tries a name as a path first)."""
     from warpe_cl.instrument import load_instrument
-    from warpe_cl.instrument.params import instruments_dir
+    from warpe_cl.config.instrument_fields import instruments_dir
     from warpe_cl.inversion.invert import _named_instrument
     obs = _observed("BELA")
     (tmp_path / "bela").write_text("name: decoy\ngarbage: [\n")
@@ -401,7 +401,7 @@ def test_a_bundled_name_is_the_bundled_instrument_whatever_the_folder_holds(tmp_
     current folder read that file; a bundled name is now always the bundled preset, and a
     file of that name is given as ./bela."""
     from warpe_cl.instrument import load_instrument
-    from warpe_cl.instrument.params import instruments_dir
+    from warpe_cl.config.instrument_fields import instruments_dir
     bundled = load_instrument(instruments_dir() / "bela.yaml")
     (tmp_path / "bela").write_text("name: decoy\ngarbage: [\n")
     monkeypatch.chdir(tmp_path)

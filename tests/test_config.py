@@ -651,10 +651,10 @@ def test_docstring_examples():
 
     import warpe_cl.config
     import warpe_cl.config.bins
-    import warpe_cl.instrument.params
+    import warpe_cl.config.instrument_fields
     import warpe_cl.units
     for module in (warpe_cl.units, warpe_cl.config, warpe_cl.config.bins,
-                   warpe_cl.instrument.params):
+                   warpe_cl.config.instrument_fields):
         result = doctest.testmod(module)
         assert result.attempted > 0 and result.failed == 0, module.__name__
 

@@ -172,14 +172,14 @@ def test_early_exits_are_counted_apart(engine, precision, mode):
 
 
 def test_early_fraction_in_the_output(engine):
-    from warpe_cl import io, tally
+    from warpe_cl import dataset, tally
     edges = np.array([0.05, 0.1, 1.0])
     params = medium(texture="granular", extinction=200.0, omega=0.95, g=0.5, n=1.36, k=0.0,
                     albedo=0.5, time_edges=edges)
     counts = engine.run(params, 5000)
     arrays = tally.reduce_counts(counts, params)
     np.testing.assert_array_equal(arrays["early_fraction"], counts.early / 5000)
-    ds = io.build_dataset(arrays, counts, params, {}, {})
+    ds = dataset.build_dataset(arrays, counts, params, {}, {})
     assert ds["early_fraction"].attrs["units"] == "1" and "long_name" in ds["early_fraction"].attrs
     # split launches add up to the whole run, early exits included
     part = engine.run(params, 2000)

@@ -135,7 +135,7 @@ def test_photons_per_reflectance_matches_the_link_budget():
 def test_lambertian_surface_gives_a_over_pi_and_its_photons():
     """A Lambertian surface of albedo A: ∫R_d dt = A/π; the chain then puts
     E_t η_t T² Ω_r (A/π) / hν photons at the aperture, all of them through the pulse."""
-    from warpe_cl.instrument import surface
+    from warpe_cl import surface
     albedo = 0.15
     ds = synthetic_surface(diffuse_integral=albedo / math.pi, tau=3.0)
     resp = surface.response(ds)
@@ -520,7 +520,7 @@ def test_missing_variables_and_bad_parameters_are_refused():
 
 
 def test_every_preset_parameter_carries_a_source_tag():
-    from warpe_cl.instrument.params import instruments_dir
+    from warpe_cl.config.instrument_fields import instruments_dir
     import re
     for name in ("bela", "gala", "atlas"):
         for line in (instruments_dir() / f"{name}.yaml").read_text().splitlines():
@@ -561,7 +561,7 @@ def test_detection_closed_forms():
 
 def test_wavelength_of_a_swept_numeric_or_written_coordinate():
     """A swept wavelength is stored in m (docs/interface.md §5.3); older files wrote "532 nm"."""
-    from warpe_cl.instrument.surface import wavelength_of
+    from warpe_cl.surface import wavelength_of
     ds = synthetic_surface(scenarios=2)
     numeric = ds.assign_coords(wavelength=("scenario", [1.064e-6, 5.32e-7]))
     assert wavelength_of(numeric, 1) == pytest.approx(5.32e-7, rel=1e-12)

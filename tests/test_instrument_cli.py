@@ -174,7 +174,7 @@ def test_duplicate_key_in_an_instrument_file_is_refused(tmp_path, surface_file, 
     `shots: 5` ran 5 shots without a word. Instrument files are read as presets are."""
     from warpe_cl.errors import ConfigError
     from warpe_cl.instrument import load_instrument
-    from warpe_cl.instrument.params import instruments_dir
+    from warpe_cl.config.instrument_fields import instruments_dir
     text = (instruments_dir() / "bela.yaml").read_text()
     assert "\nshots: 100" in text
     dup = tmp_path / "bela_dup.yaml"
@@ -200,7 +200,7 @@ def test_duplicate_key_in_an_instrument_file_is_refused(tmp_path, surface_file, 
 
 def load_instrument_raw() -> dict:
     import yaml
-    from warpe_cl.instrument.params import instruments_dir
+    from warpe_cl.config.instrument_fields import instruments_dir
     return yaml.safe_load((instruments_dir() / "bela.yaml").read_text())
 
 
@@ -274,7 +274,7 @@ def test_instrument_block_defaults_are_the_instrument_presets():
     docs/config.md says the same (the default column of the schema table)."""
     from warpe_cl.config import FIELDS, load_preset
     from warpe_cl.instrument import load_instrument
-    from warpe_cl.instrument.scenario import scenario_instrument
+    from warpe_cl.config.instrument_fields import scenario_instrument
     base = yaml_load(LAMBERT)
     for name, wavelength, altitude in (("bela", "1064 nm", 500e3), ("gala", "1064 nm", 500e3),
                                        ("atlas", "532 nm", 496e3)):
@@ -294,7 +294,7 @@ def test_instrument_block_defaults_are_the_instrument_presets():
     assert scenario_instrument(load_preset({k: v for k, v in base.items()
                                             if k != "instrument"})) is None
     # the block's limits are the instrument table's: a bad value names the preset's key
-    from warpe_cl.instrument.params import PARAMS
+    from warpe_cl.config.instrument_fields import PARAMS
     for key, target in (("altitude", "geometry.altitude"), ("roughness", "geometry.roughness")):
         mine, theirs = FIELDS[f"instrument.{key}"], PARAMS[target]
         assert (mine.kind, mine.low, mine.high, mine.low_open, mine.high_open) == \
@@ -353,13 +353,13 @@ def test_point_instrument_bits_are_the_same_every_way(tmp_path, capsys, engine):
 def test_combined_scenarios_pad_photon_time_tags():
     """Per-scenario instrument results of a photon-counting instrument hold different numbers
     of time tags: combining them pads with NaN, as the instrument's own output does."""
-    from warpe_cl import io
+    from warpe_cl import dataset
     edges = ("time_edge", np.arange(3.0))
     a = xr.Dataset({"photon_time": (("shot", "photon"), np.ones((2, 3), np.float32)),
                     "time_edges": edges}, attrs={"seed": 1})
     b = xr.Dataset({"photon_time": (("shot", "photon"), np.full((2, 5), 2.0, np.float32)),
                     "time_edges": edges}, attrs={"seed": 1})
-    out = io.combine_scenarios([a, b], [{"k": 1}, {"k": 2}])
+    out = dataset.combine_scenarios([a, b], [{"k": 1}, {"k": 2}])
     assert out["photon_time"].shape == (2, 2, 5) and out["photon_time"].dtype == np.float32
     assert np.isnan(out["photon_time"].values[0, :, 3:]).all()
     assert (out["photon_time"].values[1] == 2.0).all()

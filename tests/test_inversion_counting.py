@@ -43,7 +43,7 @@ def test_count_model_is_the_chains_expected_counts():
     params = load_instrument("atlas", overrides)
     f = Forward(params)
     surface = synthetic_surface(diffuse_integral=0.05, tau=2.0, wavelength="532 nm")
-    from warpe_cl.instrument.surface import response
+    from warpe_cl.surface import response
     mu, nu = f.waveform(f.photons(response(surface)), 0.0)
     assert nu is None
     shots = CountShots(obs["sample_time"].values, obs["signal_counts"].values, f)

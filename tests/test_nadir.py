@@ -375,7 +375,7 @@ def test_instrument_on_a_sweep_where_only_some_scenarios_have_the_nadir_estimate
     over a vacuum gap got no estimate)."""
     import warpe_cl
     from warpe_cl.instrument import apply_instrument
-    from warpe_cl.instrument.surface import responses
+    from warpe_cl.surface import responses
     cfg = warpe_cl.load_preset("radiative/slab_co2_1m", overrides={
         "simulation.photons": 500, "sweep": {"simulation.nadir": [False, True]}})
     ds = warpe_cl.simulate(cfg, device="numpy", progress=False)

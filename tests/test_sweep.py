@@ -154,20 +154,20 @@ def test_grid_unstacks_numerically(reference):
 
 def test_grid_names_and_order():
     """Swept text sorts as numbers; a dotted key's last part names its dimension when unique."""
-    from warpe_cl import io
+    from warpe_cl import dataset
     ds = [xr.Dataset({"a": ("t", np.arange(3.0) + i), "time_edges": ("e", [1.0, 2.0])})
           for i in range(4)]
     points = [{"medium.inclusions[0].grain_size": g, "medium.compacity": c}
               for g in ("50 um", "1 cm") for c in (0.3, 0.25)]
-    out = io.as_grid(io.combine_scenarios(ds, points))
+    out = dataset.as_grid(dataset.combine_scenarios(ds, points))
     assert list(out["grain_size"].values) == [5e-5, 0.01]
     assert list(out["grain_size_text"].values) == ["50 um", "1 cm"]
     assert list(out["compacity"].values) == [0.25, 0.3]
     assert out["scenario"].values.tolist() == [[1, 0], [3, 2]]
-    assert io.grid_name("medium.inclusions[1].grain_size",
-                        ["medium.inclusions[0].grain_size", "medium.inclusions[1].grain_size"]
-                        ) == "inclusions_1_grain_size"
-    part = io.as_grid(io.combine_scenarios(ds, points).isel(scenario=[0, 1, 3]))
+    assert dataset.grid_name("medium.inclusions[1].grain_size",
+                             ["medium.inclusions[0].grain_size", "medium.inclusions[1].grain_size"]
+                             ) == "inclusions_1_grain_size"
+    part = dataset.as_grid(dataset.combine_scenarios(ds, points).isel(scenario=[0, 1, 3]))
     assert np.isnan(part["a"].values[1, 1, 0]) and part["scenario"].values[0, 1] == 0
 
 

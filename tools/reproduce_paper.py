@@ -126,11 +126,10 @@ def bela_instrument(ds, out: Path, data: Path, shots: int = 200) -> dict:
     import numpy as np
     from warpe_cl.instrument import apply_instrument, load_instrument
     from warpe_cl.instrument.plot import plot_instrument
-    from warpe_cl.instrument.scenario import scenario_instrument
     from warpe_cl.units import format_quantity
 
     # the preset's instrument block, resolved as run, sweep and simulate resolve it
-    block = scenario_instrument(warpe_cl.load_preset(presets_dir() / "paper" / "bela_cases.yaml"))
+    block = warpe_cl.load_preset(presets_dir() / "paper" / "bela_cases.yaml").instrument
     altitude = format_quantity(block["geometry.altitude"], "length")
     base = {"geometry.altitude": altitude}
     runs = {r: apply_instrument(ds, "bela", dict(base, **{"geometry.roughness": r}), shots=shots)

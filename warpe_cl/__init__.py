@@ -28,7 +28,7 @@ __all__ = ["load_preset", "simulate", "radiative_parameters", "open_database", "
 #: Ctrl-C while they load (one line, exit 130) and the inversion's 0.65 s of scipy imports
 #: are paid only by ``warpe_cl.invert``.
 _LAZY = {"load_preset": "config", "radiative_parameters": "radiative", "simulate": "api",
-         "as_grid": "io", "open_database": "database", "metrics": "metrics",
+         "as_grid": "dataset", "open_database": "database", "metrics": "metrics",
          "invert": "inversion.invert"}
 
 

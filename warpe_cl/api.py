@@ -22,16 +22,19 @@ import pickle
 import time
 
 from . import io, tally
+from .dataset import build_dataset, combine_scenarios
 from .config import Config, load_preset, time_edges
 from .device import resolve_spec
 from .engine import Engine
 from .materials import table_attrs
-from .nadir import mirror_below
+from .instrument.scenario import apply_scenario_instrument
+from .nadir import mirror_below, reduce_nadir
 from .params import Layer, WalkParams, stack_params
 from .progress import Progress
 from .qualify import LaneChooser, qualifier_for, select_device
 from .radiative import radiative_parameters
 from .reference import ReferenceEngine
+from .scenario_keys import format_key
 
 _engines: dict = {}
 #: The walks kept by :func:`reusing_walks` (None: none kept), by :func:`_walk_key`.
@@ -186,22 +189,6 @@ def scenario_key(point: dict | None, cfg) -> int:
     return int.from_bytes(hashlib.sha256(canonical.encode()).digest()[:8], "big")
 
 
-def format_key(key: int) -> str:
-    """A scenario key as the 16 hexadecimal digits the output files carry."""
-    return f"{int(key):016x}"
-
-
-def parse_key(value) -> int:
-    """A scenario key as read back from a file: the hex string :func:`format_key` writes (or,
-    from older files, an integer)."""
-    import numpy as np
-    if isinstance(value, (bytes, np.bytes_)):
-        value = value.decode()
-    if isinstance(value, str):
-        return int(value, 16)
-    return int(value)
-
-
 def get_engine(device: str | None = None):
     """The engine for ``device``, kept for the process.
 
@@ -290,12 +277,10 @@ def simulate_point(cfg: Config, point: dict | None = None, device=None, progress
         **engine.provenance,
     })
     if counts.nadir:
-        from .nadir import reduce_nadir
         arrays.update(reduce_nadir(counts, params, arrays))
-    ds = io.build_dataset(arrays, counts, params, derived, attrs)
+    ds = build_dataset(arrays, counts, params, derived, attrs)
     ds["wall_time"] = ((), time.perf_counter() - t0, {"units": "s",
                                                       "long_name": "time spent in simulate"})
-    from .instrument.scenario import apply_scenario_instrument
     return apply_scenario_instrument(ds, cfg)
 
 
@@ -342,4 +327,4 @@ def simulate(cfg, *, device: str | None = None, progress=None, overrides=None,
             after_point(datasets[-1])
     if len(points) == 1 and not points[0][0]:
         return datasets[0]
-    return io.combine_scenarios(datasets, [p for p, _ in points], {"config": cfg.to_yaml()})
+    return combine_scenarios(datasets, [p for p, _ in points], {"config": cfg.to_yaml()})

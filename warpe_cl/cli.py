@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import report, stops
+from . import stops
 from .errors import ConfigError, DeviceError, WarpeError, one_line, printable
 from .stops import Terminated
 
@@ -52,7 +52,7 @@ def _instrument_preset(text: str):
     ``instruments/bela``, or a file with no medium and a base or an instrument section such as
     transmitter), else None."""
     from .catalog import resolve_preset
-    from .instrument.params import instruments_dir
+    from .config.instrument_fields import instruments_dir
     path = resolve_preset(text)
     if not path.is_file():
         return None
@@ -72,7 +72,7 @@ def _not_an_instrument(args):
     """Bad input (exit 2) when ``run``/``sweep`` is given an instrument preset."""
     path = _instrument_preset(args.preset)
     if path is not None:
-        from .instrument.params import BUILTIN
+        from .config.instrument_fields import BUILTIN
         if path.stem in BUILTIN and path.parent.name == "instruments":
             path = path.stem                 # bundled: its short name
         raise ConfigError(
@@ -227,7 +227,7 @@ def _write_outputs(ds, out: Path, plot, draw, say, started: float | None = None)
 
 
 def cmd_run(args) -> int:
-    from . import api
+    from . import api, report
     from .plot import plot_waveform
     from .radiative import radiative_parameters
 
@@ -264,8 +264,9 @@ def cmd_run(args) -> int:
 
 
 def cmd_instrument(args) -> int:
+    from . import report
     from .instrument import apply_instrument, check_parameter, load_instrument
-    from .io import load_result
+    from .database import load_result
     from .instrument.plot import plot_instrument
     overrides = _instrument_sets(args)
     if args.altitude is not None:
@@ -289,6 +290,7 @@ def cmd_instrument(args) -> int:
 
 def cmd_invert(args) -> int:
     """``warpe-cl invert``: recorded shots + a sweep database -> FIT.nc (docs/inversion.md)."""
+    from . import report
     from .config.keys import parse_overrides
     from .inversion.invert import invert
     from .inversion.observed import load_observed
@@ -320,6 +322,7 @@ def cmd_sweep(args) -> int:
     recorded in the manifest with its error) or did not finish; 2 bad input found before any
     scenario ran; 3 no usable device.
     """
+    from . import report
     from .sweep import parse_shard, run_sweep
     from .catalog import resolve_preset
     _not_an_instrument(args)
@@ -335,6 +338,7 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_devices(args) -> int:
+    from . import report
     from .device import INSTALL_HINT, list_devices, probe, resolve_spec
     from .qualify import qualification, select_device
     devices = list_devices()
@@ -367,6 +371,7 @@ def _print_all_verdicts(info, check: bool = False):
     its widest qualified lane width, the widths that failed, those not checked yet. Plain
     ``devices`` shows what is cached and checks nothing (it stays cheap); ``check``
     (``devices --all``) checks the widths not known yet."""
+    from . import report
     from .qualify import all_combos, qualifier_for
     q = qualifier_for(info)
     for combo in all_combos(info.fp64):
@@ -376,6 +381,7 @@ def _print_all_verdicts(info, check: bool = False):
 
 
 def cmd_show_config(args) -> int:
+    from . import report
     from .radiative import radiative_parameters
     instrument = _instrument_preset(args.preset)
     if instrument is not None:     # its resolved parameters (a base: filled in), with units
@@ -455,7 +461,8 @@ def _metrics_drawer(args, path: Path):
 
 
 def cmd_plot(args) -> int:
-    from .io import Outputs, load_result
+    from .database import load_result
+    from .io import Outputs
     from .plot import plot_angular, plot_waveform
     path = Path(args.file)
     out = Path(args.out)

@@ -1,4 +1,5 @@
-"""Reading a sweep database: its manifests, and every finished scenario as one Dataset.
+"""Reading results back: a sweep database (its manifests, and every finished scenario as one
+Dataset), and any result file or database folder (:func:`load_result`).
 
 A database is the folder ``warpe-cl sweep --out DIR`` writes (:mod:`warpe_cl.sweep`,
 docs/cluster.md): one NetCDF file per finished scenario and one manifest per shard
@@ -26,9 +27,12 @@ import os
 import re
 from pathlib import Path
 
+import numpy as np
+
+from .dataset import as_grid, combine_scenarios
 from .errors import ConfigError, one_line
 
-__all__ = ["open_database", "database_folder", "manifest_name", "read_manifests",
+__all__ = ["load_result", "open_database", "database_folder", "manifest_name", "read_manifests",
            "check_manifest", "scenario_file_name", "file_sha256", "recorded_sha256", "FORMAT",
            "FORMAT_VERSION"]
 
@@ -208,7 +212,6 @@ def recorded_sha256(manifests) -> dict:
 
 def _attribute(value):
     """A NetCDF attribute as read by h5py -> as xarray's h5netcdf backend gives it."""
-    import numpy as np
     if isinstance(value, (bytes, np.bytes_)):
         return value.decode()
     if isinstance(value, np.ndarray) and value.ndim == 1 and value.size == 1:
@@ -227,7 +230,6 @@ def _read_scenario(path: Path, template):
     whose variables or coordinates do not match the template is read by xarray instead.
     """
     import h5py
-    import numpy as np
     import xarray as xr
     with h5py.File(path, "r") as h5:
         same_layout = all(name in h5 and h5[name].shape == template[name].shape
@@ -355,7 +357,7 @@ def open_database(paths, grid: bool = False):
         The layout ``warpe-cl run`` writes for a sweep (docs/interface.md §5): a leading
         ``scenario`` dimension whose coordinate is the grid index, the swept values as
         coordinates along it (numbers in the canonical unit, with ``units``, and the
-        written text as ``<key>_text``: :func:`warpe_cl.io.sweep_coordinates`), the derived
+        written text as ``<key>_text``: :func:`warpe_cl.dataset.sweep_coordinates`), the derived
         parameters and ``scenario_key`` as variables.
         Unfinished scenarios are absent; the attributes ``sweep_scenarios_total``,
         ``sweep_failed`` (JSON: index -> error) and ``sweep_fingerprint`` say what the grid
@@ -371,7 +373,6 @@ def open_database(paths, grid: bool = False):
         and says to run ``warpe-cl sweep ... --resume``; no Dataset of the others is returned.
     """
     import xarray as xr
-    from .io import as_grid, combine_scenarios
 
     folders = [Path(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
     unstack = grid
@@ -400,3 +401,35 @@ def open_database(paths, grid: bool = False):
                                     if i not in found}),
     })
     return as_grid(out) if unstack else out
+
+
+def load_result(path):
+    """A result file of ``run``, ``sweep`` or ``instrument``, or a sweep database folder
+    (docs/interface.md §5.5), as a Dataset.
+
+    Parameters
+    ----------
+    path : str or path
+        A NetCDF result file, or a database folder (read by :func:`open_database`).
+
+    Returns
+    -------
+    xarray.Dataset
+        The file's contents, loaded into memory.
+
+    Raises
+    ------
+    ConfigError
+        One line (exit 2) for a path that is neither: missing, or not a readable NetCDF file.
+    """
+    import xarray as xr
+    path = Path(path)
+    if path.is_dir():
+        return open_database(path)
+    if not path.is_file():
+        raise ConfigError("no such file", key=str(path))
+    try:
+        return xr.load_dataset(path, engine="h5netcdf")
+    except Exception as err:  # noqa: BLE001 - any unreadable file: one line
+        raise ConfigError(f"not a warpe-cl NetCDF file ({type(err).__name__})",
+                          key=str(path)) from None

@@ -22,10 +22,13 @@ background scattering and the BF diffuse, with their numerical FOVs.
 from __future__ import annotations
 
 import json
+import textwrap
 
 import numpy as np
 
 from .errors import ConfigError
+from .metrics import metrics
+from .surface import response
 from .units import same_quantity, split_quantity
 
 SPECULAR_TIME_NS = 1e-6   # the paper draws the t = 0 specular return at 1e-6 ns
@@ -117,6 +120,23 @@ def _scenarios(ds):
         return
     for i, label in enumerate(scenario_labels(ds)):
         yield label, ds.isel(scenario=i)
+
+
+def cases_of(ds) -> list:
+    """(label, single-scenario Dataset) for each scenario of a result.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        One scenario, or a sweep along ``scenario``.
+
+    Returns
+    -------
+    list of (str, xarray.Dataset)
+        The scenarios labelled by their swept values (one, labelled by the result's name,
+        without a sweep).
+    """
+    return list(_scenarios(ds))
 
 
 def numeric_sweep(ds):
@@ -257,7 +277,6 @@ def save_figure(fig, path, laid_out: bool = False):
 def fit_legend(ax, legend, smallest: float = 5.5):
     """Keep ``legend`` inside ``ax`` (long scenario labels): shrink its font down to
     ``smallest``, then wrap its longest labels onto several lines."""
-    import textwrap
     renderer = ax.figure.canvas.get_renderer()
     box = ax.get_window_extent(renderer)
     texts = legend.get_texts()
@@ -322,13 +341,12 @@ def clear_of_legend(legend, axes, margin: float = 0.03):
 def delta_fractions(sc, comp: str):
     """Times (ns) and fractions of the launched rays of a delta-like return of one scenario.
 
-    The same returns the instrument chain takes (:func:`warpe_cl.instrument.surface.response`:
+    The same returns the instrument chain takes (:func:`warpe_cl.surface.response`:
     the specular's whole fraction, the BF-direct rays per bin over the rays launched, at the
     exact passage times 2 k h n_eff / c), so the figure and the chain cannot disagree; these
     fractions do not depend on the binning (docs/interface.md §5.6). The specular, which leaves
     at t = 0 before the first log bin, is placed at ``SPECULAR_TIME_NS``.
     """
-    from .instrument.surface import response
     pairs = [(t, f) for c, t, f in response(sc).returns if c == comp]
     if comp == "specular":
         pairs = [(SPECULAR_TIME_NS, f) for _, f in pairs]
@@ -579,7 +597,6 @@ def metrics_figure(ds, after=(), title: str | None = None, stage: str | None = N
     ConfigError
         ``ds`` lacks what the metrics need, or is a grid (``as_grid``) rather than scenarios.
     """
-    from .metrics import metrics
     m = metrics(ds, after, stage=stage)
     extra = [d for d in m["mean_delay"].dims if d not in ("scenario", "component")]
     if extra:

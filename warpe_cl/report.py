@@ -10,7 +10,10 @@ terminal.
 """
 from __future__ import annotations
 
+import numpy as np
+
 from .errors import printable
+from .plot import cases_of
 
 __all__ = ["point_text", "derived_lines", "run_header", "scenario_lines", "instrument_lines",
            "device_status_lines", "verdict_line", "device_choice_line", "sweep_start_line",
@@ -137,8 +140,6 @@ def instrument_lines(ds) -> list:
     -------
     list of str
     """
-    import numpy as np
-    from .instrument.plot import cases_of
     def attr(key):   # a value that differs between scenarios is dropped from a combined file
         return ds.attrs.get(f"instrument_{key}", "per scenario")
     lines = [f"instrument {attr('name')}: altitude {attr('geometry_altitude')}, roughness "

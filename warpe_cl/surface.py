@@ -1,5 +1,9 @@
 """What the surface simulation hands to the instrument, docs/instrument.md §3.0.
 
+The surface response is read from a result by the instrument chain
+(:mod:`warpe_cl.instrument`), the figures (:mod:`warpe_cl.plot`) and the inversion
+(:mod:`warpe_cl.inversion`) alike; it sits below all three and imports none of them.
+
 From a result file (docs/interface.md §5): the diffuse response R_d(t) = reflectance of
 ``scattering`` + ``bf_diffuse`` (sr⁻¹ ns⁻¹, log-spaced bins) — the next-event estimate in the
 exact view direction, ``nadir_reflectance``, where the scenario has it (docs/walk.md §8), else
@@ -19,7 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ConfigError
+from .errors import ConfigError
+from .units import parse_quantity
 
 NEEDED = ("time_edges", "reflectance", "ray_count", "photons")
 DIFFUSE = ("bf_diffuse", "scattering")
@@ -177,7 +182,6 @@ def diffuse_estimate(ds, estimates: list | None = None) -> str:
 def wavelength_of(ds, scenario: int | None = None) -> float | None:
     """The wavelength (m) the surface response was computed at: a swept ``wavelength``
     coordinate, else the ``wavelength`` of the stored configuration; None if neither."""
-    from ..units import parse_quantity
     if "wavelength" in ds.coords and scenario is not None and "scenario" in ds["wavelength"].dims:
         value = ds["wavelength"].values[scenario]
         if np.issubdtype(np.asarray(value).dtype, np.number):   # numeric, in its units (m)
@@ -193,7 +197,6 @@ def _config_wavelength(text: str) -> float | None:
     cannot be read. Cached: every scenario of a database carries the same text."""
     import yaml
 
-    from ..units import parse_quantity
     try:
         value = (yaml.safe_load(text) or {}).get("wavelength")
         return parse_quantity(str(value), "length") if value is not None else None

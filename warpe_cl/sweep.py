@@ -45,21 +45,25 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import platform
 import re
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import stops
+from . import api, stops
+from .api import scenario_key
+from .config import load_grid
 from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, database_folder,
                        file_sha256, manifest_name, open_database, read_manifests,
                        scenario_file_name)
 from .database import recorded_sha256
 from .errors import ConfigError, one_line, printable
-from .io import json_default, utc_now, versions, write_text
+from .io import json_default, utc_now, versions, write_netcdf, write_text
 from .progress import Progress
 from .report import point_text, sweep_start_line
+from .scenario_keys import format_key
 from .report import sweep_summary_lines as summary_lines     # docs/cluster.md imports it here
 from .workers import CLUSTER_HINT, Workers, worker_environment
 
@@ -190,7 +194,6 @@ class _Lock:
 
     def claim(self, started_utc: str) -> None:
         """Write who holds the lock: pid, host, start (read by :func:`_holder`)."""
-        import platform
         text = json.dumps({"pid": os.getpid(), "host": platform.node(),
                            "started_utc": started_utc})
         os.ftruncate(self.fd, 0)
@@ -233,21 +236,19 @@ def run_scenario(task: dict) -> dict:
         one the ``sha256`` of its file, taken once file and folder are flushed to disk. Errors
         are returned, never raised, so that one bad point does not stop the others.
     """
-    worker_environment(task.get("threads"))
-    import platform
+    worker_environment(task.get("threads"))   # before OpenCL is first loaded in this process
     record = {"index": task["index"], "host": platform.node(), "pid": os.getpid(),
               "pocl_max_pthread_count": os.environ.get("POCL_MAX_PTHREAD_COUNT"),
               "pocl_cache_dir": os.environ.get("POCL_CACHE_DIR")}
     t0 = time.perf_counter()
     try:
-        from . import api, io
         ds = api.simulate_point(task["cfg"], task["point"], task["device"], task.get("progress"))
         ds.attrs.update({
             "sweep_index": int(task["index"]),
             "sweep_point": json.dumps(task["point"], sort_keys=True, default=str),
             "sweep_fingerprint": task["fingerprint"],
         })
-        io.write_netcdf(ds, task["path"])
+        write_netcdf(ds, task["path"])
         record["sha256"] = _durable(Path(task["path"]))
         record.update(status="done", error=None, photons=int(ds["photons"]),
                       wall_time_s=float(ds["wall_time"]),
@@ -281,7 +282,6 @@ class Scenario:
 def plan(grid) -> tuple:
     """Scenarios of a :class:`~warpe_cl.config.Grid` with keys, file names, and the grid's
     fingerprint (a hash of every point's resolved configuration)."""
-    from .api import format_key, scenario_key
     scenarios = []
     for index, (point, cfg) in enumerate(grid.points):
         sc = Scenario(index, point, cfg)
@@ -429,7 +429,6 @@ def _prepare(preset, out, overrides, shard, resume, overwrite=False) -> _Sweep:
         another grid or that is not a database, results of these scenarios already there
         without ``resume``, ``X.nc`` of another grid without ``overwrite``.
     """
-    from .config import load_grid
     grid = load_grid(preset, overrides)
     scenarios, fingerprint = plan(grid)
     valid = [s for s in scenarios if s.valid]
@@ -956,7 +955,6 @@ def _run(sweep: _Sweep, workers: Workers, manifest: _Manifest, summary: SweepSum
     summary.finished_in_folder = sum((folder / s.file).is_file()
                                      for s in sweep.scenarios if s.valid)
     if sweep.combined is not None and summary.finished_in_folder == len(sweep.scenarios):
-        from .io import write_netcdf
         try:
             combined = open_database(folder)
         except ConfigError as err:

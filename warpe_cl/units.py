@@ -3,7 +3,7 @@
 Presets write every dimensioned value as a string with a unit; this module turns such a
 string into a float in the package's canonical unit and back. It is the package's one
 quantity parser: scenario presets use the first three dimensions, instrument presets
-(:mod:`warpe_cl.instrument.params`) all of them.
+(:mod:`warpe_cl.config.instrument_fields`) all of them.
 
 =================  ==============  ===============================================
 dimension          canonical unit  accepted units

@@ -93,7 +93,7 @@ def main(argv=None) -> int:
                          args.instrument)
 
     from warpe_cl import invert
-    from warpe_cl.io import load_result
+    from warpe_cl.database import load_result
     start = time.perf_counter()
     db = load_result(db_path)
     load_s = time.perf_counter() - start

@@ -145,7 +145,7 @@ STUDY_INSTRUMENTS = Path(__file__).resolve().parents[2] / "presets" / "study" / 
 def instrument_source(label: str) -> str:
     """What ``load_instrument`` takes for an instrument label of ``injections.csv``: a bundled
     name, or ``presets/study/instruments/LABEL.yaml``."""
-    from warpe_cl.instrument.params import BUILTIN
+    from warpe_cl.config.instrument_fields import BUILTIN
     if label in BUILTIN:
         return label
     path = STUDY_INSTRUMENTS / f"{label}.yaml"
@@ -157,7 +157,7 @@ def instrument_source(label: str) -> str:
 
 def _setup(db_path: str):
     """Per-process state: the database, its interpolation space, the forward models."""
-    from warpe_cl.io import load_result
+    from warpe_cl.database import load_result
     from warpe_cl.inversion.space import Space
     db = load_result(db_path)
     _STATE.update(db=db, space=Space(db, source=db_path), forward={})
@@ -175,7 +175,7 @@ def _invert_one(task) -> tuple:
     """Invert one (injection, instrument); returns (label, index, row or None, message)."""
     import xarray as xr
     from warpe_cl import invert
-    from warpe_cl.instrument.surface import response
+    from warpe_cl.surface import response
     family_dir, row, keys, label, budget = task
     folder = family_dir / row[label].rsplit("/", 1)[0]
     fit_path = folder / f"fit_{label}.nc"

@@ -19,28 +19,33 @@ Canonical units in :attr:`Config.data` and :meth:`Config.get`: lengths in metres
 nanoseconds, angles in degrees. Every mistake raises :class:`~warpe_cl.errors.ConfigError`
 with one line naming the file, the key, the value and what is allowed.
 
-==============  ===========================================================================
-module          what it does
-==============  ===========================================================================
-``schema``      :class:`Field` and the table :data:`SCHEMA`
-``validate``    scalar checks and their messages, did-you-mean, the YAML reader (refuses
-                duplicate keys); shared with the instrument presets
-``keys``        dotted keys (``medium.inclusions[0].grain_size``) and ``--set`` overrides
-``check``       the pass over a whole preset: sections, materials, time bins, the medium
-``bins``        time-bin edges
-``preset``      :class:`Config` and :func:`load_preset`
-``grid``        sweep grids: :func:`load_grid`, the one point expander
-``docs``        docs/config.md from the table
-==============  ===========================================================================
+=====================  ==================================================================
+module                 what it does
+=====================  ==================================================================
+``schema``             :class:`Field` and the table :data:`SCHEMA`
+``validate``           scalar checks and their messages, did-you-mean, the YAML reader (refuses
+                       duplicate keys); shared with the instrument presets
+``keys``               dotted keys (``medium.inclusions[0].grain_size``) and ``--set`` overrides
+``check``              the pass over a whole preset: sections, materials, time bins, the medium
+``bins``               time-bin edges
+``preset``             :class:`Config` and :func:`load_preset`
+``grid``               sweep grids: :func:`load_grid` (the one point expander,
+                       ``expand_points``, is in ``keys``)
+``instrument_fields``  the instrument presets' table and loading, a preset's
+                       ``instrument:`` block resolved, :func:`field_for` for both tables
+``docs``               docs/config.md from the table
+=====================  ==================================================================
 """
 from __future__ import annotations
 
 from .bins import time_edges
 from .docs import REFERENCE_PATH, reference_markdown, schema_markdown
 from .grid import Grid, load_grid
+from .instrument_fields import field_for
 from .preset import Config, load_preset
 from .schema import (DEFAULTS, FIELDS, MAX_FLIGHTS, MAX_PHOTONS, MAX_TIME_BINS,
                      MIN_ROULETTE_SURVIVAL, QUANTITY_KINDS, SCALAR_KINDS, SCHEMA, Field)
 
 __all__ = ["Field", "SCHEMA", "FIELDS", "Config", "load_preset", "time_edges",
-           "schema_markdown", "reference_markdown", "Grid", "load_grid", "MAX_PHOTONS"]
+           "schema_markdown", "reference_markdown", "Grid", "load_grid", "MAX_PHOTONS",
+           "field_for"]

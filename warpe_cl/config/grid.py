@@ -1,6 +1,6 @@
 """Sweep grids: the outer product of a preset's ``sweep:`` block, point by point.
 
-:func:`expand_points` is the one expander: :meth:`Config.sweep_points
+:func:`~warpe_cl.config.keys.expand_points` is the one expander: :meth:`Config.sweep_points
 <warpe_cl.config.Config.sweep_points>` (``warpe-cl run``, :func:`warpe_cl.simulate`) stops at
 the first invalid point, :func:`load_grid` (``warpe-cl sweep``) keeps each point's error
 beside the valid ones; both build every point the same way, so a point gives the same
@@ -9,14 +9,14 @@ scenario (and the same bits) whichever way it is computed.
 from __future__ import annotations
 
 import copy
-import itertools
+import json
 from dataclasses import dataclass
 
 import yaml
 
 from ..errors import ConfigError
 from .check import sweep_field
-from .keys import apply_overrides, parse_overrides, schema_key, split_key
+from .keys import apply_overrides, expand_points, parse_overrides, schema_key, split_key
 from .preset import Config, read_source
 from .schema import FIELDS, SCALAR_KINDS, SWEEPABLE
 from .validate import allowed, check_scalar, show
@@ -39,7 +39,6 @@ def _check_axes(sweep: dict) -> None:
     ConfigError
         Naming the key and the two values, or the axes and their product.
     """
-    import json
     total = 1
     for key, values in sweep.items():
         target = sweep_field(key, f"sweep.{key}")
@@ -63,50 +62,6 @@ def _check_axes(sweep: dict) -> None:
         sizes = " x ".join(str(len(v)) for v in sweep.values())
         raise ConfigError(f"{sizes} = {total} points is not allowed; a sweep grid has at most "
                           f"{MAX_GRID_POINTS} points (split it into several sweeps)", "sweep")
-
-
-def expand_points(raw: dict, source: str, build, keep_errors: bool) -> list:
-    """Every point of the ``sweep`` block of ``raw``, outer product in the order keys appear.
-
-    Parameters
-    ----------
-    raw : dict
-        A preset as written (overrides applied); its ``sweep`` block (absent or empty: one
-        point) maps dotted keys to lists of values.
-    source : str
-        The preset's name, for messages.
-    build : callable
-        ``build(point_raw) -> Config``: the point's preset (``raw`` without its sweep block,
-        the point's values set) validated.
-    keep_errors : bool
-        False: the first invalid point raises. True: an invalid point carries its error in
-        place of its Config (a preset without a sweep still raises).
-
-    Returns
-    -------
-    list of (dict, Config or ConfigError)
-        The swept values as written and the point's configuration (or its one-line error,
-        ending in ``(in the sweep point KEY=VALUE, ...)``).
-    """
-    sweep = raw.get("sweep") or {}
-    base = {k: v for k, v in raw.items() if k != "sweep"}
-    keys = list(sweep)
-    points = []
-    for combo in itertools.product(*(sweep[k] for k in keys)):
-        point = dict(zip(keys, combo))
-        point_raw = copy.deepcopy(base)
-        try:
-            apply_overrides(point_raw, copy.deepcopy(point))
-            cfg = build(point_raw)
-        except ConfigError as exc:
-            if not keys:
-                raise
-            where = ", ".join(f"{k}={show(v)}" for k, v in point.items())
-            cfg = ConfigError(f"{exc.message} (in the sweep point {where})", exc.key, source)
-            if not keep_errors:
-                raise cfg from None
-        points.append((point, cfg))
-    return points
 
 
 @dataclass

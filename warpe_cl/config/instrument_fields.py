@@ -1,4 +1,11 @@
-"""Instrument presets: the parameter table, loading and validation.
+"""Instrument presets: the parameter table, loading and validation, and a scenario preset's
+``instrument:`` block resolved.
+
+The instrument table is configuration, as the scenario table (:mod:`warpe_cl.config.schema`)
+is: it lives here, below the chain (:mod:`warpe_cl.instrument`), which reads the
+:class:`InstrumentParams` built from it. :func:`field_for` answers for both tables, and
+:func:`scenario_instrument` resolves a preset's ``instrument:`` block once, when the preset
+is loaded (:attr:`warpe_cl.config.Config.instrument`).
 
 An instrument preset (``presets/instruments/bela.yaml``) is a YAML mapping of sections; every
 dimensioned value is a string with a unit, as in scenario presets, read by
@@ -23,12 +30,15 @@ from __future__ import annotations
 import copy
 import functools
 import math
+import os
 from pathlib import Path
 
-from ..config.schema import Field
-from ..config.validate import allowed, check_scalar, read_yaml, show, unknown_key
+from ..catalog import presets_dir
 from ..errors import ConfigError
-from ..units import format_attribute
+from ..units import format_attribute, format_quantity
+from .keys import schema_key, split_key
+from .schema import FIELDS, Field
+from .validate import allowed, check_scalar, read_yaml, show, unknown_key
 
 # ----------------------------------------------------------------------------- schema
 
@@ -138,8 +148,41 @@ _LISTING = (f"the keys allowed are {', '.join(_TOP)} and the sections "
 @functools.lru_cache(maxsize=1)
 def instruments_dir() -> Path:
     """Folder of the bundled instrument presets (looked up once per process)."""
-    from ..catalog import presets_dir
     return presets_dir() / "instruments"
+
+
+def field_for(key: str) -> Field | None:
+    """The table row of a dotted key, scenario or instrument.
+
+    Parameters
+    ----------
+    key : str
+        A scenario preset's dotted key (``medium.inclusions[0].grain_size``,
+        ``instrument.altitude``), or ``instrument.`` followed by an instrument key
+        (``instrument.electronics.transimpedance``).
+
+    Returns
+    -------
+    Field or None
+        The scenario table's row (:data:`warpe_cl.config.schema.FIELDS`) when it has the
+        key, else the instrument table's (:data:`PARAMS`) for an ``instrument.`` key; None
+        for a key neither table has (``medium``: whole media).
+    """
+    field = FIELDS.get(schema_key(split_key(key)))
+    if field is None and key.startswith("instrument."):
+        field = PARAMS.get(key[len("instrument."):])
+    return field
+
+
+#: Relative tolerance on the wavelength: a surface computed within it of the instrument's is
+#: at the instrument's wavelength.
+WAVELENGTH_RTOL = 1e-3
+
+
+def at_wavelength(surface_m: float, instrument_m: float) -> bool:
+    """Whether a surface computed at ``surface_m`` (m) is at the instrument's ``instrument_m``
+    (m), to :data:`WAVELENGTH_RTOL`."""
+    return abs(surface_m - instrument_m) <= WAVELENGTH_RTOL * instrument_m
 
 
 # ----------------------------------------------------------------------------- loading
@@ -367,3 +410,78 @@ def load_instrument(spec, overrides: dict | None = None,
     if out["adc.full_scale"] is None:
         out["adc.full_scale"] = out["electronics.saturation"]
     return out
+
+
+# ----------------------------------------------------------------------------- a preset's block
+
+#: Keys of the preset's block that stand for a key of the instrument preset.
+BLOCK_KEYS = {"altitude": "geometry.altitude", "roughness": "geometry.roughness"}
+
+
+def _spec(name: str, base_dir: str | None) -> str:
+    """``name`` as given, or a file of that name in the preset's folder when there is one."""
+    if name.lower() in BUILTIN or os.path.isfile(name) or base_dir is None:
+        return name
+    beside = os.path.join(base_dir, name)
+    return beside if os.path.isfile(beside) else name
+
+
+def scenario_instrument(cfg) -> InstrumentParams | None:
+    """The validated instrument of a preset's ``instrument:`` block, or None without one.
+
+    Parameters
+    ----------
+    cfg : Config
+        A validated configuration (of one scenario, or of a preset: the block is the same
+        unless instrument keys are swept). The block is read from the resolved
+        ``cfg.data["instrument"]`` (canonical altitude in m, roughness in deg).
+
+    Returns
+    -------
+    InstrumentParams or None
+        None when the block names no instrument (``instrument.name`` absent).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the preset, the key, the value and what is allowed: an unknown
+        instrument or key, a bad value, an instrument key given without ``instrument.name``,
+        a key given twice (``altitude`` and ``geometry.altitude``), or a preset wavelength
+        the instrument does not work at.
+    """
+    block = dict(cfg.data.get("instrument") or {})
+    source = str(cfg.source)
+    name = block.pop("name", None)
+    given = [key for key, value in block.items() if value is not None]
+    if name is None:
+        if given:
+            raise ConfigError("is given without instrument.name; name the instrument (bela, "
+                              "gala, atlas or an instrument YAML file) or remove the key",
+                              f"instrument.{given[0]}", source)
+        return None
+    overrides = {key: value for key, value in block.items() if key not in BLOCK_KEYS}
+    for key, target in BLOCK_KEYS.items():
+        value = block.get(key)
+        if value is None:
+            continue                  # absent: the instrument preset's own value
+        if target in overrides or target.split(".")[1] in (overrides.get("geometry") or {}):
+            raise ConfigError(f"given twice (as instrument.{key} and instrument.{target}); "
+                              "give it once", f"instrument.{key}", source)
+        # canonical -> text: format_quantity round-trips exactly
+        overrides[target] = format_quantity(value, field_for(f"instrument.{key}").kind)
+    params = load_instrument(_spec(name, getattr(cfg, "_base_dir", None)), overrides,
+                             override_source=source, spec_key="instrument.name")
+    _check_wavelength(cfg, params, source)
+    return params
+
+
+def _check_wavelength(cfg, params: InstrumentParams, source: str) -> None:
+    """ConfigError unless the preset's wavelength is the instrument's, by the chain's own test
+    (:func:`at_wavelength`, 0.1 %), before any walk."""
+    lam = params["wavelength"]
+    surface = cfg.get("wavelength")
+    if not at_wavelength(surface, lam):
+        raise ConfigError(f"{params['name']} works at {lam * 1e9:g} nm but the surface is "
+                          f"computed at {surface * 1e9:g} nm; give wavelength: "
+                          f"\"{lam * 1e9:g} nm\" (with optical constants at it) or another "
+                          f"instrument", "instrument.name", source)

@@ -1,7 +1,10 @@
 """Dotted keys: ``medium.inclusions[0].grain_size`` read, written and looked up in a nested
-preset, and ``--set KEY=VALUE`` overrides parsed and applied."""
+preset, ``--set KEY=VALUE`` overrides parsed and applied, and the points of a sweep block
+expanded (:func:`expand_points`, which needs no Config: the caller builds each point's)."""
 from __future__ import annotations
 
+import copy
+import itertools
 import re
 
 import yaml
@@ -10,7 +13,7 @@ from ..errors import ConfigError
 from .validate import MAX_DEPTH, _check_shape, show
 
 __all__ = ["split_key", "display_key", "schema_key", "set_path", "get_path",
-           "parse_overrides", "apply_overrides"]
+           "parse_overrides", "apply_overrides", "expand_points"]
 
 _INDEX = re.compile(r"\[(\d+)\]")
 
@@ -128,3 +131,47 @@ def apply_overrides(raw: dict, overrides: dict) -> None:
     """Set every dotted key of ``overrides`` in ``raw`` (in place)."""
     for key, value in overrides.items():
         set_path(raw, key, value)
+
+
+def expand_points(raw: dict, source: str, build, keep_errors: bool) -> list:
+    """Every point of the ``sweep`` block of ``raw``, outer product in the order keys appear.
+
+    Parameters
+    ----------
+    raw : dict
+        A preset as written (overrides applied); its ``sweep`` block (absent or empty: one
+        point) maps dotted keys to lists of values.
+    source : str
+        The preset's name, for messages.
+    build : callable
+        ``build(point_raw) -> Config``: the point's preset (``raw`` without its sweep block,
+        the point's values set) validated.
+    keep_errors : bool
+        False: the first invalid point raises. True: an invalid point carries its error in
+        place of its Config (a preset without a sweep still raises).
+
+    Returns
+    -------
+    list of (dict, Config or ConfigError)
+        The swept values as written and the point's configuration (or its one-line error,
+        ending in ``(in the sweep point KEY=VALUE, ...)``).
+    """
+    sweep = raw.get("sweep") or {}
+    base = {k: v for k, v in raw.items() if k != "sweep"}
+    keys = list(sweep)
+    points = []
+    for combo in itertools.product(*(sweep[k] for k in keys)):
+        point = dict(zip(keys, combo))
+        point_raw = copy.deepcopy(base)
+        try:
+            apply_overrides(point_raw, copy.deepcopy(point))
+            cfg = build(point_raw)
+        except ConfigError as exc:
+            if not keys:
+                raise
+            where = ", ".join(f"{k}={show(v)}" for k, v in point.items())
+            cfg = ConfigError(f"{exc.message} (in the sweep point {where})", exc.key, source)
+            if not keep_errors:
+                raise cfg from None
+        points.append((point, cfg))
+    return points

@@ -6,10 +6,13 @@ import os
 
 import yaml
 
+from ..catalog import resolve_preset
 from ..errors import ConfigError
 from ..units import format_quantity
 from .check import NEEDS, PresetValidator
-from .keys import apply_overrides, get_path, parse_overrides, schema_key, set_path, split_key
+from .instrument_fields import scenario_instrument
+from .keys import (apply_overrides, expand_points, get_path, parse_overrides, schema_key,
+                   set_path, split_key)
 from .schema import DEFAULTS, FIELDS, QUANTITY_KINDS, SWEEPABLE
 from .validate import did_you_mean, read_yaml
 
@@ -34,6 +37,10 @@ class Config:
         parts (``medium.radiative`` in the physical form, ``instrument.name``) are None;
         ``medium.layers`` and ``medium.substrate`` are there only when given (with layers,
         the medium's own texture, thickness and composition are None).
+    instrument : InstrumentParams or None
+        The instrument of the ``instrument:`` block, validated and resolved when the preset
+        is loaded (:func:`~warpe_cl.config.instrument_fields.scenario_instrument`); None
+        without ``instrument.name``.
     """
 
     def __init__(self, raw: dict, source: str = "<dict>", *, name_default: str = "unnamed",
@@ -44,17 +51,11 @@ class Config:
         self._base_dir = base_dir
         try:
             self.data = PresetValidator(name_default, base_dir).preset(self._with_swept_defaults())
-            self._check_instrument()
+            # resolved once, against the instrument's own table: a bad block fails when the
+            # preset is loaded (exit 2), before any walk
+            self.instrument = scenario_instrument(self)
         except ConfigError as exc:
             raise exc.with_source(source) from None
-
-    def _check_instrument(self) -> None:
-        """Validate the ``instrument:`` block against the instrument's own table now, so that
-        a bad block fails when the preset is loaded (exit 2), before any walk."""
-        block = self.data.get("instrument") or {}
-        if any(value is not None for value in block.values()):
-            from ..instrument.scenario import scenario_instrument
-            scenario_instrument(self)
 
     def _with_swept_defaults(self):
         """``raw``, where a key missing from the base but swept takes its first value."""
@@ -144,7 +145,6 @@ class Config:
         """
         if not self.raw.get("sweep"):
             return [({}, self)]
-        from .grid import expand_points   # grid.py builds Configs: imported when needed
         return expand_points(self.raw, self.source, self._point, keep_errors=False)
 
     def _point(self, raw: dict) -> "Config":
@@ -202,7 +202,6 @@ def read_source(source) -> tuple:
     if isinstance(source, dict):
         return "<dict>", copy.deepcopy(source), None, "unnamed"
     if isinstance(source, (str, os.PathLike)):
-        from ..catalog import resolve_preset
         name = os.fspath(resolve_preset(os.fspath(source)))
         return (name, read_yaml(name, empty=NEEDS), os.path.dirname(os.path.abspath(name)),
                 os.path.splitext(os.path.basename(name))[0])

@@ -5,7 +5,7 @@ the key names, kinds, units, defaults, limits and help texts. It drives validati
 (:mod:`warpe_cl.config.check`), the defaults, the resolved YAML written by
 :meth:`~warpe_cl.config.Config.to_yaml` and the reference table docs/config.md
 (:mod:`warpe_cl.config.docs`). The instrument presets have a table of the same rows
-(:mod:`warpe_cl.instrument.params`), checked by the same functions
+(:mod:`warpe_cl.config.instrument_fields`), checked by the same functions
 (:mod:`warpe_cl.config.validate`).
 """
 from __future__ import annotations
@@ -62,7 +62,7 @@ class Field:
     Notes
     -----
     The kinds ``"length"``, ``"time"``, ``"angle"`` are those of a scenario preset; the
-    instrument table (:mod:`warpe_cl.instrument.params`) also uses the other dimensions of
+    instrument table (:mod:`warpe_cl.config.instrument_fields`) also uses the other dimensions of
     :mod:`warpe_cl.units` (``"energy"``, ``"frequency"`` ...) and writes its defaults in the
     canonical unit. A ``"float"`` or ``"int"`` with ``choices`` also takes those words
     (``speckle.modes``: a number or ``auto``).

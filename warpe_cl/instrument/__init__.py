@@ -5,9 +5,7 @@ One module per stage of the chain:
 ==================  ==========================================================================
 module              stage
 ==================  ==========================================================================
-``params``          instrument presets: parameter table, loading (checked by warpe_cl.config)
 ``scenario``        a scenario preset's ``instrument:`` block, applied to each scenario
-``surface``         what the surface result hands over: R_d(t), specular/BF-direct fractions
 ``pulse``           §3.1 transmitted pulse (Gaussian FWHM or tabulated)
 ``footprint``       §3.2 footprint and slope/roughness kernel g(t)
 ``specular``        §3.4 aperture fraction κ of the specular and BF-direct returns
@@ -22,12 +20,21 @@ module              stage
 ``output``          the output Dataset
 ``plot``            the paper's three-panel BELA figure
 ==================  ==========================================================================
+
+The instrument presets' parameter table and loading are configuration
+(:mod:`warpe_cl.config.instrument_fields`), and what the surface result hands over (R_d(t),
+the specular and BF-direct fractions) is :mod:`warpe_cl.surface`, read by the figures and the
+inversion too.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .params import BUILTIN, InstrumentParams, check_parameter, load_instrument
+from .. import io, surface
+from ..config.instrument_fields import BUILTIN, InstrumentParams, check_parameter, load_instrument
+from ..dataset import VARYING_TEXT
+from ..scenario_keys import parse_key
+from . import chain, output
 
 __all__ = ["apply_instrument", "load_instrument", "InstrumentParams", "BUILTIN"]
 
@@ -61,10 +68,6 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
         (sample_time), the detection, range and width outputs (docs/instrument.md), the
         instrument parameters as ``instrument_*`` attributes and provenance.
     """
-    from .. import io
-    from ..api import parse_key
-    from . import chain, output, surface
-
     params = instrument if isinstance(instrument, InstrumentParams) else \
         load_instrument(instrument, overrides)
     surface.check_variables(ds, source)
@@ -93,7 +96,6 @@ def apply_instrument(ds, instrument="bela", overrides: dict | None = None, *,
     prov["instrument_diffuse_estimate"] = surface.diffuse_estimate(ds, estimates)
     out = output.build(ds, results, params, sweep, prov)
     if sweep:                  # which estimate each scenario used ("mixed" above: some of each)
-        from ..io import VARYING_TEXT
         name, meaning = VARYING_TEXT["instrument_diffuse_estimate"]
         out[name] = ("scenario", np.array(estimates), {"long_name": meaning})
     return out

@@ -14,11 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import stops
+from ..config.instrument_fields import at_wavelength
 from ..errors import ConfigError
+from ..surface import SurfaceResponse
 from . import adc, detection, detector, electronics, footprint, photon_counting, pulse, \
     radiometry, specular, speckle
 from .grid import FineGrid, convolve, deposit, make_grid, rebin_density
-from .surface import SurfaceResponse
 
 C_M_PER_NS = footprint.C_M_PER_NS
 PARTS = ("diffuse", "specular", "bf_direct")
@@ -31,16 +32,6 @@ def shot_rng(seed: int, scenario_key: int, shot: int) -> np.random.Generator:
     key = (int(seed) % 2**64) << 64 | (int(scenario_key) % 2**64)
     counter = np.array([0, 0, 0, int(shot) % 2**64], dtype=np.uint64)
     return np.random.Generator(np.random.Philox(key=key, counter=counter))
-
-
-#: A surface computed within this relative difference of the instrument's wavelength is at it.
-WAVELENGTH_RTOL = 1e-3
-
-
-def at_wavelength(surface_m: float, instrument_m: float) -> bool:
-    """Whether a surface computed at ``surface_m`` (m) is at the instrument's ``instrument_m``
-    (m), to :data:`WAVELENGTH_RTOL`."""
-    return abs(surface_m - instrument_m) <= WAVELENGTH_RTOL * instrument_m
 
 
 def check_wavelength(surface: SurfaceResponse, params) -> None:

@@ -19,13 +19,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..config.instrument_fields import SECTIONS
+from ..plot import (_colours, _pyplot, cases_of, clear_of_legend, delta_fractions, fit_legend,
+                    save_figure)
+
 SPECULAR_TIME_NS = 1e-6
-
-
-def cases_of(ds) -> list:
-    """(label, single-scenario Dataset) for each scenario of an instrument result."""
-    from ..plot import _scenarios
-    return list(_scenarios(ds))
 
 
 #: Attributes of an instrument result that are provenance, not parameters of the chain.
@@ -62,7 +60,6 @@ def surface_groups(cases) -> list:
 def _instrument_differences(datasets) -> list:
     """The instrument parameters (``geometry.roughness``) whose values differ between results
     of the chain, read from their ``instrument_*`` attributes."""
-    from .params import SECTIONS
     names = sorted({k for ds in datasets for k in ds.attrs
                     if k.startswith("instrument_") and k not in _PROVENANCE})
     out = []
@@ -102,7 +99,6 @@ def plot_instrument(cases, path, title: str | None = None, shot: int = 0):
 
     See ``instrument_figure``. Returns ``path``.
     """
-    from ..plot import save_figure
     return save_figure(instrument_figure(cases, title, shot), path)
 
 
@@ -127,7 +123,6 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
         one numeric swept key (colours from viridis), the colour bar. Every legend lies inside
         its panel.
     """
-    from ..plot import _colours, _pyplot, clear_of_legend, delta_fractions, fit_legend
     plt = _pyplot()
     bar = None
     if not isinstance(cases, list):

@@ -7,11 +7,19 @@ import time
 
 import numpy as np
 
+from ..config.instrument_fields import (BUILTIN, InstrumentParams, at_wavelength, field_for,
+                                        instruments_dir, load_instrument)
+from ..database import load_result
 from ..errors import ConfigError
+from ..instrument.pulse import sigma_from_fwhm
+from ..units import DIMENSIONS, parse_quantity
 from .counting import CountShots
 from .forward import BROADENING_MAX_NS, PULSE_RANGE, Forward
 from .likelihood import Shots
+from .observed import Observed, load_observed
 from .posterior import Problem, intervals, marginal, nearest_node_mass, refine
+from .result import build_result, check_dof, dof_bound
+from .space import Space
 
 #: Nuisances that ``fix`` may hold, and their units.
 NUISANCES = {"amplitude": "1", "pulse_fwhm": "ns", "broadening": "ns2"}
@@ -56,11 +64,6 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
         ``parameter`` coordinate, marginal posteriors, nuisances, the best-fit waveform and the
         goodness of fit.
     """
-    from ..instrument import InstrumentParams, load_instrument
-    from .observed import Observed, load_observed
-    from .result import build_result
-    from .space import Space
-
     started = time.perf_counter()
     obs = observed if isinstance(observed, Observed) else load_observed(observed)
     db, db_source = _database(database, database_source)
@@ -91,7 +94,6 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     if not keys:
         raise ConfigError("every swept key is fixed: nothing to invert", key="--fix")
     if space.wavelength is not None:
-        from ..instrument.chain import at_wavelength
         if not at_wavelength(space.wavelength, params["wavelength"]):
             raise ConfigError(f"the database was computed at {space.wavelength * 1e9:g} nm but "
                               f"{params['name']} works at {params['wavelength'] * 1e9:g} nm",
@@ -111,7 +113,6 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
                               "mV) above the baseline: nothing to invert", key=obs.source)
         shots = Shots(obs.time_ns, obs.shots[used], forward)
     # degrees of freedom are known from the counts before any work (result.check_dof)
-    from .result import check_dof, dof_bound
     n_used = int(used.sum())
     check_dof(dof_bound(counting, n_used, obs.time_ns.size, len(keys)), n_used,
               obs.time_ns.size, len(keys), counting, obs.source)
@@ -190,16 +191,15 @@ def _check_samples(obs, forward) -> None:
 
 def _named_instrument(obs):
     """The file of the bundled instrument the observed file names (attribute
-    ``instrument_name``): its path in :func:`~warpe_cl.instrument.params.instruments_dir`,
+    ``instrument_name``): its path in :func:`~warpe_cl.config.instrument_fields.instruments_dir`,
     never the bare name, which :func:`~warpe_cl.instrument.load_instrument` would first try as
     a file of the current folder.
 
     A name read from a file is data, not a path: only the bundled names
-    (:data:`warpe_cl.instrument.params.BUILTIN`) are taken from it, so that a file saying
+    (:data:`warpe_cl.config.instrument_fields.BUILTIN`) are taken from it, so that a file saying
     ``instrument_name: /etc/shadow`` opens nothing. Any other instrument is given with
     ``--instrument FILE``.
     """
-    from ..instrument.params import BUILTIN, instruments_dir
     name = obs.instrument
     if name is None:
         raise ConfigError("the observed file does not name its instrument: give --instrument",
@@ -216,19 +216,17 @@ def _database(database, source):
     """(Dataset, name) of a database folder, a sweep file or a Dataset."""
     if hasattr(database, "dims"):
         return database, source or "<database>"
-    from ..io import load_result
     return load_result(database), source or str(database)
 
 
 def _parse_fixed(fix: dict, db) -> dict:
     """--fix values of swept keys -> numbers in the database's unit (text kept for
     non-numeric keys)."""
-    from ..io import _field_kind
-    from ..units import DIMENSIONS, parse_quantity
     out = {}
     for key, value in fix.items():
         if key in db.coords and np.issubdtype(db[key].dtype, np.number):
-            kind = _field_kind(key)
+            field = field_for(key)
+            kind = None if field is None else field.kind
             try:
                 out[key] = (parse_quantity(value, kind) if kind in DIMENSIONS and
                             isinstance(value, str) else float(value))
@@ -243,14 +241,12 @@ def _parse_fixed(fix: dict, db) -> dict:
 
 def _fixed_v(nuisance: dict, forward: Forward):
     """The broadening nuisance v (ns²) that ``--fix pulse_fwhm=`` or ``broadening=`` sets."""
-    from ..units import parse_quantity
     if "pulse_fwhm" in nuisance:
         value = nuisance["pulse_fwhm"]
         fwhm = parse_quantity(value, "time") if isinstance(value, str) else float(value)
         if not forward.gaussian_pulse or not 0 < fwhm:
             raise ConfigError(f"--fix pulse_fwhm={value}: needs a Gaussian pulse and a positive "
                               "width in ns", key="--fix")
-        from ..instrument.pulse import sigma_from_fwhm
         return sigma_from_fwhm(fwhm) ** 2 - forward.sigma_p ** 2
     if "broadening" in nuisance:
         return float(nuisance["broadening"])

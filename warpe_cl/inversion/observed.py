@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
+from ..io import write_text
 
 __all__ = ["Observed", "load_observed", "write_csv", "UNIFORM_TOLERANCE", "MIN_SAMPLES"]
 
@@ -180,7 +181,6 @@ def write_csv(path, observed: Observed) -> Path:
         For photon counts (kind ``"counts"``): they are not written to CSV; for a path that
         cannot be written.
     """
-    from ..io import write_text
 
     if observed.kind != "mv":
         raise ConfigError(f"{observed.kind} waveforms are not written to CSV (only mV "

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .posterior import _trapezoid
+from .space import SCALES, axis_scale
+
 
 def _label(ds, dim: str) -> tuple[str, float, str]:
     """(axis label, scale, key) of a posterior dimension: lengths in mm or um."""
@@ -114,7 +117,6 @@ def _counts_panel(ax, ds) -> None:
 def _scale_of(ds, dim: str) -> str:
     """The interpolation coordinate of the posterior axis ``dim`` (its parameter's ``scale``;
     ``log_scale`` in files written before it; else detected from the values)."""
-    from .space import axis_scale
     key = ds[dim].attrs.get("sweep_key")
     if key in ds["parameter"].values:
         if "scale" in ds:
@@ -141,6 +143,4 @@ def _set_scale(setter, ds, dim: str) -> None:
 def _cells(values: np.ndarray, scale: str) -> np.ndarray:
     """Trapezoid widths of the points in their interpolation coordinate: mass / width is the
     density the prior is uniform in."""
-    from .posterior import _trapezoid
-    from .space import SCALES
     return _trapezoid(SCALES[scale][0](values)) if values.size > 1 else np.ones(1)

@@ -9,6 +9,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from ..errors import ConfigError
 from ..instrument.footprint import C_M_PER_NS
+from ..io import provenance
 
 #: A parameter whose 95 % interval spans more than this fraction of its prior range (in its
 #: interpolation coordinate) is reported as not constrained.
@@ -119,7 +120,6 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
                  db_attrs):
     """The output Dataset (see the module docstring of :mod:`warpe_cl.inversion.invert`)."""
     import xarray as xr
-    from ..io import provenance
 
     f = problem.forward
     best = summary["best"]

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
-from ..instrument.surface import SurfaceResponse, check_variables, responses
+from ..surface import SurfaceResponse, check_variables, responses
 
 
 #: Interpolation coordinates of an axis: name -> (coordinate of a value, value of a
