@@ -29,8 +29,12 @@ import hashlib
 import os
 import shutil
 import tempfile
+import warnings
 from functools import lru_cache
+from importlib import metadata
 from pathlib import Path
+
+from .errors import WarpeWarning
 
 SYSTEM_VENDORS = Path("/etc/OpenCL/vendors")
 
@@ -92,8 +96,6 @@ def usable_cache_dir() -> Path:
     atexit.register(shutil.rmtree, private, True)
     _usable[str(folder)] = _usable[str(private)] = private
     os.environ["WARPE_CL_CACHE_DIR"] = str(private)
-    import warnings
-    from .errors import WarpeWarning
     warnings.warn(f"the cache folder {folder} cannot be written ({problem}); using {private} "
                   "for this run: the OpenCL drivers keep their numbers, but no qualification "
                   "verdict is kept (each run checks its devices again, seconds to a minute); "
@@ -103,7 +105,6 @@ def usable_cache_dir() -> Path:
 
 def pip_driver_libraries() -> dict:
     """``{distribution: absolute library path}`` of the pip-installed OpenCL drivers present."""
-    from importlib import metadata
     found = {}
     for dist_name, lib in PIP_DRIVERS.items():
         try:

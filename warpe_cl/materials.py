@@ -13,6 +13,7 @@ SHA-256 and the n, k the walk used, from that same read (:func:`table_attrs`).
 """
 from __future__ import annotations
 
+import difflib
 from pathlib import Path
 
 import numpy as np
@@ -167,7 +168,6 @@ def lookup(constants: dict, name: str, key: str, source, wavelength=None) -> tup
                 f"{name}: {{n: N, k: K}} (or "
                 + "{table: FILE}, columns wavelength_nm, n, k; docs/materials.md)",
                 key=key, source=source) from None
-        import difflib
         known = sorted(constants)
         hint = difflib.get_close_matches(name.upper(), known, n=1)
         allowed = f"known: {', '.join(known)}; add it under materials: NAME: {{n, k}}"

@@ -8,10 +8,12 @@ set of numbers: the optical depth τ0, the single-scattering albedo ω, the effe
 from __future__ import annotations
 
 import functools
+import warnings
 
 import numpy as np
 
-from .errors import ConfigError
+from .errors import ConfigError, WarpeWarning
+from .materials import lookup, optical_constants
 from .params import C_M_PER_NS
 
 
@@ -182,8 +184,6 @@ def porosity_factor(compacity: float, texture: str) -> float:
 
 
 def _warn(message: str):
-    import warnings
-    from .errors import WarpeWarning
     warnings.warn(message, WarpeWarning, stacklevel=3)
 
 
@@ -221,8 +221,6 @@ def physical_parameters(cfg, layer: dict | None = None, where: str = "medium") -
         ``matrix_absorption_per_m`` and ``species`` (one dict per inclusion: material,
         n_rel, k_rel, number_density_per_m3, cross_section_m2, w, s_e, s_i).
     """
-    from .materials import lookup, optical_constants
-
     layer = _spec(cfg) if layer is None else layer
     source = cfg.source
     texture = layer["texture"]
@@ -344,7 +342,6 @@ def substrate_index(cfg) -> tuple | None:
         return None
     if spec.get("material") is None:
         return float(spec["n"]), float(spec["k"])
-    from .materials import lookup, optical_constants
     n, k = lookup(optical_constants(cfg), spec["material"], "medium.substrate.material",
                   cfg.source, cfg.get("wavelength"))
     return float(n), float(k)

@@ -18,11 +18,16 @@ only where they are used.
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
 import re
 import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
+from .api import get_engine
+from .device import candidates, list_devices, resolve_spec
 from .errors import ConfigError, DeviceError, one_line
 from .io import utc_now
 
@@ -104,10 +109,6 @@ def _pool_task(function, task: dict) -> dict:
 
 def _run_pool(function, tasks: list, devices: list):
     """One spawned worker process per device; results as they come."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
     ctx = multiprocessing.get_context("spawn")
     queue = ctx.Queue()
     for spec in devices:
@@ -125,10 +126,8 @@ def _run_pool(function, tasks: list, devices: list):
 
 def _local_devices(device: str | None) -> list:
     """The device specs of the local engine: one, or one per worker of a spawned pool."""
-    from .device import resolve_spec
     spec = resolve_spec(device)
     if spec == "all":
-        from .device import list_devices
         gpus = [info.spec for info, _ in list_devices() if info.kind == "gpu"]
         return gpus or ["auto"]
     specs = [s.strip() for s in spec.split(",") if s.strip()]
@@ -179,13 +178,13 @@ def _run_dask(client, function, tasks: list, fingerprint: str):
     Each worker keeps its OpenCL engine (context, queue, built kernels) between tasks: the
     engine cache of :func:`warpe_cl.api.get_engine` lives in the worker process.
     """
-    from distributed import as_completed
+    from distributed import as_completed as dask_completed
     futures = {}
     for task in tasks:
         future = client.submit(function, task, key=f"warpe-cl-{fingerprint[:12]}-{task['index']}",
                                resources={OPENCL_RESOURCE: 1}, pure=False, retries=0)
         futures[future] = task
-    for future in as_completed(futures):
+    for future in dask_completed(futures):
         try:
             yield future.result()
         except Exception as err:  # noqa: BLE001 - e.g. KilledWorker: recorded, retried on --resume
@@ -235,12 +234,10 @@ class Workers:
         devices = _local_devices(device)
         if len(devices) == 1:
             worker_environment()
-            from .api import get_engine
             engine = get_engine(devices[0])            # DeviceError -> exit 3
             info = getattr(engine, "info", None)
             return cls("in-process", f"in-process, {info.device if info else engine.name}",
                        devices)
-        from .device import candidates, list_devices
         listed = list_devices()
         for spec in devices:
             if spec != "numpy" and not candidates(spec, listed):
