@@ -473,16 +473,81 @@ class Engine:
             Weighted mode: some exiting ray's weight was NaN, negative or >= 2**21, so the
             exact sums would have dropped it (docs/walk.md §6).
         """
+        t_build = time.perf_counter()    # first use: qualification and kernel build
+        walk = self._set_up(params, precision, records, global_size, local_size, lanes,
+                            qualified, shared_nadir, first_photon)
+        self._warm_up(walk)
+        t_walk = time.perf_counter()
+        self.last_build_s = t_walk - t_build
+
+        total = Counts(n_time=walk.n_time, weighted=walk.weighted, nadir=walk.nadir)
+        walk.zero_nadir_sums(self.queue)   # exact sums over the launches, read at the end
+        lost_weights = 0   # weighted exits whose weight the exact sums cannot hold
+        records_of_walk = walk.record_buffers(photons) if records and photons else {}
+        handed = 0         # photons handed to launches so far
+        carried = 0        # rays parked by the last launch, resumed by the next
+        budget = int(event_budget or FIRST_EVENT_BUDGET)
+        # new photons per launch: the uint32 histograms hold them and the carried rays
+        offer = min(int(batch) if batch else MAX_LAUNCH, MAX_LAUNCH - walk.capacity)
+        while handed < photons or carried:
+            stops.check()      # a Ctrl-C or SIGTERM whose exception was dropped: stop here
+            n = min(offer, photons - handed)
+            launch = {"first_photon": first_photon + handed, "n_photons": n,
+                      "event_budget": budget, **records_of_walk}
+            part, lost, resumed, parked, elapsed = self._launch(walk, launch, carried)
+            lost_weights += lost
+            took = part.photons
+            total.add_walk(part)
+            handed += took
+            carried = _carry_unresumed(self.queue, walk.carry, carried, resumed, parked,
+                                       walk.itemsize)
+            budget_spent = carried > 0 or took < n
+            walk.carry.reverse()
+            if progress is not None:
+                progress(handed - carried)
+            if budget_spent and not event_budget:
+                # the launch ran on its budget: scale it to the wanted launch time
+                scale = min(max(self.target_launch_s / max(elapsed, 1e-6), 0.25), 4.0)
+                budget = int(min(max(budget * scale, 64), MAX_EVENT_BUDGET))
+        if lost_weights:
+            raise WeightError(lost_weights)
+        self._finish(walk, total, first_photon, photons, records_of_walk)
+        self.last_walk_s = time.perf_counter() - t_walk
+        return total
+
+    def _set_up(self, params: WalkParams, precision: str, records: bool,
+                global_size: int | None, local_size: int | None, lanes: int | None,
+                qualified: bool, shared_nadir: bool | None, first_photon: int) -> "_Walk":
+        """The kernel and device buffers of one walk (the arguments as for :meth:`run`):
+        its lane width, qualified unless ``qualified``; its kernel, built on first use; its
+        launch sizes; its buffers, checked against the device's memory first, with the
+        layered and nadir tables uploaded.
+
+        Returns
+        -------
+        _Walk
+
+        Raises
+        ------
+        ConfigError
+            The buffers do not fit the device (``simulation.time_bins``).
+        ValueError
+            A layered walk in the weighted mode.
+        """
         import pyopencl as cl
 
-        real = np.float64 if precision == "double" else np.float32
-        weighted = params.weighted
-        t_build = time.perf_counter()    # first use: qualification and kernel build
-        lanes = self.lanes_for(params.texture, precision, weighted, lanes, check=not qualified)
-        nadir = bool(params.nadir)
-        kern = self.kernel(params.texture, precision, records, lanes, weighted, nadir)
+        walk = _Walk()
+        walk.params, walk.precision, walk.records = params, precision, records
+        walk.first_photon = first_photon
+        walk.real = real = np.float64 if precision == "double" else np.float32
+        walk.weighted = weighted = params.weighted
+        walk.lanes = lanes = self.lanes_for(params.texture, precision, weighted, lanes,
+                                            check=not qualified)
+        walk.nadir = nadir = bool(params.nadir)
+        walk.key = kernel_key(params.texture, precision, records, lanes, weighted, nadir)
+        walk.kern = self.kernel(params.texture, precision, records, lanes, weighted, nadir)
         edges = np.asarray(params.time_edges, dtype=real)
-        n_time = len(edges) - 1
+        walk.n_time = n_time = len(edges) - 1
         gsize = int(global_size or self.default_global_size())
         if local_size is None and self.info.kind != "gpu":
             # PoCL runs the work-items of a group one after the other in one thread: groups
@@ -490,20 +555,21 @@ class Engine:
             local_size = 1
         if local_size:
             gsize = -(-gsize // local_size) * local_size
+        walk.gsize, walk.local_size = gsize, local_size
 
         mf = cl.mem_flags
-        ctx, queue = self.context, self.queue
-        layered = params.layered
+        ctx = self.context
+        walk.layered = layered = params.layered
         if layered and weighted:
             raise ValueError("the layered walk is analog only (docs/walk.md §7)")
-        args = walk_args(weighted, records, layered, nadir)
-        shapes = tally_shapes(n_time)
-        hist = [a.name for a in args if a.name in HISTOGRAMS]
-        weights = [a.name for a in args if a.only == "weighted"]
-        itemsize = np.dtype(real).itemsize
+        walk.args = args = walk_args(weighted, records, layered, nadir)
+        walk.shapes = shapes = tally_shapes(n_time)
+        walk.hist = hist = [a.name for a in args if a.name in HISTOGRAMS]
+        walk.weights = weights = [a.name for a in args if a.only == "weighted"]
+        walk.itemsize = itemsize = np.dtype(real).itemsize
         # every lane of every work-item may park a ray at the end of a launch, and so may every
         # photon left in its pool
-        capacity = gsize * (lanes + photon_pool(lanes))
+        walk.capacity = capacity = gsize * (lanes + photon_pool(lanes))
         # the nadir sums: one slice per work-item on CPUs (plain adds, walk.md §8), one slice
         # that every work-item adds to atomically on GPUs
         if shared_nadir is None:
@@ -516,21 +582,21 @@ class Engine:
                            self.info.device)
         # the buffers, by kernel argument: uint32 histograms; weighted sums in FIXED_WORDS
         # uint64 words per cell (cl/tally.h); the statistics of every work-item; the counters
-        counters = ("next_photon", "next_resume", "parked")
-        buffers = {"time_edges": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=edges),
-                   **{k: cl.Buffer(ctx, mf.READ_WRITE, size=4) for k in counters},
-                   "item_stats": cl.Buffer(ctx, mf.READ_WRITE, size=8 * len(ITEM_STATS) * gsize),
-                   **{k: cl.Buffer(ctx, mf.READ_WRITE, size=4 * int(np.prod(shapes[k])))
-                      for k in hist},
-                   **{k: cl.Buffer(ctx, mf.READ_WRITE,
-                                   size=8 * FIXED_WORDS * int(np.prod(shapes[k])))
-                      for k in weights}}
+        walk.counters = counters = ("next_photon", "next_resume", "parked")
+        walk.buffers = buffers = {
+            "time_edges": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=edges),
+            **{k: cl.Buffer(ctx, mf.READ_WRITE, size=4) for k in counters},
+            "item_stats": cl.Buffer(ctx, mf.READ_WRITE, size=8 * len(ITEM_STATS) * gsize),
+            **{k: cl.Buffer(ctx, mf.READ_WRITE, size=4 * int(np.prod(shapes[k])))
+               for k in hist},
+            **{k: cl.Buffer(ctx, mf.READ_WRITE, size=8 * FIXED_WORDS * int(np.prod(shapes[k])))
+               for k in weights}}
         if layered:
             for name, table in layer_tables(params, real).items():
                 buffers[name] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=table)
             buffers["layer_stats"] = cl.Buffer(ctx, mf.READ_WRITE,
                                                size=8 * len(LAYER_STATS) * gsize)
-        nadir_shape = (slices, NADIR_BATCHES, len(NADIR_ROWS), n_time + 2)
+        walk.nadir_shape = nadir_shape = (slices, NADIR_BATCHES, len(NADIR_ROWS), n_time + 2)
         if nadir:
             buffers["view"] = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                         hostbuf=view_table(params).astype(real))
@@ -542,122 +608,151 @@ class Engine:
             buffers.update(zip(("bin_log", "bin_a", "bin_b"), bin_guess(params.time_edges)))
             buffers["nadir_sum"], buffers["nadir_visits"] = self._nadir_buffers(nadir_shape)
             buffers["nadir_slices"] = slices
-        zeroed = [buffers[k] for k in (*hist, *weights, *counters)]
+        walk.zeroed = [buffers[k] for k in (*hist, *weights, *counters)]
         # parked rays, in two buffers that swap roles each launch (written, then resumed)
-        carry = [(cl.Buffer(ctx, mf.READ_WRITE, size=itemsize * len(STATE_REAL_COLUMNS) * capacity),
-                  cl.Buffer(ctx, mf.READ_WRITE, size=4 * len(STATE_INT_COLUMNS) * capacity))
-                 for _ in range(2)]
+        walk.carry = [
+            (cl.Buffer(ctx, mf.READ_WRITE, size=itemsize * len(STATE_REAL_COLUMNS) * capacity),
+             cl.Buffer(ctx, mf.READ_WRITE, size=4 * len(STATE_INT_COLUMNS) * capacity))
+            for _ in range(2)]
+        walk.context = ctx
+        return walk
 
-        def record_buffers(n: int) -> dict:
-            """The per-photon record buffers of a walk of ``n`` photons (int and REAL
-            columns, cl/tally.h), row 0 for ``first_photon``."""
-            return {"rec_int": cl.Buffer(ctx, mf.WRITE_ONLY, size=4 * len(RECORD_INT_COLUMNS) * n),
-                    "rec_real": cl.Buffer(ctx, mf.WRITE_ONLY,
-                                          size=itemsize * len(RECORD_REAL_COLUMNS) * n),
-                    "record_base": first_photon & 0xFFFFFFFF}
+    def _warm_up(self, walk: "_Walk") -> None:
+        """PoCL compiles a kernel for its work-group size at its first launch: a launch
+        walking no ray (n_photons 0) does that here, once per structure and work-group size,
+        inside the build time; every buffer it touches is zeroed or rewritten by the launches
+        of the walk."""
+        import pyopencl as cl
 
-        def carry_args(resume_count: int) -> dict:
-            """The carried rays' arguments: resume from carry[0], park into carry[1]."""
-            return {"resume_count": resume_count, "resume_real": carry[0][0],
-                    "resume_int": carry[0][1], "park_real": carry[1][0], "park_int": carry[1][1]}
+        params = walk.params
+        warm_key = (params.texture, walk.precision, walk.records, walk.lanes, walk.weighted,
+                    walk.nadir, walk.local_size)
+        if warm_key in self._warmed:
+            return
+        launch = {**walk.buffers, "first_photon": walk.first_photon, "n_photons": 0,
+                  "event_budget": 1, **walk.carry_args(0),
+                  **(walk.record_buffers(1) if walk.records else {})}
+        for k in walk.counters:
+            cl.enqueue_fill_buffer(self.queue, walk.buffers[k], np.uint32(0), 0, 4)
+        local = walk.local_size
+        walk.kern(self.queue, (local or 1,), (local,) if local else None,
+                  *argument_values(walk.args, params, launch, walk.real))
+        self.queue.finish()
+        self._warmed.add(warm_key)
 
-        warm_key = (params.texture, precision, records, lanes, weighted, nadir, local_size)
-        if warm_key not in self._warmed:
-            # PoCL compiles a kernel for its work-group size at its first launch: a launch
-            # walking no ray (n_photons 0) does that here, inside the build time; every
-            # buffer it touches is zeroed or rewritten by the launches below
-            launch = {**buffers, "first_photon": first_photon, "n_photons": 0,
-                      "event_budget": 1, **carry_args(0),
-                      **(record_buffers(1) if records else {})}
-            for k in counters:
-                cl.enqueue_fill_buffer(queue, buffers[k], np.uint32(0), 0, 4)
-            kern(queue, (local_size or 1,), (local_size,) if local_size else None,
-                 *argument_values(args, params, launch, real))
-            queue.finish()
-            self._warmed.add(warm_key)
-        t_walk = time.perf_counter()
-        self.last_build_s = t_walk - t_build
+    def _launch(self, walk: "_Walk", launch: dict, carried: int) -> tuple:
+        """One launch of the walk and its readback.
 
-        total = Counts(n_time=n_time, weighted=weighted, nadir=nadir)
-        if nadir:   # exact sums that add up over the launches, read once at the end
-            for k in ("nadir_sum", "nadir_visits"):
-                cl.enqueue_fill_buffer(queue, buffers[k], np.uint32(0), 0, buffers[k].size)
-        lost_weights = 0   # weighted exits whose weight the exact sums cannot hold
-        records_of_walk = record_buffers(photons) if records and photons else {}
-        handed = 0         # photons handed to launches so far
-        carried = 0        # rays parked by the last launch, resumed by the next
-        budget = int(event_budget or FIRST_EVENT_BUDGET)
-        # new photons per launch: the uint32 histograms hold them and the carried rays
-        offer = min(int(batch) if batch else MAX_LAUNCH, MAX_LAUNCH - capacity)
-        while handed < photons or carried:
-            stops.check()      # a Ctrl-C or SIGTERM whose exception was dropped: stop here
-            n = min(offer, photons - handed)
-            for buf in zeroed:
-                cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)
-            launch = {**buffers, "first_photon": first_photon + handed, "n_photons": n,
-                      "event_budget": budget, **carry_args(carried), **records_of_walk}
-            launch_items = min(gsize, -(-(n + carried) // lanes))
-            if local_size:
-                launch_items = -(-launch_items // local_size) * local_size
-            t0 = time.perf_counter()
-            kern(queue, (launch_items,), (local_size,) if local_size else None,
-                 *argument_values(args, params, launch, real))
-            taken, parked = np.empty(1, np.uint32), np.empty(1, np.uint32)
-            resumed = np.empty(1, np.uint32)
-            cl.enqueue_copy(queue, taken, buffers["next_photon"])
-            cl.enqueue_copy(queue, parked, buffers["parked"])
-            cl.enqueue_copy(queue, resumed, buffers["next_resume"])
-            part = Counts(n_time=n_time, weighted=weighted)
-            for name in hist:
-                host = np.empty(shapes[name], dtype=np.uint32)
-                cl.enqueue_copy(queue, host, buffers[name])
-                getattr(part, name)[...] = host
-            for name in weights:
-                words = np.empty((*shapes[name], FIXED_WORDS), dtype=np.uint64)
-                cl.enqueue_copy(queue, words, buffers[name])
-                setattr(part, name, _exact_sums(words))
-            stats = np.empty((gsize, len(ITEM_STATS)), dtype=np.uint64)
-            cl.enqueue_copy(queue, stats, buffers["item_stats"])
-            if layered:
-                per_layer = np.empty((gsize, len(LAYER_STATS)), dtype=np.uint64)
-                cl.enqueue_copy(queue, per_layer, buffers["layer_stats"])
-            queue.finish()
-            if layered:
-                part.layer_stats[...] = per_layer[:launch_items].astype(np.int64).sum(axis=0)
-            elapsed = time.perf_counter() - t0
-            stats = dict(zip(ITEM_STATS, stats[:launch_items].astype(np.int64).sum(axis=0)))
-            part.fates[...] = [stats[f"fate_{f}"] for f in FATES]
-            part.scattering_events = int(stats["scattering_events"])
-            part.mixed_history = int(stats["mixed_history"])
-            lost_weights += int(stats["lost_weights"])
-            took = min(int(taken[0]), n)
-            part.photons = took
-            total.add_walk(part)
-            handed += took
-            carried = _carry_unresumed(queue, carry, carried, int(resumed[0]), int(parked[0]),
-                                       itemsize)
-            budget_spent = carried > 0 or took < n
-            carry.reverse()
-            if progress is not None:
-                progress(handed - carried)
-            if budget_spent and not event_budget:
-                # the launch ran on its budget: scale it to the wanted launch time
-                scale = min(max(self.target_launch_s / max(elapsed, 1e-6), 0.25), 4.0)
-                budget = int(min(max(budget * scale, 64), MAX_EVENT_BUDGET))
-        if lost_weights:
-            raise WeightError(lost_weights)
-        if nadir:
-            fold = self._folds[kernel_key(params.texture, precision, records, lanes, weighted,
-                                          nadir)]
-            words, visits = fold_nadir_slices(queue, fold, buffers["nadir_sum"],
-                                              buffers["nadir_visits"], nadir_shape)
+        Parameters
+        ----------
+        walk : _Walk
+        launch : dict
+            ``first_photon``, ``n_photons`` (new photons offered), ``event_budget`` and the
+            record buffers of the walk, if any.
+        carried : int
+            Rays parked by the last launch, resumed by this one (from ``walk.carry[0]``).
+
+        Returns
+        -------
+        (Counts, int, int, int, float)
+            The launch's counts (``photons``: the new photons it took), the weighted exits
+            whose weight the exact sums could not hold, the parked rays it resumed, the rays
+            it parked (into ``walk.carry[1]``), and its wall time, s.
+        """
+        import pyopencl as cl
+
+        queue, buffers, n = self.queue, walk.buffers, launch["n_photons"]
+        for buf in walk.zeroed:
+            cl.enqueue_fill_buffer(queue, buf, np.uint32(0), 0, buf.size)
+        launch = {**buffers, **launch, **walk.carry_args(carried)}
+        launch_items = min(walk.gsize, -(-(n + carried) // walk.lanes))
+        if walk.local_size:
+            launch_items = -(-launch_items // walk.local_size) * walk.local_size
+        t0 = time.perf_counter()
+        walk.kern(queue, (launch_items,), (walk.local_size,) if walk.local_size else None,
+                  *argument_values(walk.args, walk.params, launch, walk.real))
+        taken, parked = np.empty(1, np.uint32), np.empty(1, np.uint32)
+        resumed = np.empty(1, np.uint32)
+        cl.enqueue_copy(queue, taken, buffers["next_photon"])
+        cl.enqueue_copy(queue, parked, buffers["parked"])
+        cl.enqueue_copy(queue, resumed, buffers["next_resume"])
+        part = Counts(n_time=walk.n_time, weighted=walk.weighted)
+        for name in walk.hist:
+            host = np.empty(walk.shapes[name], dtype=np.uint32)
+            cl.enqueue_copy(queue, host, buffers[name])
+            getattr(part, name)[...] = host
+        for name in walk.weights:
+            words = np.empty((*walk.shapes[name], FIXED_WORDS), dtype=np.uint64)
+            cl.enqueue_copy(queue, words, buffers[name])
+            setattr(part, name, _exact_sums(words))
+        stats = np.empty((walk.gsize, len(ITEM_STATS)), dtype=np.uint64)
+        cl.enqueue_copy(queue, stats, buffers["item_stats"])
+        if walk.layered:
+            per_layer = np.empty((walk.gsize, len(LAYER_STATS)), dtype=np.uint64)
+            cl.enqueue_copy(queue, per_layer, buffers["layer_stats"])
+        queue.finish()
+        if walk.layered:
+            part.layer_stats[...] = per_layer[:launch_items].astype(np.int64).sum(axis=0)
+        elapsed = time.perf_counter() - t0
+        stats = dict(zip(ITEM_STATS, stats[:launch_items].astype(np.int64).sum(axis=0)))
+        part.fates[...] = [stats[f"fate_{f}"] for f in FATES]
+        part.scattering_events = int(stats["scattering_events"])
+        part.mixed_history = int(stats["mixed_history"])
+        part.photons = min(int(taken[0]), n)
+        return part, int(stats["lost_weights"]), int(resumed[0]), int(parked[0]), elapsed
+
+    def _finish(self, walk: "_Walk", total: Counts, first_photon: int, photons: int,
+                records_of_walk: dict) -> None:
+        """Add to ``total`` what the walk kept on the device over its launches: the nadir
+        sums of every slice, folded on the device and read once, with the photons of each
+        batch; the per-photon records."""
+        if walk.nadir:
+            words, visits = fold_nadir_slices(self.queue, self._folds[walk.key],
+                                              walk.buffers["nadir_sum"],
+                                              walk.buffers["nadir_visits"], walk.nadir_shape)
             total.nadir_sum = _exact_sums(words)
             total.nadir_visits[...] = visits.astype(np.int64)
             total.nadir_batch_photons[...] = batch_photons(first_photon, photons)
-        if records:
-            total.records = _read_records(queue, records_of_walk, photons, real)
-        self.last_walk_s = time.perf_counter() - t_walk
-        return total
+        if walk.records:
+            total.records = _read_records(self.queue, records_of_walk, photons, walk.real)
+
+
+class _Walk:
+    """What :meth:`Engine.run` keeps for one walk between its launches (set by
+    :meth:`Engine._set_up`): the scenario and its build (``params``, ``precision``,
+    ``records``, ``weighted``, ``layered``, ``nadir``, ``lanes``, ``key``, ``kern``, ``args``,
+    ``real``, ``itemsize``), the launch sizes (``gsize``, ``local_size``, ``capacity``), the
+    time grid and tallies (``n_time``, ``shapes``, ``hist``, ``weights``, ``nadir_shape``)
+    and the device buffers (``buffers`` by kernel argument, ``counters``, ``zeroed``: those
+    zeroed before each launch, ``carry``: the two parked-ray buffers, which swap roles each
+    launch)."""
+
+    def record_buffers(self, n: int) -> dict:
+        """The per-photon record buffers of a walk of ``n`` photons (int and REAL columns,
+        cl/tally.h), row 0 for ``first_photon``."""
+        import pyopencl as cl
+
+        mf = cl.mem_flags
+        return {"rec_int": cl.Buffer(self.context, mf.WRITE_ONLY,
+                                     size=4 * len(RECORD_INT_COLUMNS) * n),
+                "rec_real": cl.Buffer(self.context, mf.WRITE_ONLY,
+                                      size=self.itemsize * len(RECORD_REAL_COLUMNS) * n),
+                "record_base": self.first_photon & 0xFFFFFFFF}
+
+    def carry_args(self, resume_count: int) -> dict:
+        """The carried rays' arguments: resume from carry[0], park into carry[1]."""
+        carry = self.carry
+        return {"resume_count": resume_count, "resume_real": carry[0][0],
+                "resume_int": carry[0][1], "park_real": carry[1][0], "park_int": carry[1][1]}
+
+    def zero_nadir_sums(self, queue) -> None:
+        """Zero the nadir sums, which add up over the launches (no-op without them)."""
+        import pyopencl as cl
+
+        if self.nadir:
+            for k in ("nadir_sum", "nadir_visits"):
+                cl.enqueue_fill_buffer(queue, self.buffers[k], np.uint32(0), 0,
+                                       self.buffers[k].size)
 
 
 def _carry_unresumed(queue, carry: list, count: int, taken: int, parked: int,
