@@ -290,6 +290,7 @@ def cmd_instrument(args) -> int:
 
 def cmd_invert(args) -> int:
     """``warpe-cl invert``: recorded shots + a sweep database -> FIT.nc (docs/inversion.md)."""
+    import json
     from . import report
     from .config.keys import parse_overrides
     from .inversion.invert import invert
@@ -311,6 +312,9 @@ def cmd_invert(args) -> int:
     say = _say(args)
     for line in report.inversion_lines(ds):
         say(line)
+    held = json.loads(ds.attrs.get("fixed", "{}"))
+    if held:                # each --fix echoed with its unit, as it was read
+        say(printable("  fixed: " + ", ".join(f"{k} = {v}" for k, v in held.items())))
     _write_outputs(ds, out, args.plot, plot_fit, say, started=t0)
     return EXIT_OK
 
@@ -627,8 +631,9 @@ def make_parser() -> argparse.ArgumentParser:
                      help="swept keys to report (default: all not fixed; the others are "
                           "marginalised)")
     inv.add_argument("--fix", action="append", metavar="KEY=VALUE",
-                     help='hold a swept key, e.g. --fix medium.compacity=0.5, or a nuisance: '
-                          'amplitude=1, pulse_fwhm="6.5 ns" (repeatable)')
+                     help='hold a swept key, e.g. --fix medium.compacity=0.5 or '
+                          'medium.thickness="500 mm" (a quantity needs its unit, as for run '
+                          '--set), or a nuisance: amplitude=1, pulse_fwhm="6.5 ns" (repeatable)')
     inv.add_argument("--scenario", help="the scenario of an instrument file holding a sweep")
     inv.add_argument("--quiet", action="store_true", help="print nothing but errors")
     inv.set_defaults(func=cmd_invert)

@@ -7,22 +7,21 @@ import time
 
 import numpy as np
 
-from ..config.instrument_fields import (BUILTIN, InstrumentParams, at_wavelength, field_for,
+from ..config.instrument_fields import (BUILTIN, InstrumentParams, at_wavelength,
                                         instruments_dir, load_instrument)
 from ..database import load_result
 from ..errors import ConfigError
 from ..instrument.pulse import sigma_from_fwhm
-from ..units import DIMENSIONS, parse_quantity
 from .counting import CountShots
 from .forward import BROADENING_MAX_NS, PULSE_RANGE, Forward
 from .likelihood import Shots
 from .observed import Observed, load_observed
+from .options import NUISANCES, dataset_header, check_complete, check_options, header, \
+    parse_value
 from .posterior import Problem, intervals, marginal, nearest_node_mass, refine
 from .result import build_result, check_dof, dof_bound
 from .space import Space
 
-#: Nuisances that ``fix`` may hold, and their units.
-NUISANCES = {"amplitude": "1", "pulse_fwhm": "ns", "broadening": "ns2"}
 #: A shot is used when its largest sample rises this many σ_n above the baseline.
 DETECTION_SIGMA = 5.0
 
@@ -65,8 +64,20 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
         goodness of fit.
     """
     started = time.perf_counter()
+    fix = dict(fix or {})
+    nuisance = {k: fix.pop(k) for k in list(fix) if k in NUISANCES}
+    # every option is checked against the database's manifests before its scenario files are
+    # read (a folder of a large sweep takes 40-60 s to load)
+    head = header(database, database_source)
+    if head is not None:
+        check_complete(head)
+        fixed, echoed = check_options(head, free, fix, nuisance)
     obs = observed if isinstance(observed, Observed) else load_observed(observed)
     db, db_source = _database(database, database_source)
+    if head is None:
+        head = dataset_header(db, db_source)
+        check_complete(head)
+        fixed, echoed = check_options(head, free, fix, nuisance)
     params = instrument if isinstance(instrument, InstrumentParams) else \
         load_instrument(instrument or _named_instrument(obs))
     counting = params["detector.type"] == "photon_counting"
@@ -81,18 +92,9 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
                           f"{params['name']} samples every {params['adc.sampling_interval']:g} "
                           "ns: give the instrument that recorded them (--instrument)",
                           key=observed_source or obs.source)
-    fix = dict(fix or {})
-    nuisance = {k: fix.pop(k) for k in list(fix) if k in NUISANCES}
-    space = Space(db, _parse_fixed(fix, db), source=db_source)
-    free_axes = space.free_axes
-    keys = [a.key for a in free_axes]
+    space = Space(db, fixed, source=db_source)
+    keys = [a.key for a in space.free_axes]
     report = list(free) if free else keys
-    bad = [k for k in report if k not in keys]
-    if bad:
-        raise ConfigError(f"--free {bad[0]}: not a free swept key of the database (free: "
-                          f"{', '.join(keys) or 'none'})", key=db_source)
-    if not keys:
-        raise ConfigError("every swept key is fixed: nothing to invert", key="--fix")
     if space.wavelength is not None:
         if not at_wavelength(space.wavelength, params["wavelength"]):
             raise ConfigError(f"the database was computed at {space.wavelength * 1e9:g} nm but "
@@ -117,14 +119,15 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     check_dof(dof_bound(counting, n_used, obs.time_ns.size, len(keys)), n_used,
               obs.time_ns.size, len(keys), counting, obs.source)
     overall = nuisance.get("amplitude")
-    problem = Problem(space, forward, shots, overall=None if overall is None else float(overall),
+    overall = None if overall is None else parse_value("amplitude", overall, None, "(> 0)")
+    problem = Problem(space, forward, shots, overall=overall,
                       v=v_fixed)
     nodes, final = refine(problem, budget=budget)
     summary = _summarise(problem, final, report)
     summary["elapsed_s"] = time.perf_counter() - started
     summary["evaluations"] = problem.count
     return build_result(obs, params, space, problem, nodes, final, summary, used,
-                        db_source=db_source, db_attrs=dict(db.attrs))
+                        db_source=db_source, db_attrs=dict(db.attrs), fixed=echoed)
 
 
 #: How many per-sample noise standard deviations σ_n an observed sample may lie beyond the
@@ -219,37 +222,17 @@ def _database(database, source):
     return load_result(database), source or str(database)
 
 
-def _parse_fixed(fix: dict, db) -> dict:
-    """--fix values of swept keys -> numbers in the database's unit (text kept for
-    non-numeric keys)."""
-    out = {}
-    for key, value in fix.items():
-        if key in db.coords and np.issubdtype(db[key].dtype, np.number):
-            field = field_for(key)
-            kind = None if field is None else field.kind
-            try:
-                out[key] = (parse_quantity(value, kind) if kind in DIMENSIONS and
-                            isinstance(value, str) else float(value))
-            except (ValueError, ConfigError):
-                raise ConfigError(f"--fix {key}={value}: not a number"
-                                  + (f" with a {kind} unit" if kind in DIMENSIONS else ""),
-                                  key="--fix") from None
-        else:
-            out[key] = value
-    return out
-
-
 def _fixed_v(nuisance: dict, forward: Forward):
     """The broadening nuisance v (ns²) that ``--fix pulse_fwhm=`` or ``broadening=`` sets."""
     if "pulse_fwhm" in nuisance:
         value = nuisance["pulse_fwhm"]
-        fwhm = parse_quantity(value, "time") if isinstance(value, str) else float(value)
+        fwhm = parse_value("pulse_fwhm", value, "time", "(a pulse FWHM > 0)")
         if not forward.gaussian_pulse or not 0 < fwhm:
             raise ConfigError(f"--fix pulse_fwhm={value}: needs a Gaussian pulse and a positive "
-                              "width in ns", key="--fix")
+                              "width with a unit (e.g. \"6.5 ns\")", key="--fix")
         return sigma_from_fwhm(fwhm) ** 2 - forward.sigma_p ** 2
     if "broadening" in nuisance:
-        return float(nuisance["broadening"])
+        return parse_value("broadening", nuisance["broadening"], None, "(ns2)")
     return None
 
 

@@ -117,8 +117,12 @@ def check_dof(dof: int, shots: int, samples: int, free: int, counting: bool, sou
 
 
 def build_result(obs, params, space, problem, nodes, final, summary, used, *, db_source,
-                 db_attrs):
-    """The output Dataset (see the module docstring of :mod:`warpe_cl.inversion.invert`)."""
+                 db_attrs, fixed=None):
+    """The output Dataset (see the module docstring of :mod:`warpe_cl.inversion.invert`).
+
+    ``fixed``: every ``--fix`` key or nuisance -> its value with its unit (``"500 mm"``), as
+    recorded in the attribute ``fixed`` (default: the space's fixed values, in its units).
+    """
     import xarray as xr
 
     f = problem.forward
@@ -212,7 +216,9 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         "instrument_name": params["name"],
         "database": db_source,
         "database_fingerprint": str(db_attrs.get("sweep_fingerprint", "")),
-        "fixed": json.dumps({**space.fixed, **space.point}),
+        "fixed": json.dumps(fixed if fixed is not None else
+                            {**space.fixed, **{k: f"{v:g} {space.axis(k).units}"
+                                               for k, v in space.point.items()}}),
         "marginalised": json.dumps([r["key"] for r in summary["rows"] if not r["reported"]]),
         "shots_total": int(used.size),
         "shots_used": n_shots,
