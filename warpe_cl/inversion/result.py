@@ -186,7 +186,8 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         "shot_arrival": ("shot", arrival, {"units": "ns", "long_name":
                                            "arrival of each shot (range offset + phase)"}),
         "arrival_time": ((), float(np.median(arrival)), {"units": "ns"}),
-        "range_offset": ((), float(np.median(arrival)) * C_M_PER_NS / 2.0, {"units": "m"}),
+        "arrival_plus_sampling_phase": ((), float(np.median(arrival)) * C_M_PER_NS / 2.0,
+                                        {"units": "m"}),
         "broadening_variance": ((), best.v, {"units": "ns2", "long_name":
                                              "v: change of the pulse and footprint variance"}),
         "pulse_fwhm": ((), f.fwhm_of(best.v) if f.gaussian_pulse else np.nan, {
@@ -232,4 +233,92 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
                      "clipped shots); ")
                   + "pulse/footprint broadening profiled",
     })
-    return xr.Dataset(data, coords=coords, attrs=attrs)
+    return describe(xr.Dataset(data, coords=coords, attrs=attrs))
+
+
+#: CF-style ``long_name`` and ``units`` of every variable and coordinate of FIT.nc that
+#: :func:`build_result` does not describe where it makes it (``units`` "1": a number or flag
+#: without dimension, or text). ``None`` as units: the parameter's own unit, per row of
+#: ``units`` (one name for all rows when they share it).
+DESCRIPTIONS = {
+    "best": ("parameter value at the largest log-likelihood", None),
+    "median": ("posterior median of the parameter", None),
+    "low68": ("lower bound of the equal-tailed 68 % posterior interval", None),
+    "high68": ("upper bound of the equal-tailed 68 % posterior interval", None),
+    "low95": ("lower bound of the equal-tailed 95 % posterior interval", None),
+    "high95": ("upper bound of the equal-tailed 95 % posterior interval", None),
+    "prior_low": ("lower end of the uniform prior: the database's smallest grid value", None),
+    "prior_high": ("upper end of the uniform prior: the database's largest grid value", None),
+    "interval_fraction": ("share of the prior range (in the interpolation coordinate) spanned "
+                          "by the 95 % interval", "1"),
+    "constrained": ("whether the 95 % interval spans less than 90 % of the prior range", "1"),
+    "units": ("unit of the parameter's values (text)", "1"),
+    "log_scale": ("whether the interpolation coordinate is ln(value)", "1"),
+    "scale": (None, "1"),
+    "parameter": (None, "1"),
+    "posterior": (None, "1"),
+    "loglike_nodes": (None, "1"),
+    "amplitude": (None, "1"),
+    "shot_amplitude": ("amplitude of each shot a_s: the overall amplitude A times its speckle "
+                       "factor", "1"),
+    "shot_arrival": ("arrival of each shot: the delay of its model waveform, the range offset "
+                     "plus the unknown ADC sampling phase of the shot", "ns"),
+    "arrival_time": ("median shot arrival: the range offset plus the unknown ADC sampling "
+                     "phase (up to one sampling interval), not a surface delay", "ns"),
+    "arrival_plus_sampling_phase": (
+        "median shot arrival as a one-way distance c t / 2: the range offset plus the unknown "
+        "ADC sampling phase (up to c/2 times one sampling interval; the return is not locked "
+        "to the ADC clock), not a range to the surface", "m"),
+    "broadening_variance": (None, "ns2"),
+    "chi2": ("chi-square of the best fit over the unclipped samples (Pearson groups for "
+             "photon counts)", "1"),
+    "dof": ("degrees of freedom of the best fit", "1"),
+    "chi2_per_dof": ("chi-square per degree of freedom of the best fit", "1"),
+    "p_value": (None, "1"),
+    "censored_samples": ("samples at or above the receiver's clipped level, counted as "
+                         "censored", "1"),
+    "shot": (None, "1"),
+    "sample_time": ("nominal time of each sample of a shot", "ns"),
+    "fit_time": (None, "ns"),
+}
+
+
+def describe(ds):
+    """Give every variable and coordinate of a FIT Dataset a ``long_name`` and ``units``
+    (:data:`DESCRIPTIONS`; the marginal, grid and fine-grid coordinates by their key; the
+    waveform variables by their suffix ``_mv`` or ``_counts``), keeping any already set.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        The Dataset :func:`build_result` assembles.
+
+    Returns
+    -------
+    xarray.Dataset
+        The same Dataset, described in place.
+    """
+    row_units = [str(u) for u in np.asarray(ds["units"].values)] if "units" in ds else []
+    shared = row_units[0] if row_units and len(set(row_units)) == 1 else \
+        "per parameter: see the variable units"
+    for name in list(ds.variables):
+        var = ds[name] if name not in ds.coords else ds.coords[name]
+        attrs = var.attrs
+        long_name, units = DESCRIPTIONS.get(name, (None, "1"))
+        if name.startswith("marginal_"):
+            long_name, units = long_name, "1"
+        elif name.startswith(("grid_", "posterior_")) and "sweep_key" in attrs:
+            long_name = (("grid values of " if name.startswith("grid_") else
+                          "refined-grid values of ") + attrs["sweep_key"])
+        elif name.endswith(("_mv", "_counts")):
+            if name.startswith("fit_low68_") or name.startswith("fit_high68_"):
+                long_name = (("lower" if "low68" in name else "upper") + " edge of the 68 % band "
+                             "of the expected waveform over 64 posterior draws")
+            elif name.startswith("observed_"):
+                long_name = "observed samples of each shot used"
+            units = "mV" if name.endswith("_mv") else "counts"
+        if "long_name" not in attrs and long_name is not None:
+            attrs["long_name"] = long_name
+        if "units" not in attrs:
+            attrs["units"] = shared if units is None else units
+    return ds
