@@ -46,9 +46,13 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
         Swept keys to report (default: every swept key not fixed). Swept keys neither free nor
         fixed are marginalised.
     fix : dict, optional
-        Dotted key -> value to hold a swept key (a number in the database's unit, m for
-        lengths, or text such as ``"100 um"``), or a nuisance: ``amplitude`` (1: the
-        instrument's radiometry is trusted), ``pulse_fwhm`` (ns, or text ``"6.5 ns"``).
+        Dotted key -> value to hold a swept key, by the unit rule of ``run --set``: a
+        quantity with its unit (``"100 um"``; a bare number is refused), a plain number for a
+        key without dimension (compacity), text for a non-numeric key; or a nuisance:
+        ``amplitude`` (1: the instrument's radiometry is trusted), ``pulse_fwhm``
+        (``"6.5 ns"``), ``broadening`` (ns², a number). Checked, with ``free``, against the
+        database's manifests before its scenario files are read
+        (:mod:`warpe_cl.inversion.options`).
     budget : int
         Largest number of points of a refined grid.
     pulse_range : (float, float)
