@@ -32,7 +32,7 @@ import numpy as np
 from .dataset import as_grid, combine_scenarios
 from .errors import ConfigError, one_line
 
-__all__ = ["load_result", "open_database", "database_folder", "manifest_name", "read_manifests",
+__all__ = ["load_result", "open_database", "database_folder", "manifest_name", "read_manifests", "finished_scenarios",
            "check_manifest", "scenario_file_name", "file_sha256", "recorded_sha256", "FORMAT",
            "FORMAT_VERSION"]
 
@@ -246,7 +246,7 @@ def _read_scenario(path: Path, template):
     return xr.load_dataset(path, engine="h5netcdf")
 
 
-def _finished(folders: list) -> tuple:
+def finished_scenarios(folders: list) -> tuple:
     """What the manifests of ``folders`` say: (a manifest of the grid, its fingerprint, the
     failed scenarios as index -> error, the finished ones as index -> (file, the SHA-256s its
     folder's manifests recorded for it, or None for a version-1 database, which recorded
@@ -376,7 +376,7 @@ def open_database(paths, grid: bool = False):
 
     folders = [Path(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
     unstack = grid
-    grid, fingerprint, failed, found = _finished(folders)
+    grid, fingerprint, failed, found = finished_scenarios(folders)
     rows = {rec["index"]: rec for rec in grid["scenarios"]}
     indices = sorted(found)
     datasets = []

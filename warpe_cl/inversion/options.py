@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config.instrument_fields import field_for
-from ..database import _finished, database_folder
+from ..database import finished_scenarios, database_folder
 from ..dataset import sweep_coordinates
 from ..errors import ConfigError
 from ..units import DIMENSIONS, UnitError, canonical_unit, format_quantity, parse_quantity, \
@@ -97,7 +97,7 @@ def header(database, source: str | None = None) -> Header | None:
     folder = database_folder(path)[0] if path.suffix == ".nc" and not path.is_file() else path
     if not folder.is_dir():
         return None          # a sweep file: read whole (one file), then :func:`dataset_header`
-    grid, _, failed, found = _finished([folder])      # the rule of open_database
+    grid, _, failed, found = finished_scenarios([folder])      # the rule of open_database
     rows = grid["scenarios"]
     keys = [str(k) for k in grid["keys"]]
     values, units = {}, {}
