@@ -78,11 +78,7 @@ inline void philox_lanes(VUINT c0, VUINT c1, VUINT c2, uint c3w, uint k0, uint k
 /* Philox words to uniforms U = (x + 1/2) 2^-32 in (0, 1], lane by lane (see uniform below). */
 inline VREAL uniform_lanes(VUINT x)
 {
-#ifdef WARPE_DOUBLE
-    return CONVERT_VREAL(x) * 0x1p-32 + 0x1p-33;
-#else
-    return CONVERT_VREAL(x) * 0x1p-32f + 0x1p-33f;
-#endif
+    return CONVERT_VREAL(x) * REAL_C(0x1p-32) + REAL_C(0x1p-33);   /* REAL_C: real_single.h */
 }
 
 /* An event "U > P" (probability 1 - P) decided exactly on the word x: true iff x >= T with
@@ -133,11 +129,7 @@ inline uint rng_next(rng_t *r)
 inline REAL uniform(rng_t *r)
 {
     uint x = rng_next(r);
-#ifdef WARPE_DOUBLE
-    return (double)x * 0x1p-32 + 0x1p-33;
-#else
-    return (float)x * 0x1p-32f + 0x1p-33f;
-#endif
+    return (REAL)x * REAL_C(0x1p-32) + REAL_C(0x1p-33);
 }
 
 #endif /* WARPE_PHILOX_H */

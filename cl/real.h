@@ -2,17 +2,12 @@
  *
  * Structure switches (set by the host as -D options, never physical values):
  *   WARPE_DOUBLE  compute the walk in double precision (default: single).
- * The single-precision walk keeps its path length L in a compensated (Kahan) float sum
- * (walk.cl, docs/physics.md A15); nothing in it computes in double.
+ * The host follows this file with real_single.h or real_double.h, the build's precision
+ * (warpe_cl/device.py program_files, docs/walk.md §5.1): REAL, the integer of its width IREAL,
+ * their names for the lane types (lanes.h) and REAL_C, a constant of REAL's type.
  */
 #ifndef WARPE_REAL_H
 #define WARPE_REAL_H
-
-/* fp64 is enabled wherever the device has it, in single precision too: constant expressions
- * such as (REAL)(180.0 / WARPE_PI) are then evaluated in double and rounded once. */
-#if defined(WARPE_DOUBLE) || defined(cl_khr_fp64)
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
-#endif
 
 /* No contraction of a * b + c into one fma: each product and sum is rounded as written, so
  * that every device and every lane width gives the same bits (a compiler free to contract
@@ -20,12 +15,6 @@
  * another), and no driver without fused hardware (PoCL built for a generic x86-64 CPU) emulates
  * fma in software: 6x slower than a product and a sum there (docs/performance.md). */
 #pragma OPENCL FP_CONTRACT OFF
-
-#ifdef WARPE_DOUBLE
-typedef double REAL;
-#else
-typedef float REAL;
-#endif
 
 #define WARPE_PI 3.14159265358979323846
 

@@ -1,4 +1,4 @@
-"""The two forms of the kernels' built-ins (cl/lanes.h): OpenCL's select(), fmax, clamp, fabs
+"""The two forms of the kernels' built-ins (cl/lanes_*.h): OpenCL's select(), fmax, clamp, fabs
 and rint, which warpe_cl.engine.driver_options keeps for Intel's CPU runtime (-DWARPE_BUILTINS),
 and the ?: operator with comparisons, selects and bits that every other driver gets. They differ
 in speed only: every tally and every ray's record is the same bits, on this device, in the

@@ -348,7 +348,7 @@ def test_fixed_words_are_the_exact_floor(engine, precision):
     weights that use every branch of its shifts: subnormal, the smallest and largest normal
     numbers, weights that land below 2^-FIXED_SHIFT (0), straddle a word boundary or lie next
     to MAX_WEIGHT; compared with Python integers."""
-    from warpe_cl.device import assemble_source, build_source
+    from warpe_cl.device import assemble_source, build_source, program_files
     from warpe_cl.engine import layout_options
     from warpe_cl.params import FIXED_SHIFT, MAX_WEIGHT
     if precision == "double" and not engine.info.fp64:
@@ -364,7 +364,8 @@ def test_fixed_words_are_the_exact_floor(engine, precision):
     options = list(layout_options()) + ["-DWARPE_NADIR", "-DWARPE_LANES=1"]
     if precision == "double":
         options.append("-DWARPE_DOUBLE")
-    source = assemble_source(("real.h", "lanes.h", "tally.h")) + FIXED_WORDS_KERNEL
+    source = (assemble_source(program_files(("real.h", "lanes.h", "tally.h"), options))
+              + FIXED_WORDS_KERNEL)
     prog = build_source(engine.context, source, options)
     out = np.zeros((len(w), 3), dtype=np.uint64)
     mf = cl.mem_flags

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from warpe_cl import params as P
-from warpe_cl.device import assemble_source, kernel_dir, source_hash
+from warpe_cl.device import assemble_source, every_program_file, kernel_dir, source_hash
 from warpe_cl.engine import (WALK_ARGS, WALK_FILES, build_options, layout_options, walk_args,
                              walk_source_hash)
 
@@ -102,7 +102,8 @@ def test_layout_macros_come_from_params_only():
     #defined in cl/ itself, and every one is used (every item_stats slot, record column and
     parked-ray column is written)."""
     layout = P.kernel_layout()
-    code = "\n".join(_code((kernel_dir() / name).read_text()) for name in WALK_FILES)
+    code = "\n".join(_code((kernel_dir() / name).read_text())
+                     for name in every_program_file(WALK_FILES))
     used = set(LAYOUT_NAME.findall(code))
     assert used <= set(layout), used - set(layout)
     assert set(layout) <= used, set(layout) - used
@@ -163,12 +164,14 @@ def test_engine_records_the_kernel_hash(engine):
 
 
 def test_emergence_table_is_the_hosts():
-    """cl/tally.h's COS_DEGREE tables are params.COS_DEGREE: the doubles exactly, and their
-    roundings to float for the single walk (hex literals, so no compiler's decimal parsing
-    enters); the host's emergence_bin follows the acos rule away from the edges, and puts an
-    exit at an edge's cosine in the bin that starts there."""
-    text = (kernel_dir() / "tally.h").read_text()
-    double_block, float_block = re.findall(r"COS_DEGREE\[N_EMERGENCE\] = \{(.*?)\};", text, re.S)
+    """cl/tally_double.h's and cl/tally_single.h's COS_DEGREE tables are params.COS_DEGREE: the
+    doubles exactly, and their roundings to float for the single walk (hex literals, so no
+    compiler's decimal parsing enters); the host's emergence_bin follows the acos rule away
+    from the edges, and puts an exit at an edge's cosine in the bin that starts there."""
+    double_block, float_block = (
+        re.search(r"COS_DEGREE\[N_EMERGENCE\] = \{(.*?)\};",
+                  (kernel_dir() / f"tally_{p}.h").read_text(), re.S).group(1)
+        for p in ("double", "single"))
     doubles = [float.fromhex(x) for x in re.findall(r"0x[0-9a-f.]+p[-+]\d+", double_block)]
     floats = [float.fromhex(x) for x in re.findall(r"0x[0-9a-f.]+p[-+]\d+", float_block)]
     assert doubles == list(P.COS_DEGREE)

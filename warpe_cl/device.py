@@ -1,9 +1,10 @@
 """OpenCL platforms and devices: listing, probing, and building programs.
 
 The kernels live in ``cl/`` (installed as the package data ``warpe_cl.cl``). A program is
-the concatenation of its files in a fixed order, each preceded by a ``#line 1 "file"``
-directive so that compiler messages name the real file and line (the sasmodels way); the hash
-of the files' contents and the build options (:func:`source_hash`, not of that text, which
+the concatenation of its files in a fixed order (those of its precision, lane width and
+driver picked by the host from its build options, :func:`program_files`), each preceded by a
+``#line 1 "file"`` directive so that compiler messages name the real file and line (the
+sasmodels way); the hash of the files' contents and the build options (:func:`source_hash`, not of that text, which
 carries the install path) identifies the kernel in every output file.
 
 This module knows what a device is, never whether to trust it: choosing one
@@ -58,9 +59,75 @@ def kernel_dir() -> Path:
     raise DeviceError(f"the OpenCL sources (walk.cl) are missing beside {here}")
 
 
+#: The lane widths that have their files (cl/lanes_N.h); 1 is cl/lanes_scalar.h
+VECTOR_WIDTHS = (2, 4, 8, 16)
+
+
+def build_switches(options=()) -> tuple:
+    """The switches of a build that pick its files (:func:`program_files`): its precision
+    (``"single"``, or ``"double"`` with ``-DWARPE_DOUBLE``), its lane width
+    (``-DWARPE_LANES=N``, 1 without it) and whether it keeps OpenCL's built-ins
+    (``-DWARPE_BUILTINS``, warpe_cl/engine.py ``driver_options``)."""
+    precision, lanes, builtins = "single", 1, False
+    for option in options:
+        if option == "-DWARPE_DOUBLE":
+            precision = "double"
+        elif option.startswith("-DWARPE_LANES="):
+            lanes = int(option.split("=", 1)[1])
+        elif option == "-DWARPE_BUILTINS":
+            builtins = True
+    return precision, lanes, builtins
+
+
+def _parts(name: str, precision: str, lanes: int, builtins: bool) -> tuple:
+    """The files of ``name`` in a build with these switches, in order (docs/walk.md §5.1)."""
+    driver = "builtins" if builtins else "inline"
+    if name == "real.h":
+        return ("real.h", f"real_{precision}.h")
+    if name == "lanes.h":
+        if lanes == 1:
+            shape = ("lanes_scalar.h",)
+        elif lanes in VECTOR_WIDTHS:
+            shape = (f"lanes_{lanes}.h", "lanes_vector.h", f"lanes_vector_{driver}.h")
+        else:
+            raise ValueError(f"no kernel files for {lanes} lanes (1, 2, 4, 8 or 16)")
+        return ("lanes.h",) + shape + (f"lanes_{driver}.h",)
+    if name in ("scatter.h", "tally.h"):      # their functions call the precision's parts
+        return (f"{name[:-2]}_{precision}.h", name)
+    if name == "score.h":                     # its parts use score.h's SCORE_STEP
+        return (name, f"score_{precision}.h")
+    return (name,)
+
+
+def program_files(names, options=()) -> tuple:
+    """The files compiled for the program ``names`` (such as ``WALK_FILES``) with the build
+    ``options``, in order: each name, with the parts of the build's precision, lane width and
+    driver that the host picks for it (:func:`build_switches`), where the preprocessor used to
+    (docs/walk.md §5.1): ``real.h`` and ``real_single.h`` or ``real_double.h``; ``lanes.h``
+    and ``lanes_scalar.h`` or ``lanes_N.h``, ``lanes_vector.h`` and ``lanes_vector_builtins.h``
+    or ``lanes_vector_inline.h``, then ``lanes_builtins.h`` or ``lanes_inline.h``;
+    ``scatter_P.h`` and ``tally_P.h`` before, ``score_P.h`` after their headers."""
+    switches = build_switches(options)
+    return tuple(part for name in names for part in _parts(name, *switches))
+
+
+def every_program_file(names) -> tuple:
+    """Every file that some build of the program ``names`` compiles (:func:`program_files` of
+    every precision, lane width and driver), each once, in order: what :func:`source_hash`
+    covers."""
+    out = {}
+    for name in names:
+        for precision in ("single", "double"):
+            for lanes in (1,) + VECTOR_WIDTHS:
+                for builtins in (False, True):
+                    out.update(dict.fromkeys(_parts(name, precision, lanes, builtins)))
+    return tuple(out)
+
+
 def assemble_source(names, folder: Path | None = None) -> str:
     """Join the named files of ``folder`` (default :func:`kernel_dir`) with ``#line``
-    directives, which name each file by its absolute path for the compiler's messages."""
+    directives, which name each file by its absolute path for the compiler's messages. The
+    names are files, as :func:`program_files` gives them for a build."""
     folder = Path(folder) if folder is not None else kernel_dir()
     parts = []
     for name in names:
@@ -73,7 +140,10 @@ def source_hash(names, options=(), folder: Path | None = None) -> str:
     """SHA-256 of a program: its files' names and contents, in order, then its build options.
 
     It identifies what is compiled -- the sources, and the ``-D`` options given -- and nothing
-    else: not the folder the sources were read from (the ``#line`` paths of
+    else. The files are every file of the program that some build compiles
+    (:func:`every_program_file`: the parts of every precision, lane width and driver), so that
+    one hash serves every build and changes with any file a build may read; not the folder
+    the sources were read from (the ``#line`` paths of
     :func:`assemble_source`), so the same kernel has the same hash in every checkout and
     installation. The ``kernel_sha256`` of the output files is this hash of the walk's files
     and its layout macros (warpe_cl/engine.py ``walk_source_hash``).
@@ -81,7 +151,7 @@ def source_hash(names, options=(), folder: Path | None = None) -> str:
     Parameters
     ----------
     names : sequence of str
-        The program's files, in the order they are joined.
+        The program's files, as the program lists them (``WALK_FILES``), in order.
     options : sequence of str
         Its build options (``()``: the sources alone).
     folder : Path, optional
@@ -94,7 +164,7 @@ def source_hash(names, options=(), folder: Path | None = None) -> str:
     """
     folder = Path(folder) if folder is not None else kernel_dir()
     h = hashlib.sha256()
-    for name in names:
+    for name in every_program_file(names):
         data = (folder / name).read_bytes()
         h.update(f"file {name} {len(data)}\n".encode())
         h.update(data)
@@ -178,14 +248,15 @@ def context_and_queue(device):
 
 @lru_cache(maxsize=None)
 def build_program(device, names: tuple, options: tuple):
-    """Build the program made of ``names`` with ``-D`` options for ``device`` and return it.
+    """Build the program made of ``names`` with ``-D`` options for ``device`` and return it:
+    the files of :func:`program_files` for those options.
 
     pyopencl and PoCL cache binaries on disk (keyed by the source text and the options), so a
     second process rebuilds nothing. What identifies the kernel in output files is
     :func:`source_hash` (computed once per process by its users, not per build).
     """
     ctx, _ = context_and_queue(device)
-    return build_source(ctx, assemble_source(names), options)
+    return build_source(ctx, assemble_source(program_files(names, options)), options)
 
 
 def build_source(ctx, source: str, options=()):

@@ -79,8 +79,9 @@ def build_options(texture: str, precision: str, records: bool, lanes: int = 1,
 
 def driver_options(info) -> tuple:
     """The ``-D`` switches that depend on the driver, not on the walk: they change its speed,
-    never a bit (tests/test_builtins.py). ``WARPE_BUILTINS`` (cl/lanes.h) keeps OpenCL's
-    built-ins ``select``, ``fmax``, ``clamp``, ``fabs`` and ``rint`` on Intel's CPU runtime,
+    never a bit (tests/test_builtins.py). ``WARPE_BUILTINS`` (cl/lanes_builtins.h,
+    cl/lanes_vector_builtins.h) keeps OpenCL's built-ins ``select``, ``fmax``, ``clamp``,
+    ``fabs`` and ``rint`` on Intel's CPU runtime,
     whose built-ins are inline instructions: the code it was tuned with (without them its
     program is 4.7 times the size and B1 walks 0.9-0.98x as fast). Every other driver gets
     the ``?:`` operator and comparisons, selects and bits instead, where pip's PoCL 3.0 calls

@@ -107,12 +107,15 @@ def kernel_only(trees: dict, args, say) -> dict:
     engine = get_engine(args.device)
     say(f"# host {REPO}; device {engine.info.device} | {engine.info.platform} "
         f"{engine.info.platform_version}")
-    sources = {}
     for label, tree in trees.items():        # a header split out after the tree was written
-        for missing in (f for f in WALK_FILES if not (tree / "cl" / f).exists()):
+        for missing in (f for f in devmod.every_program_file(WALK_FILES)
+                        if not (tree / "cl" / f).exists()):
             say(f"# {label}: {tree / 'cl'} has no {missing}: built as if it were empty")
-        sources[label] = devmod.assemble_source(
-            [f for f in WALK_FILES if (tree / "cl" / f).exists()], tree / "cl")
+
+    def source(tree, options):
+        """The walk's files of this build (devmod.program_files) that ``tree`` has."""
+        return devmod.assemble_source([f for f in devmod.program_files(WALK_FILES, options)
+                                       if (tree / "cl" / f).exists()], tree / "cl")
     samples = {label: {} for label in trees}
     n = int(args.photons)
     for scene, mode in ((s, m) for s in args.scenes.split(",") for m in args.modes.split(",")):
@@ -124,9 +127,9 @@ def kernel_only(trees: dict, args, say) -> dict:
         structure = (params.texture, args.precision, False, lanes, params.weighted,
                      params.nadir)
         key = kernel_key(*structure)
-        programs = {label: devmod.build_source(engine.context, sources[label],
-                                               engine.program_options(key))
-                    for label in trees}
+        options = engine.program_options(key)
+        programs = {label: devmod.build_source(engine.context, source(tree, options), options)
+                    for label, tree in trees.items()}
 
         def walk(label):
             """One run of ``label``'s kernel; checks that the engine walked with it."""
