@@ -70,6 +70,17 @@ def test_a_complete_database_inverts_and_echoes_the_fixed_value_with_its_unit(do
     assert list(fit["parameter"].values) == ["medium.radiative.tau0"]
 
 
+def test_a_sweep_file_not_combined_yet_is_read_from_its_folder(done, tmp_path, capsys):
+    """`--database X.nc` whose X.sweep/ is complete but X.nc was never written (its combining
+    failed): the options were checked against X.sweep/, then the load said "no such file"."""
+    import shutil
+    shutil.copytree(done / "db", tmp_path / "x.sweep")
+    argv = _argv(done, tmp_path / "x.nc", "--fix", "medium.thickness=5mm")
+    argv[argv.index("--out") + 1] = str(tmp_path / "fit.nc")
+    assert main(argv) == 0, capsys.readouterr().err
+    assert list(load_result(tmp_path / "fit.nc")["parameter"].values) == ["medium.radiative.tau0"]
+
+
 @pytest.mark.parametrize("fix, words", [
     ("medium.thickness=0.005", ["--fix: medium.thickness=0.005: 0.005 is a bare number with no unit",
                                 "give a length with a unit (", "[5 mm, 10 mm]"]),

@@ -4,12 +4,13 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
 from ..config.instrument_fields import (BUILTIN, InstrumentParams, at_wavelength,
                                         instruments_dir, load_instrument)
-from ..database import load_result
+from ..database import database_folder, load_result
 from ..errors import ConfigError
 from ..instrument.pulse import sigma_from_fwhm
 from .counting import CountShots
@@ -223,7 +224,10 @@ def _database(database, source):
     """(Dataset, name) of a database folder, a sweep file or a Dataset."""
     if hasattr(database, "dims"):
         return database, source or "<database>"
-    return load_result(database), source or str(database)
+    path = Path(database)
+    if path.suffix == ".nc" and not path.is_file():     # X.nc not combined yet: its X.sweep/
+        path = database_folder(path)[0]
+    return load_result(path), source or str(database)
 
 
 def _fixed_v(nuisance: dict, forward: Forward):

@@ -84,7 +84,7 @@ def header(database, source: str | None = None) -> Header | None:
     -------
     Header or None
         None for a path that is not a folder (a sweep file, read whole by the caller; or a
-        missing path, which :func:`warpe_cl.load_result` refuses).
+        missing path, which :func:`warpe_cl.database.load_result` refuses).
 
     Raises
     ------

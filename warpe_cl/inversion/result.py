@@ -305,9 +305,7 @@ def describe(ds):
         var = ds[name] if name not in ds.coords else ds.coords[name]
         attrs = var.attrs
         long_name, units = DESCRIPTIONS.get(name, (None, "1"))
-        if name.startswith("marginal_"):
-            long_name, units = long_name, "1"
-        elif name.startswith(("grid_", "posterior_")) and "sweep_key" in attrs:
+        if name.startswith(("grid_", "posterior_")) and "sweep_key" in attrs:
             long_name = (("grid values of " if name.startswith("grid_") else
                           "refined-grid values of ") + attrs["sweep_key"])
         elif name.endswith(("_mv", "_counts")):
