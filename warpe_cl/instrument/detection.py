@@ -36,8 +36,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import minimize_scalar
-from scipy.special import erfc
 
 from .radiometry import ELEMENTARY_CHARGE
 
@@ -54,11 +52,13 @@ def sample_noise_sigma(sigma_electronic_v: float, dc_rate_per_ns: float, gain: f
 
 def false_alarm_probability(n_gate: int, m: float) -> float:
     """N_gate ½erfc(m/√2) (capped at 1)."""
+    from scipy.special import erfc     # scipy on use: a run's start does not pay for it
     return min(1.0, n_gate * 0.5 * erfc(m / math.sqrt(2.0)))
 
 
 def detection_probability(threshold: float, peak: float, sigma: float) -> float:
     """½erfc((V_th − V_peak)/(√2 σ))."""
+    from scipy.special import erfc
     return 0.5 * erfc((threshold - peak) / (math.sqrt(2.0) * sigma))
 
 
@@ -180,6 +180,7 @@ def fit_arrival(times: np.ndarray, samples: np.ndarray, template: Template, coar
     def chi2(tau):
         return _profile_chi2(samples, template(times, tau), censored, ceiling)[0]
 
+    from scipy.optimize import minimize_scalar
     res = minimize_scalar(chi2, bounds=(coarse - half_range, coarse + half_range),
                           method="bounded", options={"xatol": 1e-5 * half_range})
     tau = float(res.x)
@@ -196,6 +197,7 @@ def fit_width(times: np.ndarray, samples: np.ndarray, template: Template, tau: f
     def chi2(v):
         return _profile_chi2(samples, template(times, tau, v), censored, ceiling)[0]
 
+    from scipy.optimize import minimize_scalar
     res = minimize_scalar(chi2, bounds=(-0.5 * var, 4.0 * var), method="bounded",
                           options={"xatol": 1e-5 * var})
     return math.sqrt(var + float(res.x))

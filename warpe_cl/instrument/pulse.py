@@ -10,7 +10,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.special import erf
 
 from ..errors import ConfigError
 from .grid import rebin_density
@@ -38,6 +37,7 @@ def gaussian_kernel(sigma: float, step: float, half_width: float = 7.0) -> tuple
         return np.array([1.0]), 0
     n = int(math.ceil(half_width * sigma / step))
     edges = (np.arange(-n, n + 2) - 0.5) * step
+    from scipy.special import erf      # scipy on use: a run's start does not pay for it
     cdf = 0.5 * (1.0 + erf(edges / (math.sqrt(2.0) * sigma)))
     kernel = np.diff(cdf)
     return kernel / kernel.sum(), n
