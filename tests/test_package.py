@@ -33,6 +33,10 @@ def test_wheel_contains_kernels_and_presets(tmp_path):
     modules = {f"warpe_cl/{p.relative_to(REPO / 'warpe_cl').as_posix()}"
                for p in (REPO / "warpe_cl").rglob("*.py")}
     assert modules - names == set()
+    # and no module the tree no longer has (pip builds in place, reusing an ignored build/)
+    shipped = {n for n in names if n.startswith("warpe_cl/") and n.endswith(".py")
+               and not n.startswith(("warpe_cl/cl/", "warpe_cl/presets/"))}
+    assert shipped - modules == set(), "stale modules: remove build/ and build again"
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "warpe-cl = warpe_cl.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
 
