@@ -32,9 +32,9 @@ import numpy as np
 from .dataset import as_grid, combine_scenarios
 from .errors import ConfigError, one_line
 
-__all__ = ["load_result", "open_database", "database_folder", "manifest_name", "read_manifests", "finished_scenarios",
-           "check_manifest", "scenario_file_name", "file_sha256", "recorded_sha256", "FORMAT",
-           "FORMAT_VERSION"]
+__all__ = ["load_result", "open_database", "database_folder", "manifest_name", "read_manifests",
+           "finished_scenarios", "h5_attribute", "check_manifest", "scenario_file_name",
+           "file_sha256", "recorded_sha256", "FORMAT", "FORMAT_VERSION"]
 
 MANIFEST_RE = re.compile(r"^manifest(-shard-\d+-of-\d+)?\.json$")
 SCENARIO_FILE_RE = re.compile(r"^s\d{5,}_[0-9a-f]{16}\.nc$")
@@ -210,7 +210,7 @@ def recorded_sha256(manifests) -> dict:
     return recorded
 
 
-def _attribute(value):
+def h5_attribute(value):
     """A NetCDF attribute as read by h5py -> as xarray's h5netcdf backend gives it."""
     if isinstance(value, (bytes, np.bytes_)):
         return value.decode()
@@ -241,7 +241,7 @@ def _read_scenario(path: Path, template):
             ds = template.copy(deep=False)     # new Variable objects; the template keeps its data
             for name, var in template.data_vars.items():
                 ds.variables[name].values = np.asarray(h5[name][()]).astype(var.dtype)
-            ds.attrs = {k: _attribute(v) for k, v in h5.attrs.items() if not k.startswith("_")}
+            ds.attrs = {k: h5_attribute(v) for k, v in h5.attrs.items() if not k.startswith("_")}
             return ds
     return xr.load_dataset(path, engine="h5netcdf")
 

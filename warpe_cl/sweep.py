@@ -55,10 +55,9 @@ from pathlib import Path
 from . import api, stops
 from .api import scenario_key
 from .config import load_grid
-from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, database_folder,
-                       file_sha256, manifest_name, open_database, read_manifests,
-                       scenario_file_name)
-from .database import recorded_sha256
+from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, database_folder, file_sha256,
+                       h5_attribute, manifest_name, open_database, read_manifests,
+                       recorded_sha256, scenario_file_name)
 from .errors import ConfigError, one_line, printable
 from .io import json_default, utc_now, versions, write_netcdf, write_text
 from .progress import Progress
@@ -457,8 +456,7 @@ def _combined_fingerprint(path: Path) -> str | None:
         import h5py
         with h5py.File(path, "r") as h5:
             value = h5.attrs.get("sweep_fingerprint")
-        return value.decode() if isinstance(value, bytes) else (str(value) if value is not None
-                                                               else None)
+        return None if value is None else str(h5_attribute(value))
     except Exception:  # noqa: BLE001 - not an HDF5 file, a folder, unreadable: not ours
         return None
 
@@ -718,16 +716,11 @@ def _file_problem(path: Path, scenario: Scenario, fingerprint: str, shas) -> tup
     try:
         import h5py
         with h5py.File(path, "r") as h5:
-            attrs = {k: h5.attrs[k] for k in ("seed", "sweep_index", "sweep_fingerprint")
-                     if k in h5.attrs}
+            attrs = {k: h5_attribute(h5.attrs[k])
+                     for k in ("seed", "sweep_index", "sweep_fingerprint") if k in h5.attrs}
             photons = int(h5["photons"][()]) if "photons" in h5 else None
     except Exception as err:  # noqa: BLE001 - truncated, not HDF5, I/O error: rejected
         return f"unreadable ({type(err).__name__}: {one_line(err)})", None
-
-    def scalar(value):
-        value = value.decode() if isinstance(value, bytes) else value
-        return value.reshape(-1)[0] if hasattr(value, "reshape") else value
-    attrs = {k: scalar(v) for k, v in attrs.items()}
     seed, count = int(scenario.cfg.get("simulation.seed")), \
         int(scenario.cfg.get("simulation.photons"))
     if "seed" not in attrs or int(attrs["seed"]) != seed:
