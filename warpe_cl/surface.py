@@ -47,12 +47,19 @@ class SurfaceResponse:
     estimate : str
         Which reflectance ``diffuse`` is: ``"nadir"`` (``nadir_reflectance``) or ``"fov"``
         (``reflectance``).
+    diffuse_stderr : array (n,) or None
+        The Monte Carlo standard error of ``diffuse`` per bin, sr⁻¹ ns⁻¹ (the components'
+        ``*_stderr`` in quadrature); None where the result has none.
+    photons : float
+        Rays launched (the denominator of the returns' fractions); NaN if unknown.
     """
     edges: np.ndarray
     diffuse: np.ndarray
     returns: list = field(default_factory=list)
     wavelength: float | None = None
     estimate: str = "fov"
+    diffuse_stderr: np.ndarray | None = None
+    photons: float = math.nan
 
     @property
     def diffuse_integral(self) -> float:
@@ -230,12 +237,16 @@ class _Arrays:
         self.estimates = diffuse_estimates(ds)
         if uniform and len(set(self.estimates)) > 1:
             self.estimates = ["fov"] * len(self.estimates)
-        self.diffuse = {}
+        self.diffuse, self.stderr = {}, {}
         for name, kind in (("reflectance", "fov"), ("nadir_reflectance", "nadir")):
             if kind in self.estimates:
                 refl = ds[name].transpose(..., "component", "time").values
                 self.diffuse[kind] = sum(np.asarray(refl[..., comps.index(c), :], float)
                                          for c in DIFFUSE)
+                if f"{name}_stderr" in ds.variables:      # the components in quadrature
+                    se = ds[f"{name}_stderr"].transpose(..., "component", "time").values
+                    self.stderr[kind] = np.sqrt(sum(np.asarray(se[..., comps.index(c), :],
+                                                               float) ** 2 for c in DIFFUSE))
         counts = ds["ray_count"].transpose(..., "component", "time").values
         self.bf = np.asarray(counts[..., comps.index("bf_direct"), :], float)
         self.photons = np.asarray(ds["photons"].values, float)
@@ -275,5 +286,8 @@ class _Arrays:
             merged[t] = merged.get(t, 0.0) + bf[j] / photons
         returns += [("bf_direct", t, f) for t, f in sorted(merged.items())]
         kind = self.estimates[0 if scenario is None else scenario]
+        stderr = self.stderr.get(kind)
         return SurfaceResponse(edges, np.array(pick(self.diffuse[kind]), float), returns,
-                               wavelength_of(self.ds, scenario), kind)
+                               wavelength_of(self.ds, scenario), kind,
+                               None if stderr is None else np.array(pick(stderr), float),
+                               photons)

@@ -14,6 +14,7 @@ from ..database import database_folder, load_result
 from ..errors import ConfigError
 from ..instrument.pulse import sigma_from_fwhm
 from .counting import CountShots
+from .emulator import Emulator
 from .forward import BROADENING_MAX_NS, PULSE_RANGE, Forward
 from .likelihood import Shots
 from .observed import Observed, load_observed
@@ -29,6 +30,7 @@ DETECTION_SIGMA = 5.0
 
 def invert(observed, database, instrument=None, *, free=None, fix=None, budget: int = 600,
            pulse_range=PULSE_RANGE, broadening_max: float = BROADENING_MAX_NS,
+           database_error: bool = True,
            observed_source: str | None = None, database_source: str | None = None):
     """The surface parameters compatible with recorded shots.
 
@@ -60,6 +62,10 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
         Prior range of the pulse FWHM relative to the instrument's.
     broadening_max : float
         Largest extra footprint broadening σ, ns.
+    database_error : bool
+        Integrate the database's own error (its nodes' Monte Carlo errors and the
+        leave-one-out interpolation error, :mod:`warpe_cl.inversion.emulator`) out of the
+        likelihood of a linear-mode receiver; False takes the database as exact.
 
     Returns
     -------
@@ -125,8 +131,8 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
               obs.time_ns.size, len(keys), counting, obs.source)
     overall = nuisance.get("amplitude")
     overall = None if overall is None else parse_value("amplitude", overall, None, "(> 0)")
-    problem = Problem(space, forward, shots, overall=overall,
-                      v=v_fixed)
+    emulator = Emulator(space, forward) if database_error and not counting else None
+    problem = Problem(space, forward, shots, overall=overall, v=v_fixed, emulator=emulator)
     nodes, final = refine(problem, budget=budget)
     summary = _summarise(problem, final, report)
     summary["elapsed_s"] = time.perf_counter() - started

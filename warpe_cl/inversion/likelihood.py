@@ -60,6 +60,9 @@ class ShotFit:
     chi2: float             # Σ r²/Var over uncensored samples
     samples: int            # uncensored samples
     censored: int
+    emulator: float = 0.0   # Δ log L of the database's own error (emulator.shared_error)
+    emulator_sd: float = 0.0    # the stated error of log L it causes
+    emulator_offset: float = 0.0    # and the offset it causes on average
 
 
 class Shots:

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .emulator import shared_error
+
 #: Points with log L below the best minus this hold a negligible share of the posterior.
 SIGNIFICANT = 20.0
 #: The profile over v stops when a further step would raise log L by less than this.
@@ -87,11 +89,15 @@ class Problem:
         The overall amplitude A, fixed (None: profiled).
     v : float, optional
         The broadening nuisance v, fixed, ns² (None: profiled in ``forward.v_bounds``).
+    emulator : Emulator, optional
+        The database's own error S(t) (:mod:`.emulator`), integrated out of log L at every
+        point (None: the database is taken as exact).
     """
 
-    def __init__(self, space, forward, shots, overall=None, v=None):
+    def __init__(self, space, forward, shots, overall=None, v=None, emulator=None):
         self.space, self.forward, self.shots = space, forward, shots
         self.overall, self.v_fixed = overall, v
+        self.emulator = emulator
         self.v_last = 0.0
         self.count = 0
 
@@ -100,8 +106,11 @@ class Problem:
         return {a.key: float(a.value(x)) for a, x in zip(self.space.free_axes, u)}
 
     def evaluate(self, u: np.ndarray) -> Evaluation:
-        """log L at free coordinates ``u``, v profiled (:meth:`_profile_v`)."""
-        photons = self.forward.photons(self.space.surface(self.point(u)))
+        """log L at free coordinates ``u``, v profiled (:meth:`_profile_v`), with the
+        database's own error integrated out when there is an emulator."""
+        point = self.point(u)
+        photons = self.forward.photons(self.space.surface(point))
+        shared = None if self.emulator is None else self.emulator.variance(point)
         fits = {}
         # clipped shots: each point afresh, its arrivals and amplitudes from the scan and its
         # pulse width from the nominal one, so that its log L does not depend on the points
@@ -116,6 +125,9 @@ class Problem:
                 self.shots.start(mu)
                 fresh[0] = False
             fit = self.shots.fit(mu, nu, self.overall)
+            if shared is not None:
+                fit.emulator, fit.emulator_sd, fit.emulator_offset = shared_error(self.shots, fit, mu, nu, shared)
+                fit.loglike += fit.emulator
             fits[v] = fit
             self.count += 1
             return -fit.loglike

@@ -209,6 +209,9 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         "p_value": ((), float(chi2_dist.sf(fit.chi2, dof)) if dof > 0 else np.nan, {
             "long_name": "P(chi2 >= observed) for the best fit"}),
         "censored_samples": ((), fit.censored),
+        "loglike": ((), best.loglike),
+        "loglike_database_error": ((), fit.emulator),
+        "loglike_database_sd": ((), fit.emulator_sd),
     })
     attrs = provenance({
         "title": "warpe-cl inversion",
@@ -221,6 +224,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
                             {**space.fixed, **{k: f"{v:g} {space.axis(k).units}"
                                                for k, v in space.point.items()}}),
         "marginalised": json.dumps([r["key"] for r in summary["rows"] if not r["reported"]]),
+        "database_error": _database_error(problem.emulator),
         "shots_total": int(used.size),
         "shots_used": n_shots,
         "evaluations": summary["evaluations"],
@@ -234,6 +238,18 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
                   + "pulse/footprint broadening profiled",
     })
     return describe(xr.Dataset(data, coords=coords, attrs=attrs))
+
+
+def _database_error(emulator) -> str:
+    """How the database's own error entered the likelihood, in words (FIT.nc attribute)."""
+    if emulator is None:
+        return "not included: the database is taken as exact"
+    text = ("integrated out: the nodes' Monte Carlo errors and the leave-one-out interpolation "
+            "error (docs/inversion.md §4.3)")
+    if emulator.unmeasured:
+        text += ("; no interpolation estimate along " + ", ".join(emulator.unmeasured)
+                 + " (two grid values)")
+    return text
 
 
 #: CF-style ``long_name`` and ``units`` of every variable and coordinate of FIT.nc that
@@ -275,6 +291,13 @@ DESCRIPTIONS = {
     "dof": ("degrees of freedom of the best fit", "1"),
     "chi2_per_dof": ("chi-square per degree of freedom of the best fit", "1"),
     "p_value": (None, "1"),
+    "loglike": ("log-likelihood of the best fit, the per-shot nuisances integrated out and the "
+                "database's own error with them", "1"),
+    "loglike_database_error": ("what integrating the database's own error (Monte Carlo and "
+                               "interpolation) out changed the best fit's log-likelihood by",
+                               "1"),
+    "loglike_database_sd": ("stated error of the best fit's log-likelihood due to the "
+                            "database's own error (0: the database taken as exact)", "1"),
     "censored_samples": ("samples at or above the receiver's clipped level, counted as "
                          "censored", "1"),
     "shot": (None, "1"),

@@ -17,7 +17,7 @@ smoothly with the parameters:
 - the specular fraction and, for each k-th back-and-forth passage, its fraction (linear in
   the corner weights) and its delay, in the coordinate in which it is exact: the delay
   t_k = 2 k Σ h_i n_eff,i / c is linear in each layer thickness h_i, not in ln h_i, so the
-  delays are combined with multilinear weights in the axis *values* (:func:`_value_weights`),
+  delays are combined with multilinear weights in the axis *values* (:func:`value_weights`),
   whatever an axis' interpolation coordinate. Along a thickness axis this is 2 k h n_eff / c
   at the interpolated h exactly; along the others (compacity, ...) it is n_eff interpolated
   linearly between the nodes' values. (Combining the delays with the weights of the ln h
@@ -123,7 +123,7 @@ def swept_keys(ds) -> list:
             if "sweep_key" in c.attrs and c.dims == ("scenario",)]
 
 
-def _corner_weights(u: np.ndarray, nodes: list) -> tuple[list, list]:
+def corner_weights(u: np.ndarray, nodes: list) -> tuple[list, list]:
     """Multilinear weights of point ``u`` (one coordinate per axis) in its grid cell.
 
     Returns
@@ -148,7 +148,7 @@ def _corner_weights(u: np.ndarray, nodes: list) -> tuple[list, list]:
     return [indices[k] for k in keep], [weights[k] for k in keep]
 
 
-def _value_weights(x: np.ndarray, values: list, indices: list) -> list:
+def value_weights(x: np.ndarray, values: list, indices: list) -> list:
     """Multilinear weights of the point of values ``x`` (one per axis, axis units) on the
     corners ``indices`` of its cell, linear in the values themselves rather than in the
     interpolation coordinates: the weights of the echo delays (module docstring).
@@ -160,7 +160,7 @@ def _value_weights(x: np.ndarray, values: list, indices: list) -> list:
     values : list of arrays
         Every axis' grid values, increasing.
     indices : list of tuples
-        The corners (index tuples) that :func:`_corner_weights` gave in the interpolation
+        The corners (index tuples) that :func:`corner_weights` gave in the interpolation
         coordinates: the same cell, as every coordinate is increasing in the value.
 
     Returns
@@ -168,7 +168,7 @@ def _value_weights(x: np.ndarray, values: list, indices: list) -> list:
     list of float
         One weight per corner of ``indices``, summing to 1.
     """
-    idx, w = _corner_weights(np.asarray(x, float), [np.asarray(v, float) for v in values])
+    idx, w = corner_weights(np.asarray(x, float), [np.asarray(v, float) for v in values])
     by_index = dict(zip(idx, w))
     out = np.array([by_index.get(i, 0.0) for i in indices], float)
     total = out.sum()
@@ -307,11 +307,11 @@ class Space:
     def surface(self, point: dict) -> SurfaceResponse:
         """The surface response at ``point`` (dotted key -> value of every free axis, in the
         axis unit), by the interpolation of the module docstring."""
-        idx, w = _corner_weights(self.coords_of(point), [a.nodes for a in self.axes])
+        idx, w = corner_weights(self.coords_of(point), [a.nodes for a in self.axes])
         nodes = [self.nodes[i] for i in idx]
         if len(nodes) == 1:
             return nodes[0].surface
-        delay_w = _value_weights(self.values_of(point), [a.values for a in self.axes], idx)
+        delay_w = value_weights(self.values_of(point), [a.values for a in self.axes], idx)
         return combine(nodes, w, self.edges, delay_weights=delay_w)
 
 
@@ -330,7 +330,7 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         The common time edges, ns.
     delay_weights : list of float, optional
         The corners' multilinear weights in the axis values (sum 1,
-        :func:`_value_weights`), for the back-and-forth delays, which are linear in the
+        :func:`value_weights`), for the back-and-forth delays, which are linear in the
         thicknesses; default ``weights``.
 
     Returns

@@ -1,0 +1,248 @@
+"""The database's own error in the likelihood (docs/inversion.md §4.3).
+
+The expected waveform at a point of the parameter space is not known exactly: it is built
+from Monte Carlo nodes (each with its standard errors) and interpolated between them. Both
+errors are common to every shot of an observation: they do not average down with the number
+of shots, and at 1000 shots a database error a few per cent of the signal outweighs the noise
+of the mean waveform many times. This module gives that error as a variance S(t) of the
+amplitude-1 model μ(t) (mV², or (pe ns⁻¹)² for a photon-counting receiver) on the forward
+model's fine grid, and integrates it out of the likelihood.
+
+**Monte Carlo part.** A node's diffuse response has a standard error se_b per log time bin b
+(width w_b), its specular and back-and-forth fractions f a binomial variance f (1 − f) / N
+(N rays). Carried through the chain of :class:`~warpe_cl.inversion.forward.Forward`
+(photons at the aperture, detection efficiency η, the pulse, footprint and receiver kernel K):
+
+    Var μ(t) = s² [K² ⊗ V](t),   V_j = (P² Σ_b se_b² min(w_b, δt) c_b o_jb)   (photons² per fine bin)
+
+with P the photons per unit reflectance, o_jb the overlap of fine bin j (width δt) with log
+bin b, and s the mV (or pe ns⁻¹) per photoelectron per bin times η. The pieces of one log
+bin on the fine grid are one Monte Carlo estimate, fully correlated: c_b = min(max(w_b/δt, 1),
+L) counts the pieces the kernel (effective length L = (Σ K)² / Σ K² fine bins) sees at once.
+At a point between nodes with corner weights w_i, Var = Σ w_i² Var_i (the nodes' errors are
+independent).
+
+**Interpolation part.** Leave one out along each axis: node m predicted from its neighbours
+m − 1 and m + 1 (the interpolation of :mod:`.space` on the cell of width D = x_{m+1} − x_{m−1},
+at fraction f₀ of it) gives the error E_m(t) of that wider cell. Linear interpolation errs by
+½ c Δ² f (1 − f) (c the curvature) in a cell of width Δ at fraction f; so inside a cell of the
+grid the error is g E_m with g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), zero at the nodes. E_m² is
+taken less the Monte Carlo variance of the three nodes (its own noise), floored at 0; the
+variance used is Σ_corners w_c g_c² E_c² summed over the axes. An axis of two values has no
+node to leave out and no estimate (the report says so).
+
+**In the likelihood.** A common error e(t) ~ N(0, S(t)) of the model shifts every shot's
+sample k by a_s e(t_k − δ_s). Model time is cut in blocks one sampling interval long; the
+errors of different blocks are taken as independent. With each block's
+G_b = Σ a_s r_sk / Var_sk and W_b = Σ a_s² / Var_sk over the (uncensored) samples that fall in
+it and S_b their S weighted by a_s²/Var_sk, integrating e out of the Gaussian likelihood at the
+fitted nuisances adds exactly
+
+    Δ log L = Σ_b [ ½ G_b² S_b / (1 + S_b W_b) − ½ log(1 + S_b W_b) ],
+
+and the spread of log L that the error causes (its stated error) is
+σ² = Σ_b (G_b² S_b + ½ W_b² S_b²).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..instrument import radiometry
+from ..instrument.grid import deposit, rebin_density
+from .likelihood import padded
+from .space import combine, corner_weights, value_weights
+
+
+def kernel_of(forward) -> tuple[np.ndarray, int]:
+    """The whole kernel of the forward model at v = 0 (pulse, footprint and receiver filter
+    or timing jitter), amounts per fine bin, and its origin index."""
+    k, k_o = forward.kernel(0.0)
+    return np.convolve(k, forward.h), k_o + forward.h_origin
+
+
+def response_variance(surface, forward) -> np.ndarray:
+    """Var μ(t) of the module docstring for one simulated surface response.
+
+    Parameters
+    ----------
+    surface : SurfaceResponse
+        With ``diffuse_stderr`` (sr⁻¹ ns⁻¹) and ``photons`` (rays); without them the diffuse
+        part, or the returns' part, is 0.
+    forward : Forward
+
+    Returns
+    -------
+    array
+        On ``forward.t``: mV² (linear mode) or (pe ns⁻¹)² (photon counting), amplitude 1.
+    """
+    p = forward.params
+    grid = forward.grid
+    kernel, origin = kernel_of(forward)
+    var = np.zeros(grid.size)
+    if surface.diffuse_stderr is not None:
+        width = np.diff(surface.edges)
+        length = kernel.sum() ** 2 / np.sum(kernel ** 2)
+        pieces = np.minimum(np.maximum(width / grid.step, 1.0), length)
+        density = surface.diffuse_stderr ** 2 * np.minimum(width, grid.step) * pieces
+        var += radiometry.photons_per_reflectance(p) ** 2 * rebin_density(
+            surface.edges, density, grid.edges)
+    n = surface.photons
+    if surface.returns and math.isfinite(n) and n > 0:
+        n_tx = radiometry.transmitted_photons(p) * p["geometry.atmosphere_transmission"] ** 2
+        times = [t for _, t, _ in surface.returns]
+        amounts = [(n_tx * forward.geo.kappa[c]) ** 2 * f * (1.0 - f) / n
+                   for c, _, f in surface.returns]
+        var += deposit(grid, times, amounts)
+    scale = forward.eta / grid.step if forward.counting else forward.eta * forward.mv_per_pe
+    full = np.convolve(var, kernel ** 2)[origin: origin + var.size]
+    return np.clip(full, 0.0, None) * scale ** 2
+
+
+class Emulator:
+    """S(t) at any point of a database's space (module docstring).
+
+    Parameters
+    ----------
+    space : Space
+    forward : Forward
+
+    Node waveforms, their variances and the leave-one-out errors are computed when first
+    needed and kept: an inversion visits a few cells.
+    """
+
+    def __init__(self, space, forward):
+        self.space, self.forward = space, forward
+        self._mu, self._var, self._loo = {}, {}, {}
+        self.unmeasured = [a.key for a in space.axes if 1 < a.values.size < 3]
+
+    def _node(self, index: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """μ (v = 0, amplitude 1) and its Monte Carlo variance at node ``index``."""
+        if index not in self._mu:
+            surface = self.space.nodes[index].surface
+            self._mu[index] = self.forward.waveform(self.forward.photons(surface), 0.0)[0]
+            self._var[index] = response_variance(surface, self.forward)
+        return self._mu[index], self._var[index]
+
+    def _left_out(self, index: tuple, d: int) -> np.ndarray:
+        """E_m² of node ``index`` (interior along axis ``d``) predicted from its two
+        neighbours, less their Monte Carlo variance, floored at 0."""
+        key = (index, d)
+        if key not in self._loo:
+            axis = self.space.axes[d]
+            m = index[d]
+            lo, hi = index[:d] + (m - 1,) + index[d + 1:], index[:d] + (m + 1,) + index[d + 1:]
+            x = axis.nodes
+            f0 = (x[m] - x[m - 1]) / (x[m + 1] - x[m - 1])
+            v = axis.values
+            fv = (v[m] - v[m - 1]) / (v[m + 1] - v[m - 1])
+            surface = combine([self.space.nodes[lo], self.space.nodes[hi]], [1 - f0, f0],
+                              self.space.edges, delay_weights=[1 - fv, fv])
+            predicted = self.forward.waveform(self.forward.photons(surface), 0.0)[0]
+            mu, var = self._node(index)
+            noise = var + (1 - f0) ** 2 * self._node(lo)[1] + f0 ** 2 * self._node(hi)[1]
+            self._loo[key] = (np.maximum((predicted - mu) ** 2 - noise, 0.0), x[m + 1] - x[m - 1],
+                              f0)
+        return self._loo[key]
+
+    def variance(self, point: dict) -> np.ndarray:
+        """S(t) at ``point`` (free keys -> values, axis units): the Monte Carlo and the
+        interpolation parts of the module docstring, on ``forward.t``."""
+        space = self.space
+        u = space.coords_of(point)
+        idx, w = corner_weights(u, [a.nodes for a in space.axes])
+        total = sum(wi ** 2 * self._node(i)[1] for i, wi in zip(idx, w))
+        for d, axis in enumerate(space.axes):
+            n = axis.values.size
+            if n < 3:
+                continue
+            x = axis.nodes
+            j = int(np.clip(np.searchsorted(x, u[d], side="right") - 1, 0, n - 2))
+            f = float(np.clip((u[d] - x[j]) / (x[j + 1] - x[j]), 0.0, 1.0))
+            if f <= 0.0 or f >= 1.0:
+                continue
+            cell = x[j + 1] - x[j]
+            for i, wi in zip(idx, w):
+                m = min(max(i[d], 1), n - 2)
+                e2, wide, f0 = self._left_out(i[:d] + (m,) + i[d + 1:], d)
+                g = cell ** 2 * f * (1 - f) / (wide ** 2 * f0 * (1 - f0))
+                total = total + wi * g ** 2 * e2
+        return total
+
+
+class DirectSurface:
+    """One directly simulated surface in place of a database: the surface wherever it is
+    asked, and its own Monte Carlo variance as S(t) (no interpolation). What log L of a
+    direct simulation is computed with (tools/studies/emulator_check.py).
+
+    Parameters
+    ----------
+    surface : SurfaceResponse
+    forward : Forward
+    free_axes : list of Axis
+        The axes of the database the point is given in (for :class:`~.posterior.Problem`).
+    """
+
+    def __init__(self, surface, forward, free_axes=()):
+        self._surface = surface
+        self._variance = response_variance(surface, forward)
+        self.free_axes = list(free_axes)
+        self.unmeasured = []
+
+    def surface(self, point: dict):
+        return self._surface
+
+    def variance(self, point: dict) -> np.ndarray:
+        return self._variance
+
+
+def shared_error(shots, fit, mu: np.ndarray, nu: np.ndarray, variance: np.ndarray):
+    """Δ log L, the stated error σ and the expected offset of log L of the module docstring.
+
+    Parameters
+    ----------
+    shots : Shots
+        The recorded linear-mode shots.
+    fit : ShotFit
+        The fitted per-shot amplitudes a_s and arrivals δ_s (ns) at this model.
+    mu, nu : array
+        The model's μ (mV) and ν (mV²) on the forward grid.
+    variance : array
+        S(t) on the forward grid (mV², amplitude 1).
+
+    Returns
+    -------
+    (float, float, float)
+        Δ log L, σ and the offset −½ Σ λ_i (log-likelihood units).
+    """
+    f = shots.f
+    a, d = fit.amplitude, fit.arrival
+    m, dm, n, s = shots._gather(padded([mu, np.gradient(mu, f.t), nu, variance]), d)
+    var = f.sigma_n ** 2 + a[:, None] * n
+    keep = ~shots.censored
+    r = shots.y - a[:, None] * m
+    weight = np.where(keep, a[:, None] ** 2 / var, 0.0)
+    block = np.floor((shots.t[None, :] - d[:, None] - f.t[0]) / f.interval).astype(np.intp)
+    block = block.ravel() - block.min()
+    size = int(block.max()) + 1
+
+    def per_block(x):
+        return np.bincount(block, x.ravel(), size)
+    w_b = per_block(weight)
+    used = w_b > 0
+    w_b = w_b[used]
+    g_b = per_block(np.where(keep, a[:, None] * r / var, 0.0))[used]
+    s_b, m_b, dm_b = (per_block(weight * x)[used] / w_b for x in (s, m, dm))
+    # the common amplitude and arrival absorb errors along μ and μ': project them out
+    base = np.stack([m_b, dm_b], axis=1)
+    wb = w_b[:, None] * base
+    w_eff = np.diag(w_b) - wb @ np.linalg.lstsq(base.T @ wb, wb.T, rcond=None)[0]
+    g_eff = g_b - wb @ np.linalg.lstsq(base.T @ wb, base.T @ g_b, rcond=None)[0]
+    root = np.sqrt(s_b)
+    lam, vec = np.linalg.eigh(root[:, None] * w_eff * root[None, :])
+    lam = np.clip(lam, 0.0, None)
+    proj = vec.T @ (root * g_eff)
+    delta = float(0.5 * np.sum(proj ** 2 / (1.0 + lam)) - 0.5 * np.sum(np.log1p(lam)))
+    sigma = math.sqrt(float(np.sum(lam) + 0.5 * np.sum(lam ** 2)))
+    return delta, sigma, -0.5 * float(np.sum(lam))
