@@ -289,33 +289,85 @@ def cmd_instrument(args) -> int:
 
 
 def cmd_invert(args) -> int:
-    """``warpe-cl invert``: recorded shots + a sweep database -> FIT.nc (docs/inversion.md)."""
+    """``warpe-cl invert``: recorded shots + a sweep database -> FIT.nc (docs/inversion.md);
+    with several ``--database``, one FIT file per database and their ranking by log evidence
+    (docs/inversion.md §5.4)."""
     import json
     from . import report
     from .config.keys import parse_overrides
+    from .inversion.checks import check_lines
     from .inversion.invert import invert
     from .inversion.observed import load_observed
     from .inversion.plot import plot_fit
-    out = _check_outputs(args, _inputs(args.observed, args.database, args.instrument))
-    scenario = None
-    if args.scenario is not None:
-        try:
-            scenario = int(args.scenario)
-        except ValueError:
-            raise ConfigError(f"{args.scenario!r} is not a scenario index (an integer >= 0)",
-                              key="--scenario") from None
+    databases = list(args.database)
+    inputs = _inputs(args.observed, databases, args.instrument)
+    if len(databases) > 1:
+        return _invert_many(args, databases, inputs)
+    out = _check_outputs(args, inputs)
+    scenario = _scenario(args)
     fix = parse_overrides(args.fix or [])
     free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
     t0 = time.perf_counter()
     obs = load_observed(args.observed, scenario=scenario)
-    ds = invert(obs, args.database, args.instrument, free=free, fix=fix)
+    ds = invert(obs, databases[0], args.instrument, free=free, fix=fix)
     say = _say(args)
-    for line in report.inversion_lines(ds):
+    for line in report.inversion_lines(ds) + check_lines(ds):
         say(line)
     held = json.loads(ds.attrs.get("fixed", "{}"))
     if held:                # each --fix echoed with its unit, as it was read
         say(printable("  fixed: " + ", ".join(f"{k} = {v}" for k, v in held.items())))
     _write_outputs(ds, out, args.plot, plot_fit, say, started=t0)
+    return EXIT_OK
+
+
+def _scenario(args):
+    """``--scenario`` as an index, or None."""
+    if args.scenario is None:
+        return None
+    try:
+        return int(args.scenario)
+    except ValueError:
+        raise ConfigError(f"{args.scenario!r} is not a scenario index (an integer >= 0)",
+                          key="--scenario") from None
+
+
+def _invert_many(args, databases, inputs) -> int:
+    """``warpe-cl invert OBS --database A --database B ...``: one FIT file per database,
+    ``--out`` FIT.nc giving FIT_<label>.nc (and ``--plot`` likewise), every one checked before
+    any work as ``--out`` is; then the ranking by log evidence."""
+    from . import report
+    from .config.keys import parse_overrides
+    from .inversion.checks import check_lines
+    from .inversion.comparison import compare, labels, output_paths, ranking, ranking_lines
+    from .inversion.observed import load_observed
+    from .inversion.plot import plot_fit
+    if Path(args.out).suffix.lower() != ".nc":         # the pattern: its format and folder
+        raise ConfigError(f"{args.out} is not a NetCDF file name; give a name ending in .nc",
+                          key="--out")
+    _check_writable(Path(args.out), "--out")
+    if args.plot:
+        _check_figure_name(Path(args.plot), "--plot")
+        _check_writable(Path(args.plot), "--plot")
+    names = labels(databases)
+    outs = output_paths(args.out, names)
+    plots = output_paths(args.plot, names) if args.plot else [None] * len(outs)
+    for out, plot in zip(outs, plots):          # each file: not an input, new or --overwrite
+        _check_new(out, "--out", args.overwrite, inputs)
+        if plot is not None:
+            _check_new(plot, "--plot", args.overwrite, [*inputs, out])
+    fix = parse_overrides(args.fix or [])
+    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
+    t0 = time.perf_counter()
+    obs = load_observed(args.observed, scenario=_scenario(args))
+    fits = compare(obs, databases, args.instrument, free=free, fix=fix)
+    say = _say(args)
+    for ds, out, plot in zip(fits, outs, plots):
+        for line in report.inversion_lines(ds) + check_lines(ds):
+            say(line)
+        _write_outputs(ds, out, plot, plot_fit, say)
+    for line in ranking_lines(ranking(fits)):
+        say(printable(line))
+    say(f"compared {len(fits)} databases in {time.perf_counter() - t0:.2f} s")
     return EXIT_OK
 
 
@@ -617,9 +669,13 @@ def make_parser() -> argparse.ArgumentParser:
     inv.add_argument("observed", nargs="+",
                      help="a `warpe-cl instrument` file, or CSV files of samples "
                           "(docs/interface.md §5.7)")
-    inv.add_argument("--database", required=True,
-                     help="a `warpe-cl sweep` database folder (or sweep file)")
-    inv.add_argument("--out", required=True, help="output NetCDF file (FIT.nc)")
+    inv.add_argument("--database", required=True, action="append",
+                     help="a `warpe-cl sweep` database folder (or sweep file); repeated, the "
+                          "shots are inverted against each and the databases ranked by log "
+                          "evidence")
+    inv.add_argument("--out", required=True,
+                     help="output NetCDF file (FIT.nc); with several --database, FIT_<label>.nc "
+                          "per database (label: the database's name)")
     inv.add_argument("--plot", help="also draw the fit and the pairwise posterior to this "
                                     "figure file (PNG, PDF, SVG, ...)")
     inv.add_argument("--overwrite", action="store_true",

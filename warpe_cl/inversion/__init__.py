@@ -13,5 +13,18 @@ module          what
 ``result``      the FIT Dataset (§6)
 ``plot``        the figure: shots, best fit, 68 % band, pairwise posterior
 ``invert``      :func:`invert`, which ties them together
+``checks``      log evidence, complete goodness of fit and warnings of one inversion (§5.1-§5.3)
+``comparison``  :func:`compare`: the same shots against several databases, ranked by ln Z (§5.4)
 ==============  ===============================================================================
+
+``warpe_cl.inversion.compare`` is :func:`warpe_cl.inversion.comparison.compare`, imported on
+first use (this package's modules load no scipy until then).
 """
+
+
+def __getattr__(name: str):
+    """``compare`` on first use (:func:`warpe_cl.inversion.comparison.compare`)."""
+    if name == "compare":
+        import importlib
+        return importlib.import_module(".comparison", __name__).compare
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -13,6 +13,7 @@ from ..config.instrument_fields import (BUILTIN, InstrumentParams, at_wavelength
 from ..database import database_folder, load_result
 from ..errors import ConfigError
 from ..instrument.pulse import sigma_from_fwhm
+from .checks import checked
 from .counting import CountShots
 from .emulator import Emulator
 from .forward import BROADENING_MAX_NS, PULSE_RANGE, Forward
@@ -137,8 +138,10 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     summary = _summarise(problem, final, report)
     summary["elapsed_s"] = time.perf_counter() - started
     summary["evaluations"] = problem.count
-    return build_result(obs, params, space, problem, nodes, final, summary, used,
-                        db_source=db_source, db_attrs=dict(db.attrs), fixed=echoed)
+    ds = build_result(obs, params, space, problem, nodes, final, summary, used,
+                      db_source=db_source, db_attrs=dict(db.attrs), fixed=echoed)
+    # evidence, complete goodness of fit and warnings (docs/inversion.md §5.1-§5.3)
+    return checked(ds, problem, nodes, final, db_source)
 
 
 #: How many per-sample noise standard deviations σ_n an observed sample may lie beyond the
