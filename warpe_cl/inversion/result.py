@@ -10,10 +10,8 @@ from scipy.stats import chi2 as chi2_dist
 from ..errors import ConfigError
 from ..instrument.footprint import C_M_PER_NS
 from ..io import provenance
+from .derived import CONSTRAINED, variables as measure_variables
 
-#: A parameter whose 95 % interval spans more than this fraction of its prior range (in its
-#: interpolation coordinate) is reported as not constrained.
-UNCONSTRAINED = 0.9
 #: Posterior points drawn for the 68 % band of the fitted waveform.
 BAND_POINTS = 64
 
@@ -146,11 +144,16 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     rows = [r for r in summary["rows"] if r["reported"]]
     names = [r["key"] for r in rows]
     data = {}
-    for col in ("best", "median", "low68", "high68", "low95", "high95", "prior_low",
-                "prior_high", "interval_fraction"):
+    # median and intervals first, the best grid point after them (issue 41)
+    for col in ("median", "low68", "high68", "low95", "high95"):
         data[col] = ("parameter", np.array([r[col] for r in rows], float))
-    data["constrained"] = ("parameter", np.array([r["interval_fraction"] < UNCONSTRAINED
-                                                  for r in rows]))
+    extra, extra_coords, extra_attrs = measure_variables(summary["measure"], summary["rows"])
+    for col in ("bound", "bound95", "width_ratio", "kl_divergence"):
+        data[col] = extra.pop(col)
+    data["constrained"] = ("parameter", data["width_ratio"][1] < CONSTRAINED)
+    data["truth"] = extra.pop("truth")
+    for col in ("best", "prior_low", "prior_high", "interval_fraction"):
+        data[col] = ("parameter", np.array([r[col] for r in rows], float))
     data["units"] = ("parameter", np.array([r["units"] for r in rows]))
     data["log_scale"] = ("parameter", np.array([r["scale"] == "log" for r in rows]))
     data["scale"] = ("parameter", np.array([r["scale"] for r in rows]), {
@@ -167,6 +170,8 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         fine = f"posterior_{axis.short}"
         coords[fine] = (fine, axis.value(final.coords[j]), {"units": axis.units,
                                                              "sweep_key": axis.key})
+    data.update(extra)
+    coords.update(extra_coords)
     data["posterior"] = (tuple(f"posterior_{a.short}" for a in space.free_axes),
                          final.weights(), {"long_name": "posterior mass on the refined grid"})
     data["loglike_nodes"] = (tuple(f"grid_{a.short}" for a in space.free_axes), nodes.loglike,
@@ -225,6 +230,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         "shots_used": n_shots,
         "evaluations": summary["evaluations"],
         "elapsed_s": round(summary["elapsed_s"], 3),
+        **extra_attrs,
         "method": "grid posterior (docs/inversion.md): uniform prior in each axis' "
                   "interpolation coordinate; "
                   + ("aggregated photon-count histogram, Poisson; common arrival integrated, "
@@ -241,7 +247,8 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
 #: without dimension, or text). ``None`` as units: the parameter's own unit, per row of
 #: ``units`` (one name for all rows when they share it).
 DESCRIPTIONS = {
-    "best": ("parameter value at the largest log-likelihood", None),
+    "best": ("parameter value at the best grid point (largest log-likelihood); a corner of a "
+             "flat ridge can lie outside its own intervals: read median and intervals", None),
     "median": ("posterior median of the parameter", None),
     "low68": ("lower bound of the equal-tailed 68 % posterior interval", None),
     "high68": ("upper bound of the equal-tailed 68 % posterior interval", None),
@@ -251,7 +258,8 @@ DESCRIPTIONS = {
     "prior_high": ("upper end of the uniform prior: the database's largest grid value", None),
     "interval_fraction": ("share of the prior range (in the interpolation coordinate) spanned "
                           "by the 95 % interval", "1"),
-    "constrained": ("whether the 95 % interval spans less than 90 % of the prior range", "1"),
+    "constrained": ("whether width_ratio < 0.5: the 95 % interval is narrower than half the "
+                    "prior's 95 % interval", "1"),
     "units": ("unit of the parameter's values (text)", "1"),
     "log_scale": ("whether the interpolation coordinate is ln(value)", "1"),
     "scale": (None, "1"),
