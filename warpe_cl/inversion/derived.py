@@ -218,13 +218,22 @@ def _prior_grid(space) -> tuple:
 
 
 def _quantiles(x: np.ndarray, w: np.ndarray, qs) -> list:
-    """Weighted quantiles of values ``x`` of masses ``w`` (each mass centred on its value)."""
+    """Weighted quantiles of values ``x`` of masses ``w``. The masses of equal values are
+    gathered (on a rectangular grid a derived quantity takes a few values many times: E is
+    constant along the diagonals of a ln d x ln c grid) and each is spread over the cell
+    between its neighbours' midpoints, as :func:`.posterior.intervals` spreads a marginal's,
+    so that a quantile does not stick to one of those values."""
     ok = (w > 0) & np.isfinite(x)
     x, w = x[ok], w[ok]
-    order = np.argsort(x)
-    x, w = x[order], w[order]
-    c = (np.cumsum(w) - 0.5 * w) / w.sum()
-    return [float(np.interp(q, c, x)) for q in qs]
+    scale = max(float(np.max(np.abs(x))), 1e-300)
+    values, where = np.unique(np.round(x / scale, 12), return_inverse=True)
+    mass = np.bincount(where.ravel(), weights=w)
+    if values.size == 1:
+        return [float(values[0] * scale)] * len(qs)
+    mids = 0.5 * (values[1:] + values[:-1]) * scale
+    bounds = np.concatenate([[values[0] * scale], mids, [values[-1] * scale]])
+    cdf = np.concatenate([[0.0], np.cumsum(mass)]) / mass.sum()
+    return [float(np.interp(q, cdf, bounds)) for q in qs]
 
 
 def _kl_histogram(post_c, post_w, prior_c, prior_w) -> float:
