@@ -365,13 +365,13 @@ def inversion_lines(ds) -> list:
                 + measured(ratio, float(r["derived_kl_divergence"]), ratio < 0.5))
     for line in json.loads(ds.attrs.get("degeneracy", "[]")):
         lines.append(f"  {line}")
-    best = ", ".join(f"{k} {show(float(ds['best'].sel(parameter=k)), str(ds['units'].sel(parameter=k).values))}"
-                     for k in ds["parameter"].values)
+    def each(name):
+        return [(k, float(ds[name].sel(parameter=k)), str(ds["units"].sel(parameter=k).values))
+                for k in ds["parameter"].values]
+    best = ", ".join(f"{k} {show(x, u)}" for k, x, u in each("best"))
     lines.append(f"  best grid point (largest log L; may sit on a flat ridge): {best}")
     if "truth" in ds and np.isfinite(ds["truth"].values).any():
-        known = ", ".join(f"{k} {show(float(ds['truth'].sel(parameter=k)), str(ds['units'].sel(parameter=k).values))}"
-                          for k in ds["parameter"].values
-                          if np.isfinite(float(ds["truth"].sel(parameter=k))))
+        known = ", ".join(f"{k} {show(x, u)}" for k, x, u in each("truth") if np.isfinite(x))
         lines.append(f"  truth ({ds.attrs.get('truth_source', '')}): {known}")
     lines.append(f"  nuisances: amplitude {float(ds['amplitude']):.3g}, pulse FWHM "
                  f"{float(ds['pulse_fwhm']):.3g} ns (or footprint sigma "

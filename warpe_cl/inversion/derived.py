@@ -17,8 +17,9 @@ Derived quantities:
   ln τ0 = ln E + ln h is then exact in h.
 - **of the response** at the point (:data:`RESPONSE`), from the interpolated surface response
   (:meth:`warpe_cl.inversion.space.Space.surface`): the mean delay of the diffuse return
-  ⟨t⟩ = ∫ t R_d dt / ∫ R_d dt (ns) and its tail fraction, the share of ∫ R_d dt later than the
-  instrument's nominal pulse FWHM (what a waveform shows as a tail rather than a wider pulse).
+  ⟨t⟩ = ∫ t R_d dt / ∫ R_d dt (ns) and its tail fraction, the share of ∫ R_d dt later than
+  the instrument's nominal pulse FWHM (what a waveform shows as a tail rather than a wider
+  pulse).
 
 A derived quantity whose nodes all hold the same value is not reported (nothing to measure).
 """
