@@ -309,7 +309,8 @@ def cmd_invert(args) -> int:
     free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
     t0 = time.perf_counter()
     obs = load_observed(args.observed, scenario=scenario)
-    ds = invert(obs, databases[0], args.instrument, free=free, fix=fix)
+    truth = parse_overrides(args.truth or []) if args.truth else None
+    ds = invert(obs, databases[0], args.instrument, free=free, fix=fix, truth=truth)
     say = _say(args)
     for line in report.inversion_lines(ds) + check_lines(ds):
         say(line)
@@ -359,7 +360,8 @@ def _invert_many(args, databases, inputs) -> int:
     free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
     t0 = time.perf_counter()
     obs = load_observed(args.observed, scenario=_scenario(args))
-    fits = compare(obs, databases, args.instrument, free=free, fix=fix)
+    truth = parse_overrides(args.truth or []) if args.truth else None
+    fits = compare(obs, databases, args.instrument, free=free, fix=fix, truth=truth)
     say = _say(args)
     for ds, out, plot in zip(fits, outs, plots):
         for line in report.inversion_lines(ds) + check_lines(ds):
@@ -690,6 +692,10 @@ def make_parser() -> argparse.ArgumentParser:
                      help='hold a swept key, e.g. --fix medium.compacity=0.5 or '
                           'medium.thickness="500 mm" (a quantity needs its unit, as for run '
                           '--set), or a nuisance: amplitude=1, pulse_fwhm="6.5 ns" (repeatable)')
+    inv.add_argument("--truth", action="append", metavar="KEY=VALUE",
+                     help='the true value of a swept key, shown in the summary, FIT.nc and the '
+                          'figure, never used by the fit, e.g. --truth medium.thickness="10 mm" '
+                          "(default: the observed file's own configuration; repeatable)")
     inv.add_argument("--scenario", help="the scenario of an instrument file holding a sweep")
     inv.add_argument("--quiet", action="store_true", help="print nothing but errors")
     inv.set_defaults(func=cmd_invert)

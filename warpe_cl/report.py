@@ -10,6 +10,8 @@ terminal.
 """
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from .errors import printable
@@ -292,8 +294,12 @@ def sweep_summary_lines(summary) -> list:
 
 
 def inversion_lines(ds) -> list:
-    """The result of ``warpe-cl invert``: each parameter's best value and intervals (in the
-    unit of the database; lengths as :func:`_length` writes them), the nuisances and the goodness of fit.
+    """The result of ``warpe-cl invert``, what the data measure first: each parameter's
+    median and intervals (a one-sided bound where the posterior reaches a prior edge), how
+    much of its prior the data rule out, the derived quantities, the degenerate pairs, then
+    the best grid point, the truth when known, the nuisances and the goodness of fit
+    (docs/inversion.md §6). Values in the unit of the database; lengths as :func:`_length`
+    writes them.
 
     Parameters
     ----------
@@ -305,23 +311,75 @@ def inversion_lines(ds) -> list:
     list of str
     """
     def show(value, units):
+        if not np.isfinite(value):
+            return "nan"
         if units == "m":
             return _length(value)
         return f"{value:.4g}" + ("" if units in ("1", "") else f" {units}")
+
+    def bound(kind, limit, units):
+        kind = int(kind)
+        if kind == 1:
+            return f"> {show(limit, units)} (95 %)"
+        if kind == 2:
+            return f"< {show(limit, units)} (95 %)"
+        return ""
+
+    def measured(ratio, kl, constrained):
+        verdict = ("constrained" if constrained else
+                   "not constrained" if not ratio < 0.9 else "weakly constrained")
+        return f"width {ratio:.2f} of the prior's, KL {kl:.2f} nats: {verdict}"
+
     lines = [f"inversion: {ds.attrs['shots_used']} of {ds.attrs['shots_total']} shots, "
              f"{ds.attrs['instrument_name']}, database {ds.attrs['database']}"]
     for key in ds["parameter"].values:
         r = ds.sel(parameter=key)
         u = str(r["units"].values)
-        flag = "" if bool(r["constrained"]) else "  (not constrained: 95 % interval spans " \
-            f"{float(r['interval_fraction']):.0%} of the grid)"
-        lines.append(f"  {key:<34} best {show(float(r['best']), u):>10}   68 % "
-                     f"[{show(float(r['low68']), u)}, {show(float(r['high68']), u)}]   95 % "
-                     f"[{show(float(r['low95']), u)}, {show(float(r['high95']), u)}]{flag}")
+        head = bound(r["bound"], float(r["bound95"]), u) if "bound" in r else ""
+        if "bound" in r and int(r["bound"]) == 3:
+            head = "reaches both prior edges"
+        text = (f"  {key:<34} {head + '   ' if head else ''}median "
+                f"{show(float(r['median']), u)}   68 % [{show(float(r['low68']), u)}, "
+                f"{show(float(r['high68']), u)}]   95 % [{show(float(r['low95']), u)}, "
+                f"{show(float(r['high95']), u)}]")
+        if "width_ratio" in r:
+            text += "   " + measured(float(r["width_ratio"]), float(r["kl_divergence"]),
+                                     bool(r["constrained"]))
+        lines.append(text)
+    if "derived" in ds.coords:
+        lines.append("  derived quantities (posterior over the same grid, docs/inversion.md "
+                     "§6.1):")
+        for name in ds["derived"].values:
+            r = ds.sel(derived=name)
+            u = str(r["derived_units"].values)
+            head = bound(r["derived_bound"], float(r["derived_bound95"]), u)
+            if int(r["derived_bound"]) == 3:
+                head = "reaches both prior edges"
+            ratio = float(r["derived_width_ratio"])
+            lines.append(
+                f"    {name:<32} {head + '   ' if head else ''}median "
+                f"{show(float(r['derived_median']), u)}   68 % "
+                f"[{show(float(r['derived_low68']), u)}, {show(float(r['derived_high68']), u)}]"
+                f"   95 % [{show(float(r['derived_low95']), u)}, "
+                f"{show(float(r['derived_high95']), u)}]   "
+                + measured(ratio, float(r["derived_kl_divergence"]), ratio < 0.5))
+    for line in json.loads(ds.attrs.get("degeneracy", "[]")):
+        lines.append(f"  {line}")
+
+    def each(name):
+        return [(k, float(ds[name].sel(parameter=k)), str(ds["units"].sel(parameter=k).values))
+                for k in ds["parameter"].values]
+    best = ", ".join(f"{k} {show(x, u)}" for k, x, u in each("best"))
+    lines.append(f"  best grid point (largest log L; may sit on a flat ridge): {best}")
+    if "truth" in ds and np.isfinite(ds["truth"].values).any():
+        known = ", ".join(f"{k} {show(x, u)}" for k, x, u in each("truth") if np.isfinite(x))
+        lines.append(f"  truth ({ds.attrs.get('truth_source', '')}): {known}")
     lines.append(f"  nuisances: amplitude {float(ds['amplitude']):.3g}, pulse FWHM "
                  f"{float(ds['pulse_fwhm']):.3g} ns (or footprint sigma "
                  f"{float(ds['footprint_sigma']):.3g} ns), arrival {float(ds['arrival_time']):.3g} ns")
     lines.append(f"  fit: chi2/dof {float(ds['chi2_per_dof']):.3f} ({int(ds['dof'])} dof), "
                  f"p = {float(ds['p_value']):.3g}; {ds.attrs['evaluations']} model evaluations "
                  f"in {ds.attrs['elapsed_s']:.2f} s")
+    if "database_adequacy" in ds.attrs:
+        lines.append(f"  {ds.attrs['database_adequacy']}")
     return [printable(line) for line in lines]     # names and units come from the files

@@ -24,7 +24,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from ..errors import WarpeWarning
 from .likelihood import MODES_CAP
-from .posterior import marginal, nearest_node_mass
+from .posterior import cell_widths, marginal, nearest_node_mass
 
 #: Standard deviation of the prior on ln A, the overall amplitude relative to the instrument's
 #: radiometry: a factor 3 at one standard deviation. The link budget (pulse energy, optics,
@@ -99,14 +99,6 @@ class Checks:
     warnings: list = field(default_factory=list)
 
 
-def _trapezoid(c: np.ndarray) -> np.ndarray:
-    """Trapezoid weights of points ``c`` (one point: weight 1)."""
-    if c.size == 1:
-        return np.ones(1)
-    d = np.diff(c)
-    return 0.5 * (np.concatenate([[0.0], d]) + np.concatenate([d, [0.0]]))
-
-
 def log_evidence(post, axes, amplitude: tuple | None = None) -> float:
     """ln Z = ln ∫ L(θ) π(θ) dθ of a grid posterior, by the trapezoid rule in the
     interpolation coordinates, with the prior uniform in them over the database's range.
@@ -133,7 +125,7 @@ def log_evidence(post, axes, amplitude: tuple | None = None) -> float:
     volume = 0.0
     for i, (c, axis) in enumerate(zip(post.coords, axes)):
         shape = [-1 if j == i else 1 for j in range(post.loglike.ndim)]
-        log_w = log_w + np.log(np.maximum(_trapezoid(np.asarray(c, float)), 1e-300)).reshape(shape)
+        log_w = log_w + np.log(np.maximum(cell_widths(np.asarray(c, float)), 1e-300)).reshape(shape)
         span = float(axis.nodes[-1] - axis.nodes[0])
         volume += math.log(span) if span > 0 else 0.0
     terms = np.where(np.isfinite(post.loglike), post.loglike, -np.inf) + log_w
@@ -263,7 +255,7 @@ def edge_masses(final, axes) -> list:
         u, mass = marginal(final, j)
         gathered = nearest_node_mass(u, mass, nodes)
         span = nodes[-1] - nodes[0]
-        mode = u[int(np.argmax(mass / np.maximum(_trapezoid(u), 1e-300)))]
+        mode = u[int(np.argmax(mass / np.maximum(cell_widths(u), 1e-300)))]
         for side, i, cell in (("lowest", 0, nodes[1] - nodes[0]),
                               ("highest", -1, nodes[-1] - nodes[-2])):
             threshold = max(EDGE_MASS, 2.0 * 0.5 * cell / span)

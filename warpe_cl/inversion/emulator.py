@@ -149,10 +149,16 @@ class Emulator:
     def variance(self, point: dict) -> np.ndarray:
         """S(t) at ``point`` (free keys -> values, axis units): the Monte Carlo and the
         interpolation parts of the module docstring, on ``forward.t``."""
+        return sum(self.parts(point).values())
+
+    def parts(self, point: dict) -> dict:
+        """The parts of S(t) at ``point``: ``"monte carlo"`` and, per axis of three values
+        or more whose cell the point is inside, the axis' dotted key (its interpolation
+        part)."""
         space = self.space
         u = space.coords_of(point)
         idx, w = corner_weights(u, [a.nodes for a in space.axes])
-        total = sum(wi ** 2 * self._node(i)[1] for i, wi in zip(idx, w))
+        out = {"monte carlo": sum(wi ** 2 * self._node(i)[1] for i, wi in zip(idx, w))}
         for d, axis in enumerate(space.axes):
             n = axis.values.size
             if n < 3:
@@ -163,12 +169,82 @@ class Emulator:
             if f <= 0.0 or f >= 1.0:
                 continue
             cell = x[j + 1] - x[j]
+            part = 0.0
             for i, wi in zip(idx, w):
                 m = min(max(i[d], 1), n - 2)
                 e2, wide, f0 = self._left_out(i[:d] + (m,) + i[d + 1:], d)
                 g = cell ** 2 * f * (1 - f) / (wide ** 2 * f0 * (1 - f0))
-                total = total + wi * g ** 2 * e2
-        return total
+                part = part + wi * g ** 2 * e2
+            out[axis.key] = part
+        return out
+
+
+#: A database is adequate for an observation where its own error moves log L by at most this
+#: much (σ, log-likelihood units): a 68 % interval is where log L is within 0.5 of its
+#: maximum, a 95 % one within 2.
+ADEQUATE_SD = 1.0
+#: The most rays per node (a factor of today's) or halvings of a cell the advice considers.
+MOST_RAYS, MOST_HALVINGS = 1024, 4
+
+
+def adequacy(emulator, shots, fit, point: dict, mu, nu) -> dict:
+    """Is the database good enough for this observation? The stated error of log L at the
+    best point split by source, and what would bring each under ``ADEQUATE_SD / 2``.
+
+    Parameters
+    ----------
+    emulator : Emulator
+    shots : Shots
+    fit : ShotFit
+        The nuisances at the best point.
+    point : dict
+        The best point (free keys -> values, axis units).
+    mu, nu : array
+        The model there (mV, mV²).
+
+    Returns
+    -------
+    dict
+        ``sigma`` (all sources), ``sigma_monte_carlo``, ``sigma_interpolation`` (per axis
+        key), ``adequate`` (σ ≤ ``ADEQUATE_SD``), ``rays_factor`` (rays per node, as a factor
+        of the database's, that bring the Monte Carlo part under half of it; the variance
+        falls as 1/rays) and ``halvings`` (per axis, halvings of the cell spacing that bring
+        its part under half of it; an interpolation error falls 4 times per halving, its
+        variance 16 times), and ``advice``, one line.
+    """
+    parts = emulator.parts(point)
+
+    def sd(var):
+        return shared_error(shots, fit, mu, nu, var)[1]
+    total = sd(sum(parts.values()))
+    mc = sd(parts["monte carlo"])
+    target = 0.5 * ADEQUATE_SD
+    rays = 1
+    while sd(parts["monte carlo"] / rays) > target and rays < MOST_RAYS:
+        rays *= 2
+    interp, halvings = {}, {}
+    for key, var in parts.items():
+        if key == "monte carlo":
+            continue
+        interp[key] = sd(var)
+        h = 0
+        while sd(var / 16.0 ** h) > target and h < MOST_HALVINGS:
+            h += 1
+        halvings[key] = h
+    advice = []
+    if rays > 1:
+        advice.append(f"{rays}x the rays per node")
+    advice += [f"{h}x halved spacing of {key} around {point[key]:.4g}"
+               for key, h in halvings.items() if h > 0]
+    adequate = total <= ADEQUATE_SD
+    line = (f"database adequate for these shots: its own error moves log L by {total:.2f} "
+            f"(<= {ADEQUATE_SD:g})" if adequate else
+            f"database not adequate for these shots: its own error moves log L by {total:.2f} "
+            f"(> {ADEQUATE_SD:g}; Monte Carlo {mc:.2f}, interpolation "
+            + ", ".join(f"{k.rsplit('.', 1)[-1]} {v:.2f}" for k, v in interp.items())
+            + "); for these shots: " + ("; ".join(advice) or "no single change suffices"))
+    return {"sigma": total, "sigma_monte_carlo": mc, "sigma_interpolation": interp,
+            "adequate": adequate, "rays_factor": rays, "halvings": halvings, "advice": line}
 
 
 class DirectSurface:

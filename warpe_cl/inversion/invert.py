@@ -15,7 +15,8 @@ from ..errors import ConfigError
 from ..instrument.pulse import sigma_from_fwhm
 from .checks import checked
 from .counting import CountShots
-from .emulator import Emulator
+from .derived import measure, truth_values
+from .emulator import Emulator, adequacy
 from .forward import BROADENING_MAX_NS, PULSE_RANGE, Forward
 from .likelihood import Shots
 from .observed import Observed, load_observed
@@ -32,7 +33,8 @@ DETECTION_SIGMA = 5.0
 def invert(observed, database, instrument=None, *, free=None, fix=None, budget: int = 600,
            pulse_range=PULSE_RANGE, broadening_max: float = BROADENING_MAX_NS,
            database_error: bool = True,
-           observed_source: str | None = None, database_source: str | None = None):
+           observed_source: str | None = None, database_source: str | None = None,
+           truth: dict | None = None):
     """The surface parameters compatible with recorded shots.
 
     Parameters
@@ -67,13 +69,18 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
         Integrate the database's own error (its nodes' Monte Carlo errors and the
         leave-one-out interpolation error, :mod:`warpe_cl.inversion.emulator`) out of the
         likelihood of a linear-mode receiver; False takes the database as exact.
+    truth : dict, optional
+        Swept key -> its true value (``--truth``: ``"10 mm"``, a plain number without
+        dimension); default: what the observed file says (its ``sweep_point`` or ``config``,
+        :func:`warpe_cl.inversion.derived.truth_values`). Shown, never used by the fit.
 
     Returns
     -------
     xarray.Dataset
-        docs/inversion.md §6: ``best``, ``low68``, ``high68``, ``low95``, ``high95`` on the
-        ``parameter`` coordinate, marginal posteriors, nuisances, the best-fit waveform and the
-        goodness of fit.
+        docs/inversion.md §6: ``median``, ``low68``, ``high68``, ``low95``, ``high95`` (then
+        the ``best`` grid point) on the ``parameter`` coordinate, identifiability and bounds,
+        derived quantities on ``derived``, marginal posteriors, nuisances, the best-fit
+        waveform and the goodness of fit.
     """
     started = time.perf_counter()
     fix = dict(fix or {})
@@ -107,6 +114,7 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     space = Space(db, fixed, source=db_source)
     keys = [a.key for a in space.free_axes]
     report = list(free) if free else keys
+    truth, truth_source = truth_values(obs.attrs, space, truth)
     if space.wavelength is not None:
         if not at_wavelength(space.wavelength, params["wavelength"]):
             raise ConfigError(f"the database was computed at {space.wavelength * 1e9:g} nm but "
@@ -136,6 +144,13 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     problem = Problem(space, forward, shots, overall=overall, v=v_fixed, emulator=emulator)
     nodes, final = refine(problem, budget=budget)
     summary = _summarise(problem, final, report)
+    summary["measure"] = measure(problem, final, db, truth)
+    if emulator is not None:      # is the database good enough for these shots? (§4.3)
+        best = summary["best"]
+        point = problem.point(summary["best_u"])
+        mu, nu = forward.waveform(forward.photons(space.surface(point)), best.v)
+        summary["adequacy"] = adequacy(emulator, shots, best.fit, point, mu, nu)
+    summary["measure"]["truth_source"] = truth_source
     summary["elapsed_s"] = time.perf_counter() - started
     summary["evaluations"] = problem.count
     ds = build_result(obs, params, space, problem, nodes, final, summary, used,

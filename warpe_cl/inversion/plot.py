@@ -1,12 +1,17 @@
 """The figure of ``warpe-cl invert --plot``: the recorded shots with the best fit and its 68 %
 band, and the pairwise posterior (corner style, drawn with matplotlib: the grid posterior is
 already a density on a grid, which is what a corner plot of samples would first have to
-estimate)."""
+estimate). The diagonal panels carry their own scale, the median (dashed), the 68 % and 95 %
+intervals and the truth when the result knows it (red line; a red star in the pairwise
+panels, where the median is an orange cross)."""
 from __future__ import annotations
+
+import json
+import textwrap
 
 import numpy as np
 
-from .posterior import _trapezoid
+from .posterior import cell_widths
 from .space import SCALES, axis_scale
 
 
@@ -58,7 +63,19 @@ def plot_fit(ds, path) -> None:
                     for lo, hi, alpha in (("low95", "high95", 0.15), ("low68", "high68", 0.3)):
                         axc.axvspan(float(r[lo]) * xi_scale, float(r[hi]) * xi_scale,
                                     color="C0", alpha=alpha)
+                    axc.axvline(float(r["median"]) * xi_scale, color="C0", ls="--", lw=1.2,
+                                label="median")
+                    axc.set_title(_headline(r, xi_scale), fontsize=7)
+                    truth = _truth(ds, name)
+                    if truth is not None:
+                        axc.axvline(truth * xi_scale, color="C3", lw=1.4, label="truth")
+                    if i == 0:
+                        axc.legend(fontsize=6, loc="upper left", frameon=False)
                 axc.set_yticks([])
+                axc.set_ylabel("density" if i == 0 else "")
+                # every diagonal panel carries its own scale (values and unit)
+                axc.tick_params(axis="x", labelbottom=True, labelsize=7)
+                axc.set_xlabel(xi_label, fontsize=8)
             else:
                 yl, ys, _ = _label(ds, dims[i])
                 other = tuple(k for k in range(n) if k not in (i, j))
@@ -67,11 +84,63 @@ def plot_fit(ds, path) -> None:
                 axc.pcolormesh(x, ds[dims[i]].values * ys, m, shading="nearest", cmap="Blues")
                 axc.set_ylabel(yl if j == 0 else "")
                 _set_scale(axc.set_yscale, ds, dims[i])
+                kx = str(ds[dims[j]].attrs.get("sweep_key", dims[j]))
+                ky = str(ds[dims[i]].attrs.get("sweep_key", dims[i]))
+                keys = list(ds["parameter"].values)
+                if kx in keys and ky in keys:
+                    axc.plot(float(ds["median"].sel(parameter=kx)) * xi_scale,
+                             float(ds["median"].sel(parameter=ky)) * ys, "+", color="C1",
+                             ms=9, mew=1.6)
+                    tx, ty = _truth(ds, kx), _truth(ds, ky)
+                    if tx is not None and ty is not None:
+                        axc.plot(tx * xi_scale, ty * ys, "*", color="C3", ms=10,
+                                 mec="white", mew=0.6)
+                axc.set_xlabel(xi_label if i == n - 1 else "")
             _set_scale(axc.set_xscale, ds, dims[j])
-            axc.set_xlabel(xi_label if i == n - 1 else "")
+    if n >= 2:              # the empty upper right of the corner: what the data measure
+        axt = fig.add_subplot(grid[1, n - 1])
+        axt.axis("off")
+        axt.text(0.0, 1.0, "\n".join(_measured_lines(ds)), va="top", ha="left", fontsize=7,
+                 transform=axt.transAxes)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _measured_lines(ds) -> list:
+    """The derived quantities' medians and 68 % intervals and the degeneracies, wrapped for
+    the corner's empty panel."""
+    lines = []
+    if "derived" in ds.coords:
+        lines.append("derived (median, 68 %):")
+        for name in ds["derived"].values:
+            r = ds.sel(derived=name)
+            u = str(r["derived_units"].values)
+            u = "" if u in ("1", "") else f" {u}"
+            lines.append(f"  {name} {float(r['derived_median']):.3g} "
+                         f"[{float(r['derived_low68']):.3g}, {float(r['derived_high68']):.3g}]{u}")
+    for text in json.loads(ds.attrs.get("degeneracy", "[]")):
+        lines.extend(textwrap.wrap(text, 48))
+    return lines
+
+
+def _truth(ds, key: str):
+    """The true value of ``key`` stored in the result (``truth``), or None when unknown."""
+    if "truth" not in ds or key not in ds["parameter"].values:
+        return None
+    value = float(ds["truth"].sel(parameter=key))
+    return value if np.isfinite(value) else None
+
+
+def _headline(r, scale: float) -> str:
+    """A diagonal panel's title: the one-sided bound, or the median and its 68 % interval, in
+    the panel's unit."""
+    def f(x):
+        return f"{float(x) * scale:.3g}"
+    kind = int(r["bound"]) if "bound" in r else 0
+    if kind in (1, 2):
+        return f"{'>' if kind == 1 else '<'} {f(r['bound95'])} (95 %), median {f(r['median'])}"
+    return f"median {f(r['median'])} [{f(r['low68'])}, {f(r['high68'])}] (68 %)"
 
 
 def _mv_panel(ax, ds) -> None:
@@ -126,9 +195,10 @@ def _scale_of(ds, dim: str) -> str:
 
 
 def _set_scale(setter, ds, dim: str) -> None:
-    """A log axis for ln-interpolated values, a logit axis for -ln(1 - x) ones; labels on the
-    major ticks only (a decade and a half of grain sizes would label every minor tick)."""
-    from matplotlib.ticker import NullFormatter
+    """A log axis for ln-interpolated values (ticks at 1, 2, 5 times the powers of ten,
+    written out), a logit axis for -ln(1 - x) ones; labels on the major ticks only (a decade
+    and a half of grain sizes would label every minor tick)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
     scale, values = _scale_of(ds, dim), ds[dim].values
     if scale == "log" and values.min() > 0:
         setter("log")
@@ -138,9 +208,12 @@ def _set_scale(setter, ds, dim: str) -> None:
         return
     axis = setter.__self__.xaxis if setter.__name__ == "set_xscale" else setter.__self__.yaxis
     axis.set_minor_formatter(NullFormatter())
+    if scale == "log":      # 1-2-5 values written out: a grid spans a decade or two at most
+        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
 
 
 def _cells(values: np.ndarray, scale: str) -> np.ndarray:
     """Trapezoid widths of the points in their interpolation coordinate: mass / width is the
     density the prior is uniform in."""
-    return _trapezoid(SCALES[scale][0](values)) if values.size > 1 else np.ones(1)
+    return cell_widths(SCALES[scale][0](values)) if values.size > 1 else np.ones(1)

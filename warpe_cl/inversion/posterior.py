@@ -58,7 +58,7 @@ class GridPosterior:
         """Normalised posterior mass at each point (trapezoid cell volumes in the coordinates)."""
         vol = np.ones(self.loglike.shape)
         for i, c in enumerate(self.coords):
-            w = _trapezoid(c)
+            w = cell_widths(c)
             vol = vol * w.reshape([-1 if j == i else 1 for j in range(len(self.coords))])
         logp = self.loglike - np.nanmax(self.loglike)
         p = np.where(np.isfinite(logp), np.exp(logp), 0.0) * vol
@@ -69,7 +69,7 @@ class GridPosterior:
         return np.unravel_index(int(np.nanargmax(self.loglike)), self.loglike.shape)
 
 
-def _trapezoid(c: np.ndarray) -> np.ndarray:
+def cell_widths(c: np.ndarray) -> np.ndarray:
     """Trapezoid weights of points ``c`` (one point: weight 1)."""
     if c.size == 1:
         return np.ones(1)

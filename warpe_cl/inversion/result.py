@@ -10,10 +10,8 @@ from scipy.stats import chi2 as chi2_dist
 from ..errors import ConfigError
 from ..instrument.footprint import C_M_PER_NS
 from ..io import provenance
+from .derived import CONSTRAINED, variables as measure_variables
 
-#: A parameter whose 95 % interval spans more than this fraction of its prior range (in its
-#: interpolation coordinate) is reported as not constrained.
-UNCONSTRAINED = 0.9
 #: Posterior points drawn for the 68 % band of the fitted waveform.
 BAND_POINTS = 64
 
@@ -146,11 +144,16 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     rows = [r for r in summary["rows"] if r["reported"]]
     names = [r["key"] for r in rows]
     data = {}
-    for col in ("best", "median", "low68", "high68", "low95", "high95", "prior_low",
-                "prior_high", "interval_fraction"):
+    # median and intervals first, the best grid point after them (issue 41)
+    for col in ("median", "low68", "high68", "low95", "high95"):
         data[col] = ("parameter", np.array([r[col] for r in rows], float))
-    data["constrained"] = ("parameter", np.array([r["interval_fraction"] < UNCONSTRAINED
-                                                  for r in rows]))
+    extra, extra_coords, extra_attrs = measure_variables(summary["measure"], summary["rows"])
+    for col in ("bound", "bound95", "width_ratio", "kl_divergence"):
+        data[col] = extra.pop(col)
+    data["constrained"] = ("parameter", data["width_ratio"][1] < CONSTRAINED)
+    data["truth"] = extra.pop("truth")
+    for col in ("best", "prior_low", "prior_high", "interval_fraction"):
+        data[col] = ("parameter", np.array([r[col] for r in rows], float))
     data["units"] = ("parameter", np.array([r["units"] for r in rows]))
     data["log_scale"] = ("parameter", np.array([r["scale"] == "log" for r in rows]))
     data["scale"] = ("parameter", np.array([r["scale"] for r in rows]), {
@@ -167,6 +170,8 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         fine = f"posterior_{axis.short}"
         coords[fine] = (fine, axis.value(final.coords[j]), {"units": axis.units,
                                                              "sweep_key": axis.key})
+    data.update(extra)
+    coords.update(extra_coords)
     data["posterior"] = (tuple(f"posterior_{a.short}" for a in space.free_axes),
                          final.weights(), {"long_name": "posterior mass on the refined grid"})
     data["loglike_nodes"] = (tuple(f"grid_{a.short}" for a in space.free_axes), nodes.loglike,
@@ -213,6 +218,11 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         "loglike_database_error": ((), fit.emulator),
         "loglike_database_sd": ((), fit.emulator_sd),
     })
+    if "adequacy" in summary:
+        ad = summary["adequacy"]
+        data["loglike_database_sd_monte_carlo"] = ((), ad["sigma_monte_carlo"])
+        data["loglike_database_sd_interpolation"] = ((), float(np.hypot.reduce(
+            [0.0] + list(ad["sigma_interpolation"].values()))))
     attrs = provenance({
         "title": "warpe-cl inversion",
         "observed": obs.source,
@@ -225,10 +235,13 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
                                                for k, v in space.point.items()}}),
         "marginalised": json.dumps([r["key"] for r in summary["rows"] if not r["reported"]]),
         "database_error": _database_error(problem.emulator),
+        "database_adequacy": summary["adequacy"]["advice"] if "adequacy" in summary else
+        "not assessed (photon counts, or the database taken as exact)",
         "shots_total": int(used.size),
         "shots_used": n_shots,
         "evaluations": summary["evaluations"],
         "elapsed_s": round(summary["elapsed_s"], 3),
+        **extra_attrs,
         "method": "grid posterior (docs/inversion.md): uniform prior in each axis' "
                   "interpolation coordinate; "
                   + ("aggregated photon-count histogram, Poisson; common arrival integrated, "
@@ -257,7 +270,8 @@ def _database_error(emulator) -> str:
 #: without dimension, or text). ``None`` as units: the parameter's own unit, per row of
 #: ``units`` (one name for all rows when they share it).
 DESCRIPTIONS = {
-    "best": ("parameter value at the largest log-likelihood", None),
+    "best": ("parameter value at the best grid point (largest log-likelihood); a corner of a "
+             "flat ridge can lie outside its own intervals: read median and intervals", None),
     "median": ("posterior median of the parameter", None),
     "low68": ("lower bound of the equal-tailed 68 % posterior interval", None),
     "high68": ("upper bound of the equal-tailed 68 % posterior interval", None),
@@ -267,7 +281,8 @@ DESCRIPTIONS = {
     "prior_high": ("upper end of the uniform prior: the database's largest grid value", None),
     "interval_fraction": ("share of the prior range (in the interpolation coordinate) spanned "
                           "by the 95 % interval", "1"),
-    "constrained": ("whether the 95 % interval spans less than 90 % of the prior range", "1"),
+    "constrained": ("whether width_ratio < 0.5: the 95 % interval is narrower than half the "
+                    "prior's 95 % interval", "1"),
     "units": ("unit of the parameter's values (text)", "1"),
     "log_scale": ("whether the interpolation coordinate is ln(value)", "1"),
     "scale": (None, "1"),
@@ -298,6 +313,10 @@ DESCRIPTIONS = {
                                "1"),
     "loglike_database_sd": ("stated error of the best fit's log-likelihood due to the "
                             "database's own error (0: the database taken as exact)", "1"),
+    "loglike_database_sd_monte_carlo": ("part of loglike_database_sd due to the nodes' Monte "
+                                        "Carlo errors", "1"),
+    "loglike_database_sd_interpolation": ("part of loglike_database_sd due to the "
+                                          "interpolation between nodes", "1"),
     "censored_samples": ("samples at or above the receiver's clipped level, counted as "
                          "censored", "1"),
     "shot": (None, "1"),
