@@ -404,13 +404,20 @@ def derived_measures(space, db, final, tail_after_ns: float, truth: dict | None 
     return out
 
 
+#: A derived quantity "fixes" a degenerate pair only if its 68 % interval spans at most this
+#: factor (BELA pins E to about a factor 3 on granular CO2 where grain size and compacity each
+#: span most of their range).
+PINNED = 3.0
+
+
 def degeneracies(axes, rows: list, derived: list, corr: np.ndarray) -> list:
     """One line per degenerate pair of free keys.
 
     A pair is degenerate when its posterior correlation in the prior's coordinates reaches
     RIDGE_CORRELATION in size, or when a derived quantity that varies along both is
     identified at least twice as well as either (its width ratio below half of each key's)
-    while neither key is itself constrained (both width ratios at least 0.5).
+    while neither key is itself constrained (both width ratios at least 0.5), and its 68 %
+    interval spans at most a factor ``PINNED``.
     The line names the best-identified such quantity with its 68 % interval.
 
     Parameters
@@ -437,8 +444,10 @@ def degeneracies(axes, rows: list, derived: list, corr: np.ndarray) -> list:
             both = [d for d in derived if i in d["depends"] and j in d["depends"]
                     and math.isfinite(d["width_ratio"])]
             # a combination better measured than keys that are themselves poorly measured
+            # (and pinned within a factor PINNED at 68 %, not merely narrower than a prior of
+            # many decades)
             better = [d for d in both if d["width_ratio"] < 0.5 * min(ri, rj)
-                      and min(ri, rj) >= 0.5]
+                      and min(ri, rj) >= 0.5 and d["high68"] <= PINNED * d["low68"]]
             rho = corr[i, j]
             if not (abs(rho) >= RIDGE_CORRELATION or better):
                 continue
