@@ -202,7 +202,7 @@ def test_the_fast_reader_reads_every_file_of_a_thickness_sweep(reference, monkey
         calls.append(args[0])
         return real(*args, **kw)
     monkeypatch.setattr(xr, "load_dataset", counted)
-    ds = warpe_cl.open_database(tmp / "local")
+    ds = warpe_cl.open_database(tmp / "local", store=False)
     assert len(calls) == 1                                  # the template alone
     assert sorted(set(ds["layer_thickness"].values.ravel())) == [0.005, 0.01]
 
