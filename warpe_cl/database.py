@@ -514,7 +514,7 @@ def store_problem(folder, manifests, grid: dict, found: dict, files: bool = True
     The store's SHA-256 (one file) must be the one a manifest's ``store`` entry recorded,
     and that entry must list, for every finished scenario and no other, a SHA-256 that the
     manifests record for its file (:func:`_record_problem`). With ``files``, every scenario
-    file is hashed too, as reading the files does (200 files of 60 kB: 40 ms), and must be
+    file is hashed too, as reading the files does (200 files of 120 kB: 40 ms), and must be
     the very file the store was built from: so a damaged file is named as it always was, and
     a store built from another recorded version of a file is not used.
 
