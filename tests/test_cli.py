@@ -425,7 +425,7 @@ def test_plot_metrics_bad_input_exits_2_with_one_line(tmp_path, capsys, extra, m
 
 def test_import_leaves_the_inversion_for_later():
     """``import warpe_cl`` (every command's start) does not import the inversion, whose
-    scipy.signal and scipy.stats take 0.65 s; ``warpe_cl.invert`` loads it on first use. Nor
+    scipy imports take time; ``warpe_cl.invert`` loads it on first use. Nor
     do the modules of a run or a sweep worker import scipy (the instrument chain imports it
     where it fits or integrates): 0.24 s against 0.60 s with it."""
     code = ("import sys, warpe_cl\n"

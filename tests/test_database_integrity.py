@@ -63,8 +63,10 @@ def db(done_db, tmp_path):
 
 def _hidden(folder: Path) -> list:
     """Hidden names in ``folder`` but the lock files, which stay (docs/cluster.md): the
-    folder's ``.warpe-cl.lock`` and a manifest's ``.<manifest>.lock``."""
-    locks = re.compile(r"^\.(warpe-cl|manifest(-shard-\d+-of-\d+)?\.json)\.lock$")
+    folder's ``.warpe-cl.lock``, the store's ``.database.nc.lock`` and a manifest's
+    ``.<manifest>.lock``."""
+    locks = re.compile(r"^\.(warpe-cl|database\.nc|manifest(-shard-\d+-of-\d+)?\.json)"
+                       r"\.lock$")
     return sorted(p.name for p in folder.glob(".*") if not locks.match(p.name))
 
 
@@ -440,19 +442,20 @@ def test_releasing_a_lock_never_removes_another_holders_file(tmp_path):
 
 def test_a_bad_other_shard_does_not_fail_this_shards_combined_file(preset, tmp_path, capsys,
                                                                    monkeypatch):
-    """open_database refusing the combination (another shard's damaged file) after this
-    shard finished its own work: one warning line, no X.nc, exit 0."""
+    """Reading the folder for the combination refusing it (another shard's damaged file)
+    after this shard finished its own work: one warning line, no X.nc and no store, exit 0."""
     out = tmp_path / "all.nc"
 
-    def refuse(folder, grid=False):
+    def refuse(folder):
         raise ConfigError("its sha256 is not the one recorded\x1b[31m", key="s00001_x.nc")
-    monkeypatch.setattr(sweep_module, "open_database", refuse)
+    monkeypatch.setattr(sweep_module, "read_folder", refuse)
     rc = main(["sweep", str(preset), "--out", str(out), "--quiet"])
     err = [x for x in capsys.readouterr().err.splitlines()
            if not x.startswith("warpe-cl: qualifying")]
     assert rc == 0, err
     assert len(err) == 1 and "s00001_x.nc" in err[0] and "\x1b" not in err[0], err
-    assert not out.exists()
+    assert "database.nc" in err[0] and "all.nc" in err[0]
+    assert not out.exists() and not (tmp_path / "all.sweep" / "database.nc").exists()
 
 
 def test_a_device_error_on_resume_comes_before_files_are_moved(db, monkeypatch):

@@ -3,10 +3,13 @@ Dataset), and any result file or database folder (:func:`load_result`).
 
 A database is the folder ``warpe-cl sweep --out DIR`` writes (:mod:`warpe_cl.sweep`,
 docs/cluster.md): one NetCDF file per finished scenario and one manifest per shard
-(``manifest.json``, or ``manifest-shard-I-of-N.json`` for ``--shard I/N``). :func:`open_database`
-stacks the scenario files of one or several such folders along ``scenario``, reading most of
-them with h5py (:func:`_read_scenario`), which gives the same bits as xarray in a fraction of
-the time.
+(``manifest.json``, or ``manifest-shard-I-of-N.json`` for ``--shard I/N``), and, once the grid
+is complete, its store ``database.nc`` (:data:`STORE`): every scenario in one NetCDF file,
+recorded in a manifest (:func:`store_record`). :func:`open_database` reads a folder's store
+when it matches the manifests and the scenario files' SHA-256s (:func:`store_problem`), and
+otherwise stacks the scenario files of one or several folders along ``scenario``, reading
+most of them with h5py (:func:`_read_scenario`), which gives the same bits as xarray in a
+fraction of the time.
 
 A database defends itself (docs/cluster.md, "What defends a database"): every manifest is
 checked for its format, keys and types before it is used (:func:`check_manifest`); a row's file
@@ -15,7 +18,8 @@ file's own ``sweep_index``, ``sweep_point`` and ``sweep_fingerprint`` must be th
 row; and a file whose manifest recorded its SHA-256 must still have it
 (:func:`file_sha256`). A file that fails any of these is named in one line (ConfigError, exit
 2) with the way out, ``warpe-cl sweep ... --resume``: :func:`open_database` never returns a
-mixture.
+mixture. A store that does not match is not used (one :class:`~warpe_cl.errors.WarpeWarning`
+line) and the files are read instead.
 
 xarray and h5py are imported only where they are used.
 """
@@ -25,22 +29,28 @@ import hashlib
 import json
 import os
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .dataset import as_grid, combine_scenarios
-from .errors import ConfigError, one_line
+from .errors import ConfigError, WarpeWarning, one_line
+from .io import utc_now
 
 __all__ = ["load_result", "open_database", "database_folder", "manifest_name", "read_manifests",
            "finished_scenarios", "h5_attribute", "check_manifest", "scenario_file_name",
-           "file_sha256", "recorded_sha256", "FORMAT", "FORMAT_VERSION"]
+           "file_sha256", "recorded_sha256", "read_folder", "store_record", "store_problem",
+           "rows_sha256", "STORE", "FORMAT", "FORMAT_VERSION"]
 
 MANIFEST_RE = re.compile(r"^manifest(-shard-\d+-of-\d+)?\.json$")
 SCENARIO_FILE_RE = re.compile(r"^s\d{5,}_[0-9a-f]{16}\.nc$")
 FORMAT = "warpe-cl sweep database"
 FORMAT_VERSION = 2            # 2: each done row carries the sha256 of its file
 _STATUSES = ("done", "failed", "pending", "other shard")
+#: The consolidated store of a complete database: every scenario in one NetCDF file, written
+#: by ``warpe-cl sweep`` when the grid is complete and recorded in a manifest (``store``).
+STORE = "database.nc"
 
 
 def scenario_file_name(index: int, key: str, total: int) -> str:
@@ -219,28 +229,55 @@ def h5_attribute(value):
     return value
 
 
+def _h5_values(dataset):
+    """A dataset's values as h5py reads them; text (variable-length or fixed) decoded to
+    ``str``, as xarray's h5netcdf backend gives it."""
+    import h5py
+    info = h5py.check_string_dtype(dataset.dtype)
+    if info is not None:
+        return np.asarray(dataset.asstr()[()], dtype=str)
+    return np.asarray(dataset[()])
+
+
 def _read_scenario(path: Path, template):
     """One scenario file, read with h5py into the layout of ``template`` (a scenario of the
     same grid opened by xarray).
 
     Opening a small file through xarray and h5netcdf costs tens of milliseconds, most of it
     resolving dimension scales; a database holds thousands. Every scenario of a grid shares
-    its dimensions, coordinates and variable attributes, so only the values and the global
-    attributes are read here, the same bits as ``xarray.load_dataset`` gives (tested). A file
-    whose variables or coordinates do not match the template is read by xarray instead.
+    its dimensions, index coordinates and variable attributes, so only the values (the
+    variables' and those of coordinates along a dimension, such as ``layer_thickness``) and
+    the global attributes are read here, the same bits as ``xarray.load_dataset`` gives
+    (tested). A file whose variables, index coordinates or text coordinates do not match the
+    template's is read by xarray instead.
     """
     import h5py
     import xarray as xr
+    variables = template.variables       # Variables, not DataArrays: 10x cheaper to reach
     with h5py.File(path, "r") as h5:
-        same_layout = all(name in h5 and h5[name].shape == template[name].shape
-                          for name in list(template.data_vars) + list(template.coords))
-        same_layout = same_layout and all(
-            np.array_equal(h5[name][()], template[name].values)
-            for name in template.coords if template[name].dtype.kind in "fiu")
-        if same_layout:
+        datasets = {}
+        for name in variables:
+            item = h5.get(name)
+            if not isinstance(item, h5py.Dataset) or item.shape != variables[name].shape:
+                datasets = None
+                break
+            datasets[name] = item
+        values = {}
+        for name in template.coords if datasets is not None else ():
+            have, want = _h5_values(datasets[name]), variables[name].values
+            if name in template.indexes or want.dtype.kind not in "fiub":
+                if not np.array_equal(have, want):    # a dimension's labels, or text
+                    datasets = None
+                    break
+            else:
+                values[name] = have           # numbers along a dimension (layer_thickness)
+        if datasets is not None:
             ds = template.copy(deep=False)     # new Variable objects; the template keeps its data
-            for name, var in template.data_vars.items():
-                ds.variables[name].values = np.asarray(h5[name][()]).astype(var.dtype)
+            out = ds.variables
+            for name in template.data_vars:
+                out[name].values = np.asarray(datasets[name][()]).astype(variables[name].dtype)
+            for name, value in values.items():
+                out[name].values = value.astype(variables[name].dtype)
             ds.attrs = {k: h5_attribute(v) for k, v in h5.attrs.items() if not k.startswith("_")}
             return ds
     return xr.load_dataset(path, engine="h5netcdf")
@@ -263,14 +300,21 @@ def finished_scenarios(folders: list) -> tuple:
         A folder without a manifest, folders of different grids, a file listed as done but
         missing, or no finished scenario.
     """
+    return _finished(folders)[:4]
+
+
+def _finished(folders: list) -> tuple:
+    """:func:`finished_scenarios`, and the manifests read, as (Path, dict) of every folder."""
     grid = None
     fingerprint = None
     failed = {}
     found = {}
+    read = []
     for folder in folders:
         if folder.suffix == ".nc" and not folder.is_dir():
             folder = folder.with_suffix(".sweep")
         manifests = read_manifests(folder)
+        read += manifests
         if not manifests:
             raise ConfigError("is not a warpe-cl sweep database (no manifest.json)",
                               key=str(folder))
@@ -300,21 +344,21 @@ def finished_scenarios(folders: list) -> tuple:
                 found[index] = (path, None)
     if not found:
         raise ConfigError("holds no finished scenario yet", key=", ".join(map(str, folders)))
-    return grid, fingerprint, failed, found
+    return grid, fingerprint, failed, found, read
 
 
-def _checked(path: Path, shas, read):
-    """``read()`` (a scenario file's Dataset) once the file's SHA-256 is one its manifests
-    recorded (``shas``; None: not recorded, version 1); any failure named in one line."""
+def _checked(path: Path, shas, read) -> tuple:
+    """(``read()``, the file's SHA-256): a scenario file's Dataset once its SHA-256 is one its
+    manifests recorded (``shas``; None: not recorded, version 1); any failure named in one
+    line."""
     try:
-        if shas is not None:
-            digest = file_sha256(path)
-            if digest not in shas:
-                raise ConfigError(
-                    f"its sha256 ({digest[:16]}...) is not the one its manifest recorded "
-                    f"({sorted(shas)[0][:16]}...): the file changed after it was written; "
-                    f"{_resume_hint(path.parent)}", key=str(path))
-        return read()
+        digest = file_sha256(path)
+        if shas is not None and digest not in shas:
+            raise ConfigError(
+                f"its sha256 ({digest[:16]}...) is not the one its manifest recorded "
+                f"({sorted(shas)[0][:16]}...): the file changed after it was written; "
+                f"{_resume_hint(path.parent)}", key=str(path))
+        return read(), digest
     except ConfigError:
         raise
     except Exception as err:  # noqa: BLE001 - truncated, HDF5 errors, I/O: one line
@@ -336,7 +380,220 @@ def _check_attributes(ds, path: Path, index: int, fingerprint: str, point: dict)
                               f"{value!r:.80}; {_resume_hint(path.parent)}", key=str(path))
 
 
-def open_database(paths, grid: bool = False):
+def _read_files(grid: dict, fingerprint: str, found: dict) -> tuple:
+    """The finished scenarios' files, each checked (:func:`_checked`,
+    :func:`_check_attributes`), stacked along ``scenario``: (Dataset, index -> the SHA-256 of
+    the file read)."""
+    import xarray as xr
+    rows = {rec["index"]: rec for rec in grid["scenarios"]}
+    indices = sorted(found)
+    datasets, digests = [], {}
+    for i in indices:
+        path, shas = found[i]
+        if datasets:
+            ds, digests[i] = _checked(path, shas, lambda: _read_scenario(path, datasets[0]))
+        else:
+            ds, digests[i] = _checked(path, shas,
+                                      lambda: xr.load_dataset(path, engine="h5netcdf"))
+        _check_attributes(ds, path, i, fingerprint, rows[i]["point"])
+        datasets.append(ds)
+    points = [rows[i]["point"] for i in indices]
+    out = combine_scenarios(datasets, points, {"config": grid.get("preset_yaml", "")})
+    out = out.assign_coords(scenario=("scenario", indices, {
+        "long_name": "index of the scenario in the sweep grid (outer product order)"}))
+    for name in ("sweep_index", "sweep_point"):
+        out.attrs.pop(name, None)
+    return out, digests
+
+
+def _grid_attributes(out, fingerprint: str, total: int, failed: dict, found: dict):
+    """``out`` with the attributes that say what the grid holds, from its manifests:
+    ``sweep_fingerprint``, ``sweep_scenarios_total`` and ``sweep_failed``."""
+    out.attrs.update({
+        "sweep_fingerprint": fingerprint,
+        "sweep_scenarios_total": total,
+        "sweep_failed": json.dumps({str(i): e for i, e in sorted(failed.items())
+                                    if i not in found}),
+    })
+    return out
+
+
+def read_folder(folder) -> tuple:
+    """Every finished scenario of one database folder, read from its scenario files (never
+    from its store), and what the store of these files records.
+
+    Parameters
+    ----------
+    folder : str or path
+        A database folder.
+
+    Returns
+    -------
+    (xarray.Dataset, dict)
+        The Dataset :func:`open_database` returns, and index -> the SHA-256 of the scenario
+        file read for it (:func:`store_record`).
+
+    Raises
+    ------
+    ConfigError
+        As :func:`open_database`.
+    """
+    grid, fingerprint, failed, found = finished_scenarios([Path(folder)])
+    out, digests = _read_files(grid, fingerprint, found)
+    return _grid_attributes(out, fingerprint, len(grid["scenarios"]), failed, found), digests
+
+
+def rows_sha256(rows) -> str:
+    """The SHA-256 of a grid's rows as a manifest lists them: each row's index, point and
+    file (the store's entry records it: an edited or swapped row makes the store unused)."""
+    text = json.dumps([[r["index"], r["point"], r["file"]] for r in rows], sort_keys=True,
+                      default=str, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def store_record(sha256: str, grid: dict, digests: dict) -> dict:
+    """What a manifest records of the store (its ``store`` entry): the file's name and
+    SHA-256, the grid's fingerprint and the SHA-256 of its rows (:func:`rows_sha256`), and
+    the SHA-256 of every scenario file it was built from (index as text -> hex), so that
+    :func:`store_problem` can tell, from hashes alone (no scenario file opened as NetCDF),
+    that the store holds what the manifests vouch for.
+
+    Parameters
+    ----------
+    sha256 : str
+        The store file's SHA-256 (hex), taken once it is flushed to disk.
+    grid : dict
+        A manifest of the grid (its ``fingerprint`` and ``scenarios``).
+    digests : dict
+        Index -> SHA-256 of the scenario file read (:func:`read_folder`).
+
+    Returns
+    -------
+    dict
+        ``file``, ``sha256``, ``fingerprint``, ``rows_sha256``, ``scenarios``,
+        ``written_utc``.
+    """
+    return {"file": STORE, "sha256": sha256, "fingerprint": grid["fingerprint"],
+            "rows_sha256": rows_sha256(grid["scenarios"]),
+            "scenarios": {str(i): digests[i] for i in sorted(digests)},
+            "written_utc": utc_now()}
+
+
+def _hex(value, digits: int = 64) -> bool:
+    return isinstance(value, str) and re.fullmatch(f"[0-9a-f]{{{digits}}}", value) is not None
+
+
+def _record_problem(record, grid: dict, found: dict) -> str | None:
+    """Why a manifest's ``store`` entry does not describe the finished scenarios of now, or
+    None: its form, its fingerprint and rows (``grid``, a manifest of the grid), and every
+    scenario's SHA-256 one its manifests recorded for it (the rule a scenario file is read
+    by, :func:`recorded_sha256`)."""
+    if not isinstance(record, dict) or record.get("file") != STORE \
+            or not isinstance(record.get("scenarios"), dict) \
+            or not all(_hex(v) for v in record["scenarios"].values()):
+        return "its manifest entry is malformed"
+    if record.get("fingerprint") != grid["fingerprint"]:
+        return "it was built for another grid"
+    if record.get("rows_sha256") != rows_sha256(grid["scenarios"]):
+        return "the manifest's rows (points, files) are not those it was built for"
+    built = record["scenarios"]
+    if set(built) != {str(i) for i in found}:
+        missing = sorted(set(found) - {int(i) for i in built if i.isdigit()})
+        return (f"it holds {len(built)} scenarios, the manifests list {len(found)} as done"
+                + (f" (scenario {missing[0]} is not in it)" if missing else ""))
+    for i, (path, shas) in sorted(found.items()):
+        if shas is None or built[str(i)] not in shas:
+            return (f"it was built from another {path.name} (sha256 "
+                    f"{built[str(i)][:16]}...) than the manifests list")
+    return None
+
+
+def store_problem(folder, manifests, grid: dict, found: dict, files: bool = True) -> tuple:
+    """Whether a database folder's store can stand for its scenario files.
+
+    The store's SHA-256 (one file) must be the one a manifest's ``store`` entry recorded,
+    and that entry must list, for every finished scenario and no other, a SHA-256 that the
+    manifests record for its file (:func:`_record_problem`). With ``files``, every scenario
+    file is hashed too, as reading the files does (200 files of 120 kB: 40 ms), and must be
+    the very file the store was built from: so a damaged file is named as it always was, and
+    a store built from another recorded version of a file is not used.
+
+    Parameters
+    ----------
+    folder : path
+        The database folder.
+    manifests : list of (Path, dict)
+        Its manifests (:func:`read_manifests`).
+    grid : dict
+        A manifest of the grid (:func:`finished_scenarios`).
+    found : dict
+        The finished scenarios (:func:`finished_scenarios`).
+    files : bool
+        Hash every scenario file as well.
+
+    Returns
+    -------
+    (dict or None, str or None)
+        (the matching ``store`` entry, None) when the store is good; (None, None) when there
+        is no store; (None, why) when it is not to be used.
+
+    Raises
+    ------
+    ConfigError
+        With ``files``: a scenario file that is unreadable or whose SHA-256 no manifest
+        recorded for it (one line naming it and ``--resume``, as :func:`open_database`).
+    """
+    path = Path(folder) / STORE
+    if not path.is_file():
+        return None, None
+    records = [m["store"] for _, m in manifests if "store" in m]
+    if not records:
+        return None, "no manifest records it (a sweep is running, or was stopped)"
+    try:
+        digest = file_sha256(path)
+    except OSError as err:
+        return None, f"unreadable ({one_line(err)})"
+    matching = [r for r in records if isinstance(r, dict) and r.get("sha256") == digest]
+    if not matching:
+        return None, (f"its sha256 ({digest[:16]}...) is not the one its manifest recorded: "
+                      f"it changed after it was written")
+    record = matching[0]
+    why = _record_problem(record, grid, found)
+    if why is None and files:
+        for i, (scenario, shas) in sorted(found.items()):
+            _, digest = _checked(scenario, shas, lambda: None)
+            if digest != record["scenarios"][str(i)]:
+                why = (f"it was built from another {scenario.name} (sha256 "
+                       f"{record['scenarios'][str(i)][:16]}...) than the folder holds")
+                break
+    return (None, why) if why else (record, None)
+
+
+def _open_store(folder: Path, manifests, grid: dict, found: dict):
+    """A folder's store as the Dataset of its scenario files, or None (no store, or one not
+    to be used: one :class:`~warpe_cl.errors.WarpeWarning` line says why)."""
+    import xarray as xr
+    path = folder / STORE
+    fingerprint = grid["fingerprint"]
+    record, why = store_problem(folder, manifests, grid, found)
+    if record is not None:
+        try:
+            ds = xr.load_dataset(path, engine="h5netcdf")
+            if str(ds.attrs.get("sweep_fingerprint")) != fingerprint or \
+                    [int(i) for i in ds["scenario"].values] != sorted(found):
+                why = "its scenarios are not those its manifest entry lists"
+            else:
+                return ds
+        except Exception as err:  # noqa: BLE001 - truncated, HDF5 errors: the files instead
+            why = f"unreadable ({type(err).__name__}: {one_line(err)})"
+    if why is not None:
+        warnings.warn(f"{path}: not used, {why}; reading the {len(found)} scenario files "
+                      f"instead (`warpe-cl sweep PRESET --out {folder} --resume` writes it "
+                      f"again)", WarpeWarning, stacklevel=3)
+    return None
+
+
+def open_database(paths, grid: bool = False, store: bool = True):
     """One Dataset of every finished scenario of a sweep database.
 
     Parameters
@@ -350,6 +607,14 @@ def open_database(paths, grid: bool = False):
         value (:func:`warpe_cl.as_grid`; ``grain_size`` for
         ``medium.inclusions[0].grain_size``): ``open_database(DIR, grid=True)`` is
         ``as_grid(open_database(DIR))``.
+    store : bool
+        Read one folder's store, ``DIR/database.nc`` (:data:`STORE`, written by ``warpe-cl
+        sweep`` once the grid is complete), instead of its scenario files, when a manifest
+        records it and it matches the manifests and the scenario files (:func:`store_problem`:
+        their SHA-256s, as when the files are read): one file, read in a fraction of a
+        second. A store that does not match (changed, stale, unreadable) is
+        not used, with one warning line (:class:`~warpe_cl.errors.WarpeWarning`), and the
+        files are read. False: always read the files. Several folders: always the files.
 
     Returns
     -------
@@ -361,7 +626,8 @@ def open_database(paths, grid: bool = False):
         parameters and ``scenario_key`` as variables.
         Unfinished scenarios are absent; the attributes ``sweep_scenarios_total``,
         ``sweep_failed`` (JSON: index -> error) and ``sweep_fingerprint`` say what the grid
-        holds.
+        holds. Loaded into memory either way; ``sweep_store`` is the store's name when it
+        was read, absent otherwise.
 
     Raises
     ------
@@ -372,34 +638,19 @@ def open_database(paths, grid: bool = False):
         or whose own index, point or fingerprint is not its row's. The message names the file
         and says to run ``warpe-cl sweep ... --resume``; no Dataset of the others is returned.
     """
-    import xarray as xr
-
     folders = [Path(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
     unstack = grid
-    grid, fingerprint, failed, found = finished_scenarios(folders)
-    rows = {rec["index"]: rec for rec in grid["scenarios"]}
-    indices = sorted(found)
-    datasets = []
-    for i in indices:
-        path, shas = found[i]
-        if datasets:
-            ds = _checked(path, shas, lambda: _read_scenario(path, datasets[0]))
-        else:
-            ds = _checked(path, shas, lambda: xr.load_dataset(path, engine="h5netcdf"))
-        _check_attributes(ds, path, i, fingerprint, rows[i]["point"])
-        datasets.append(ds)
-    points = [rows[i]["point"] for i in indices]
-    out = combine_scenarios(datasets, points, {"config": grid.get("preset_yaml", "")})
-    out = out.assign_coords(scenario=("scenario", indices, {
-        "long_name": "index of the scenario in the sweep grid (outer product order)"}))
-    for name in ("sweep_index", "sweep_point"):
-        out.attrs.pop(name, None)
-    out.attrs.update({
-        "sweep_fingerprint": fingerprint,
-        "sweep_scenarios_total": len(rows),
-        "sweep_failed": json.dumps({str(i): e for i, e in sorted(failed.items())
-                                    if i not in found}),
-    })
+    grid, fingerprint, failed, found, manifests = _finished(folders)
+    out = None
+    if store and len(folders) == 1:
+        folder = next(iter(found.values()))[0].parent
+        out = _open_store(folder, manifests, grid, found)
+        if out is not None:
+            out.attrs["sweep_store"] = STORE
+    if out is None:
+        out, _ = _read_files(grid, fingerprint, found)
+        out.attrs.pop("sweep_store", None)
+    out = _grid_attributes(out, fingerprint, len(grid["scenarios"]), failed, found)
     return as_grid(out) if unstack else out
 
 

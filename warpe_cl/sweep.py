@@ -13,6 +13,11 @@
     wall time, device, versions; rewritten atomically as results come in. One manifest per
     shard, so that shards sharing a folder never write the same file. Each done row records
     the SHA-256 of its file, taken once the file is flushed to disk (``fsync``).
+``DIR/database.nc``
+    The store: the whole grid in one NetCDF file, written when a run ends with every scenario
+    of the grid done (:func:`_consolidate`), recorded in the manifest (``store``: its SHA-256
+    and those of the scenario files it was built from), read by
+    :func:`~warpe_cl.database.open_database` while it matches them.
 ``DIR/rejected/``
     Files ``--resume`` found wrong (another seed or grid, a different SHA-256, unreadable),
     moved aside with a ``.reason.txt`` beside each; never deleted.
@@ -55,9 +60,10 @@ from pathlib import Path
 from . import api, stops
 from .api import scenario_key
 from .config import load_grid
-from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, database_folder, file_sha256,
-                       h5_attribute, manifest_name, open_database, read_manifests,
-                       recorded_sha256, scenario_file_name)
+from .database import (FORMAT, FORMAT_VERSION, MANIFEST_RE, STORE, database_folder,
+                       file_sha256, finished_scenarios, h5_attribute, manifest_name,
+                       open_database, read_folder, read_manifests, recorded_sha256,
+                       scenario_file_name, store_problem, store_record)
 from .errors import ConfigError, one_line, printable
 from .io import json_default, utc_now, versions, write_netcdf, write_text
 from .progress import Progress
@@ -308,6 +314,7 @@ class _Sweep:
     resume: bool = False
     present: set = field(default_factory=set)      # indices whose result file is in the folder
     previous: dict = field(default_factory=dict)   # index -> the done records of the manifests
+    stores: dict = field(default_factory=dict)     # manifest name -> its store entry
     recorded: dict = field(default_factory=dict)   # index -> the SHA-256s its file may have
     seen: dict = field(default_factory=dict)       # manifest name -> stat when fully checked
     checked: dict = field(default_factory=dict)    # index -> (stat, reason, (sha256, photons))
@@ -343,6 +350,7 @@ class SweepSummary:
     wall_time_s: float = 0.0
     finished_in_folder: int = 0     # scenarios of the whole grid with a result file
     combined: Path | None = None
+    store: Path | None = None       # DIR/database.nc when this run wrote it
 
     @property
     def exit_code(self) -> int:
@@ -461,8 +469,9 @@ def _combined_fingerprint(path: Path) -> str | None:
         return None
 
 
-_OURS_RE = re.compile(r"^(s\d{5,}_[0-9a-f]{16}\.nc|\.warpe-cl\.lock|"
-                      r"\.(s\d{5,}_[0-9a-f]{16}\.nc|manifest(-shard-\d+-of-\d+)?\.json)"
+_OURS_RE = re.compile(r"^(s\d{5,}_[0-9a-f]{16}\.nc|database\.nc|\.warpe-cl\.lock|"
+                      r"\.(s\d{5,}_[0-9a-f]{16}\.nc|database\.nc|"
+                      r"manifest(-shard-\d+-of-\d+)?\.json)"
                       r"\.(lock|[0-9a-f]+\.tmp(\.nc|\.json)?))$")
 
 
@@ -491,6 +500,8 @@ def _inspect(sweep: _Sweep) -> None:
                 previous.setdefault(rec["index"], []).append(rec)
     sweep.seen = seen
     sweep.previous = previous
+    sweep.stores = {path.name: manifest["store"] for path, manifest in manifests
+                    if "store" in manifest}
     sweep.recorded = recorded_sha256(manifests)       # the rule open_database follows
     _find_present(sweep)
 
@@ -687,6 +698,8 @@ def _claim(sweep: _Sweep, engine: str) -> tuple:
         finally:
             folder_lock.release()
         _inspect(sweep)                     # every manifest in full, the files present now
+        if name in sweep.stores:            # kept: it is checked against the rows when read
+            manifest.header["store"] = sweep.stores[name]
         if sweep.resume:
             _check_present(sweep)
         summary = SweepSummary(folder=folder, total=len(sweep.scenarios),
@@ -947,18 +960,73 @@ def _run(sweep: _Sweep, workers: Workers, manifest: _Manifest, summary: SweepSum
 
     summary.finished_in_folder = sum((folder / s.file).is_file()
                                      for s in sweep.scenarios if s.valid)
-    if sweep.combined is not None and summary.finished_in_folder == len(sweep.scenarios):
+    if summary.finished_in_folder == len(sweep.scenarios):
         try:
-            combined = open_database(folder)
+            combined = _consolidate(sweep, manifest, summary)
+        except KeyboardInterrupt as err:   # while the store is written: none is left half done
+            err.summary = summary
+            raise
         except ConfigError as err:
-            # Another shard's problem (a damaged file, a manifest): this shard's work is
-            # done; X.nc waits for a --resume that mends the folder.
-            print(printable(f"warpe-cl: warning: {sweep.combined} not written: "
-                            f"{one_line(err)}"), file=sys.stderr)
+            # Another shard's problem (a damaged file, a manifest), or no room: this shard's
+            # work is done; the store and X.nc wait for a --resume that mends the folder.
+            names = " and ".join(str(p) for p in (folder / STORE, sweep.combined) if p)
+            print(printable(f"warpe-cl: warning: {names} not written: {one_line(err)}"),
+                  file=sys.stderr)
             return summary
         # Another shard's last files may be in place before its manifest lists them: the
         # shard that records them writes X.nc then.
-        if combined.sizes["scenario"] == len(sweep.scenarios):
+        if combined is not None and sweep.combined is not None:
             write_netcdf(combined, sweep.combined)
             summary.combined = sweep.combined
     return summary
+
+
+def _consolidate(sweep: _Sweep, manifest: _Manifest, summary: SweepSummary):
+    """Once every scenario of the grid is done: the store, ``DIR/database.nc``, written if
+    it is missing or no longer matches the manifests, and recorded in this run's manifest.
+
+    The store is every scenario of the grid in one NetCDF file, as
+    :func:`~warpe_cl.database.open_database` returns it, so that a database opens in a
+    fraction of a second (docs/cluster.md). It is built from the scenario files read and
+    checked one by one (:func:`~warpe_cl.database.read_folder`), written atomically
+    (:func:`warpe_cl.io.write_netcdf`), flushed to disk and hashed (:func:`_durable`); the
+    manifest's ``store`` entry (:func:`~warpe_cl.database.store_record`) then records its
+    SHA-256 and that of every scenario file it was built from. A store that still matches the
+    manifests (:func:`~warpe_cl.database.store_problem`) is kept as it is and its entry
+    carried into this run's manifest.
+
+    Returns
+    -------
+    xarray.Dataset or None
+        The whole grid (for ``--out X.nc``), or None if the manifests do not list every
+        scenario as done yet (another shard's last files, in place before its manifest lists
+        them: that shard writes the store).
+
+    Raises
+    ------
+    ConfigError
+        A scenario file that fails its checks, or a store that cannot be written.
+    """
+    folder = sweep.folder
+    # One writer at a time: shards finishing together each find the grid complete; the
+    # second, once the first lets go, finds its store good and records it.
+    lock = _Lock.take(folder / f".{STORE}.lock", None)
+    try:
+        lock.claim(utc_now())
+        grid, _, _, found = finished_scenarios([folder])
+        if len(found) != len(sweep.scenarios):
+            return None
+        record, _ = store_problem(folder, read_manifests(folder), grid, found)
+        if record is not None:
+            manifest.header["store"] = record
+            manifest.write(force=True)
+            return open_database(folder) if sweep.combined is not None else None
+        combined, digests = read_folder(folder)
+        _remove_partial(folder, STORE)             # what a killed writer of the store left
+        path = write_netcdf(combined, folder / STORE)
+        manifest.header["store"] = store_record(_durable(path), grid, digests)
+        manifest.write(force=True)
+    finally:
+        lock.release()
+    summary.store = path
+    return combined

@@ -1,6 +1,7 @@
 """The pure-Python helpers of ``tools/bench/bench.py``: the heavy-tail scene T1, the statistics
 over rounds and the reading of the toy walk's output; ``tools/bench/bench_ab.py``'s paired
-ratios; ``tools/bench/nadir_fom.py``'s order of rounds. Nothing here is timed and no toy is run
+ratios; ``tools/bench/nadir_fom.py``'s order of rounds; ``tools/bench/bench_invert.py``'s grid
+and rounds. Nothing here is timed and no toy is run
 (speed is measured by the tools, never in the unit tests). Outside the default run: ``python -m
 pytest tools/bench`` (this folder's conftest.py gives tests/conftest.py's helpers); the engine
 hook that ``bench_ab.py --kernel-only`` times other kernels through is product behaviour,
@@ -152,3 +153,23 @@ def test_nadir_fom_rounds_alternate(monkeypatch, capsys):
     assert lines[1] == ("round 2/3: scattering events/s: nadir off 9, "
                         "nadir, roulette 0.1 8, nadir, roulette 1 7; "
                         "T / T(off): nadir, roulette 0.1 0.8889, nadir, roulette 1 0.7778")
+
+
+def test_bench_invert_grid_and_rounds():
+    """tools/bench/bench_invert.py: ``--grid`` as one size or three, the preset it sweeps,
+    the interleaved order of the measured variants and the text of a median and range."""
+    import bench_invert
+    assert bench_invert.grid_shape("10") == (10, 10, 10)
+    assert bench_invert.grid_shape("8,5,5") == (8, 5, 5)
+    for bad in ("1", "8,5", "8,5,5,2"):
+        with pytest.raises(SystemExit):
+            bench_invert.grid_shape(bad)
+    sweep = bench_invert.bench_preset("8,5,5")["sweep"]
+    assert [len(v) for v in sweep.values()] == [8, 5, 5]          # 200 scenarios
+    assert sweep["medium.inclusions[0].grain_size"][0] == "25 um"
+    assert sweep["medium.thickness"][-1] == "1000 mm"
+    assert bench_invert.bench_preset(10)["name"] == "bench_invert_10x10x10"
+    assert bench_invert.interleaved(["store", "files"], 3) == \
+        ["store", "files", "files", "store", "store", "files"]
+    assert bench_invert.spread_text([3.0, 1.0, 2.0]) == "2 s [1, 3] (3 rounds)"
+    assert bench_invert.spread([0.5]) == {"median": 0.5, "min": 0.5, "max": 0.5, "n": 1}

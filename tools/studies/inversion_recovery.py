@@ -4,6 +4,7 @@
 
     python tools/studies/inversion_recovery.py invert FAMILY --work DIR
                                                [--instruments bela,gala] [--jobs 1] [--budget 600]
+                                               [--instrument NAME|FILE.yaml ...]
     python tools/studies/inversion_recovery.py report FAMILY [FAMILY ...] --work DIR
                                                [--out TABLES]
 
@@ -16,6 +17,13 @@ by ``tools/studies/inversion_study.py``). For every finished injection and instr
   point, the posterior median and the 68 % and 95 % intervals of every key, the optical depth
   of the injected layer, the fit's χ²/dof and p-value, the inversion's time, and the
   interpolation error (:func:`interpolation_error`).
+
+An instrument label of ``injections.csv`` is inverted with (:func:`instrument_source`): the
+file given as ``--instrument FILE`` whose name (without ``.yaml``) is the label, else the copy
+``inject`` kept in ``DIR/FAMILY/instruments/LABEL.yaml``, else the bundled instrument or the
+study's ``presets/study/instruments/LABEL.yaml``. ``--instrument`` (a bundled name or any
+instrument YAML file, repeatable) also chooses the instruments to invert, with
+``--instruments``.
 
 ``report`` prints Markdown tables (docs/inversion.md §7) from the ``recovery_*.csv`` files:
 
@@ -46,7 +54,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from inversion_study import StudyError, run_verbs, write_csv  # noqa: E402
+from inversion_study import (StudyError, instrument_label, is_instrument_file,  # noqa: E402
+                             run_verbs, write_csv)
 
 #: A 95 % interval wider than this fraction of the prior range: the key is not constrained.
 UNCONSTRAINED = 0.9
@@ -142,17 +151,73 @@ _STATE = {}
 STUDY_INSTRUMENTS = Path(__file__).resolve().parents[2] / "presets" / "study" / "instruments"
 
 
-def instrument_source(label: str) -> str:
-    """What ``load_instrument`` takes for an instrument label of ``injections.csv``: a bundled
-    name, or ``presets/study/instruments/LABEL.yaml``."""
+def instrument_source(label: str, family_dir: Path | None = None,
+                      given: dict | None = None) -> str:
+    """What ``load_instrument`` takes for an instrument label of ``injections.csv``.
+
+    Parameters
+    ----------
+    label : str
+        The label (a bundled name, or an instrument file's name without ``.yaml``).
+    family_dir : Path, optional
+        The study's family folder: ``instruments/LABEL.yaml`` there is the copy ``inject``
+        simulated the injections with.
+    given : dict, optional
+        Label -> an instrument file given with ``--instrument FILE`` (first choice).
+
+    Returns
+    -------
+    str
+        The file given, the family's copy, the bundled name, or
+        ``presets/study/instruments/LABEL.yaml``, first found.
+
+    Raises
+    ------
+    StudyError
+        None of these.
+    """
     from warpe_cl.config.instrument_fields import BUILTIN
+    if given and label in given:
+        return str(given[label])
+    if family_dir is not None and (family_dir / "instruments" / f"{label}.yaml").is_file():
+        return str(family_dir / "instruments" / f"{label}.yaml")
     if label in BUILTIN:
         return label
     path = STUDY_INSTRUMENTS / f"{label}.yaml"
     if not path.is_file():
         raise StudyError(f"instrument {label!r} is neither bundled ({', '.join(BUILTIN)}) nor "
-                         f"in {STUDY_INSTRUMENTS}")
+                         f"in {STUDY_INSTRUMENTS}; give its file with --instrument FILE")
     return str(path)
+
+
+def given_instruments(values: list | None) -> dict:
+    """``--instrument`` values -> label -> the file (absolute) or the bundled name.
+
+    Raises
+    ------
+    StudyError
+        A file that is missing or not a valid instrument (warpe-cl's one line), or two of one
+        label.
+    """
+    from warpe_cl.errors import ConfigError
+    from warpe_cl.instrument import load_instrument
+    out = {}
+    for value in values or []:
+        label = instrument_label(str(value))
+        source = str(Path(value).expanduser().resolve()) if is_instrument_file(value) else value
+        if is_instrument_file(value) and not Path(source).is_file():
+            raise StudyError(f"--instrument {value}: no such file")
+        if label in out:
+            raise StudyError(f"--instrument {value}: a second instrument labelled {label!r}")
+        if is_instrument_file(value):
+            try:
+                load_instrument(source)
+            except ConfigError as exc:
+                raise StudyError(f"--instrument {value}: {exc}") from None
+            out[label] = source
+        else:
+            out[label] = None           # a label: found by instrument_source
+    return out
 
 
 def _setup(db_path: str):
@@ -163,11 +228,11 @@ def _setup(db_path: str):
     _STATE.update(db=db, space=Space(db, source=db_path), forward={})
 
 
-def _forward(label: str):
+def _forward(label: str, source: str):
     if label not in _STATE["forward"]:
         from warpe_cl.instrument import load_instrument
         from warpe_cl.inversion.forward import Forward
-        _STATE["forward"][label] = Forward(load_instrument(instrument_source(label)))
+        _STATE["forward"][label] = Forward(load_instrument(source))
     return _STATE["forward"][label]
 
 
@@ -176,21 +241,22 @@ def _invert_one(task) -> tuple:
     import xarray as xr
     from warpe_cl import invert
     from warpe_cl.surface import response
-    family_dir, row, keys, label, budget = task
+    family_dir, row, keys, label, source, budget = task
     folder = family_dir / row[label].rsplit("/", 1)[0]
     fit_path = folder / f"fit_{label}.nc"
     try:
         if fit_path.exists():
             fit = xr.load_dataset(fit_path)
         else:
-            fit = invert(family_dir / row[label], _STATE["db"], instrument_source(label),
+            fit = invert(family_dir / row[label], _STATE["db"], source,
                          budget=budget, database_source=str(family_dir / "db"))
             tmp = fit_path.with_name(f".{fit_path.name}.tmp")
             fit.to_netcdf(tmp, engine="h5netcdf")
             tmp.replace(fit_path)
         surface = xr.load_dataset(family_dir / row["surface"])
         truth = {k: float(row[k]) for k in keys}
-        interp = interpolation_error(_STATE["space"], _forward(label), truth, response(surface))
+        interp = interpolation_error(_STATE["space"], _forward(label, source), truth,
+                                     response(surface))
         return label, row["index"], recovery_row(row, keys, fit, surface, interp), ""
     except Exception as exc:            # one failure must not stop the study
         return label, row["index"], None, f"{type(exc).__name__}: {exc}"
@@ -199,19 +265,23 @@ def _invert_one(task) -> tuple:
 def cmd_invert(args) -> int:
     """``invert``: fit files and ``recovery_LABEL.csv`` of a family."""
     family_dir = Path(args.work) / args.family
+    given = given_instruments(args.instrument)
     rows, keys, labels = read_injections(family_dir)
-    wanted = [s.strip() for s in args.instruments.split(",") if s.strip()] or labels
+    wanted = [s.strip() for s in args.instruments.split(",") if s.strip()] + \
+        [label for label in given if label not in args.instruments.split(",")]
+    wanted = wanted or labels
     missing = [w for w in wanted if w not in labels]
     if missing:
         raise StudyError(f"{family_dir}/injections.csv has no {missing[0]} files "
                          f"(instruments: {', '.join(labels)})")
-    for label in wanted:
-        instrument_source(label)
+    files = {label: source for label, source in given.items() if source is not None}
+    sources = {label: instrument_source(label, family_dir, files) for label in wanted}
     db = family_dir / "db"
     if not db.is_dir():
         raise StudyError(f"{db}: no database; run tools/studies/inversion_study.py build first")
     done = [r for r in rows if r["status"] == "done"]
-    tasks = [(family_dir, r, keys, label, args.budget) for label in wanted for r in done]
+    tasks = [(family_dir, r, keys, label, sources[label], args.budget)
+             for label in wanted for r in done]
     results = {label: {} for label in wanted}
     failed = 0
     start = time.perf_counter()
@@ -395,6 +465,9 @@ def parser() -> argparse.ArgumentParser:
     i.add_argument("--work", required=True)
     i.add_argument("--instruments", default="",
                    help="comma-separated labels (default: every instrument of the injections)")
+    i.add_argument("--instrument", action="append", metavar="NAME|FILE",
+                   help="an instrument to invert with: a label of the injections or any "
+                        "instrument YAML file, whose name is its label (repeatable)")
     i.add_argument("--jobs", type=int, default=1, help="inversions at once (1)")
     i.add_argument("--budget", type=int, default=600, help="refined grid points (600)")
     i.set_defaults(func=cmd_invert)

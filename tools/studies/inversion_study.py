@@ -5,6 +5,7 @@
     python tools/studies/inversion_study.py build FAMILY --work DIR [--photons N]
     python tools/studies/inversion_study.py inject FAMILY --work DIR [--count 50] [--seed 7]
                                            [--photons N] [--instruments bela,gala]
+                                           [--instrument NAME|FILE.yaml ...]
 
 ``FAMILY`` names a preset of ``presets/study/`` (``gran_co2``, ``slab_h2o_co2``, ``gran_h2o``),
 a scenario preset with a ``sweep:`` block; ``--preset FILE`` takes another file instead.
@@ -15,7 +16,15 @@ Everything lands in ``DIR/FAMILY/``:
 - ``inj/iNNN/``: injection NNN: ``preset.yaml`` (the family's preset without its sweep block,
   the drawn values set), ``surface.nc`` (``warpe-cl run``), one ``INSTRUMENT.nc`` per
   instrument (``warpe-cl instrument``) and ``log.txt`` (the commands and what they printed);
-- ``injections.csv``: one row per injection (columns in :func:`csv_columns`).
+- ``injections.csv``: one row per injection (columns in :func:`csv_columns`);
+- ``instruments/LABEL.yaml``: a copy of every instrument given as a file, which the
+  injections are simulated with and ``tools/studies/inversion_recovery.py`` inverts with.
+
+The instruments are bundled names (``bela``, ``gala``, ``atlas``), files of
+``presets/study/instruments/`` by name (``bela_5ns``), or any instrument YAML file
+(``--instrument path/to/mla.yaml``, repeatable; ``--instruments`` takes a comma-separated
+list of either). Each is checked (:func:`resolve_instruments`) before anything runs; a file's
+label, its file and column stem, is its name without ``.yaml``.
 
 The injected points are drawn uniformly inside the grid's range of every swept key, in the
 coordinate the key's nodes are evenly spaced in (:func:`detect_spacing`: linear, log, or log of
@@ -305,6 +314,101 @@ def instrument_label(instrument: str) -> str:
     return Path(instrument).stem if instrument.endswith((".yaml", ".yml")) else instrument
 
 
+#: Instrument files of the study, found by their name (``bela_5ns``).
+STUDY_INSTRUMENTS = STUDY_PRESETS / "instruments"
+
+
+def is_instrument_file(instrument: str) -> bool:
+    """Whether ``--instrument`` names a file: a ``.yaml``/``.yml`` name or a path."""
+    return str(instrument).endswith((".yaml", ".yml")) or "/" in str(instrument) \
+        or os.sep in str(instrument)
+
+
+def resolve_instruments(instruments: list) -> list:
+    """Every instrument of a study checked before anything runs: (label, what ``warpe-cl
+    instrument --instrument`` takes).
+
+    Parameters
+    ----------
+    instruments : list of str
+        Bundled names (``bela``), names of ``presets/study/instruments/`` (``bela_5ns``), or
+        instrument YAML files (any path).
+
+    Returns
+    -------
+    list of (str, str)
+        The label (name, or file stem) and the bundled name or the file's absolute path.
+
+    Raises
+    ------
+    StudyError
+        A file that is missing or not a valid instrument (the one line of warpe-cl's
+        :class:`~warpe_cl.errors.ConfigError`), a name that is neither bundled nor a study
+        instrument, or two instruments of one label.
+    """
+    from warpe_cl.config.instrument_fields import BUILTIN
+    from warpe_cl.errors import ConfigError
+    from warpe_cl.instrument import load_instrument
+    out = []
+    for instrument in instruments:
+        label = instrument_label(str(instrument))
+        if is_instrument_file(instrument):
+            path = Path(instrument).expanduser().resolve()
+            if not path.is_file():
+                raise StudyError(f"--instrument {instrument}: no such file; give a bundled "
+                                 f"instrument ({', '.join(BUILTIN)}) or an instrument YAML "
+                                 f"file")
+            source = str(path)
+        elif label in BUILTIN:
+            source = label
+        elif (STUDY_INSTRUMENTS / f"{label}.yaml").is_file():
+            source = str(STUDY_INSTRUMENTS / f"{label}.yaml")
+        else:
+            raise StudyError(f"--instrument {instrument}: neither a bundled instrument "
+                             f"({', '.join(BUILTIN)}), nor one of {STUDY_INSTRUMENTS}, nor "
+                             f"a YAML file")
+        try:
+            load_instrument(source)
+        except ConfigError as exc:
+            raise StudyError(f"--instrument {instrument}: {exc}") from None
+        if label in {lb for lb, _ in out}:
+            raise StudyError(f"--instrument {instrument}: a second instrument labelled "
+                             f"{label!r}; rename one of the files")
+        out.append((label, source))
+    return out
+
+
+def stage_instruments(family_dir: Path, resolved: list) -> list:
+    """Copy every instrument given as a file into ``family_dir/instruments/LABEL.yaml``
+    (the study's own record of it) and return (label, what ``warpe-cl instrument`` takes):
+    bundled names unchanged, files as their copy.
+
+    Raises
+    ------
+    StudyError
+        ``instruments/LABEL.yaml`` already holds another file (a study keeps the instrument
+        its injections were simulated with).
+    """
+    out = []
+    for label, source in resolved:
+        if not Path(source).is_file():
+            out.append((label, source))
+            continue
+        copy_path = family_dir / "instruments" / f"{label}.yaml"
+        text = Path(source).read_text(encoding="utf-8")
+        if copy_path.is_file() and copy_path.read_text(encoding="utf-8") != text:
+            raise StudyError(f"{copy_path} holds another instrument {label!r} than {source}: "
+                             f"the study's injections were simulated with it; give the file "
+                             f"another name, or another --work")
+        copy_path.parent.mkdir(parents=True, exist_ok=True)
+        if not copy_path.is_file():
+            tmp = copy_path.with_name(f".{copy_path.name}.tmp")
+            tmp.write_text(text, encoding="utf-8")
+            tmp.replace(copy_path)
+        out.append((label, str(copy_path)))
+    return out
+
+
 def plan_injections(raw: dict, count: int, seed: int, photons: int, instruments: list,
                     spacing: dict | None = None) -> tuple:
     """The injections of a study: their values, seeds and files, before anything runs.
@@ -457,9 +561,13 @@ def default_photons(raw: dict, db: Path, photons: float | None) -> int:
     return found if found is not None else int(float(raw["simulation"]["photons"]))
 
 
-def run_injection(row: dict, raw: dict, family_dir: Path, instruments: list) -> str:
+def run_injection(row: dict, raw: dict, family_dir: Path, instruments: list,
+                  sources: dict | None = None) -> str:
     """Simulate one injection (its preset, surface and instrument files), skipping the files
-    that exist. Returns its status and prints one line."""
+    that exist. Returns its status and prints one line. ``instruments``: labels;
+    ``sources``: label -> what ``warpe-cl instrument --instrument`` takes (default: the
+    label)."""
+    sources = sources or {}
     folder = family_dir / row["surface"].rsplit("/", 1)[0]
     folder.mkdir(parents=True, exist_ok=True)
     log = folder / "log.txt"
@@ -484,7 +592,8 @@ def run_injection(row: dict, raw: dict, family_dir: Path, instruments: list) -> 
         if out.exists():
             continue
         rc, seconds, message = run_logged(warpe_cl_command(
-            "instrument", surface, "--instrument", instrument, "--seed", row[f"{label}_seed"],
+            "instrument", surface, "--instrument", sources.get(label, instrument),
+            "--seed", row[f"{label}_seed"],
             "--out", out, "--quiet"), log)
         times.append(f"{label} {seconds:.1f} s")
         if rc:
@@ -515,12 +624,21 @@ def cmd_build(args) -> int:
     return rc
 
 
+def chosen_instruments(instruments: str | None, instrument: list | None) -> list:
+    """The instruments of ``inject``: ``--instruments A,B`` then every ``--instrument``;
+    ``bela,gala`` when neither is given."""
+    if instruments is None:
+        instruments = "" if instrument else "bela,gala"
+    return [s.strip() for s in instruments.split(",") if s.strip()] + list(instrument or [])
+
+
 def cmd_inject(args) -> int:
     """``inject``: draw the injections, write their presets, surfaces, instrument files and
     ``injections.csv`` in WORK/FAMILY."""
     raw = read_preset(preset_path(args.family, args.preset))
     family_dir = Path(args.work) / args.family
-    instruments = [s.strip() for s in args.instruments.split(",") if s.strip()]
+    resolved = resolve_instruments(chosen_instruments(args.instruments, args.instrument))
+    instruments = [label for label, _ in resolved]
     photons = default_photons(raw, family_dir / "db", args.photons)
     axes, kinds, rows = plan_injections(raw, args.count, args.seed, photons, instruments,
                                         parse_spacings(args.spacing))
@@ -528,6 +646,7 @@ def cmd_inject(args) -> int:
     csv_path = family_dir / "injections.csv"
     check_previous(csv_path, rows, columns)
     family_dir.mkdir(parents=True, exist_ok=True)
+    sources = dict(stage_instruments(family_dir, resolved))
     print(f"inject {args.family}: {args.count} points, seed {args.seed}, {photons} photons, "
           f"instruments {', '.join(instruments) or 'none'}; spacing "
           + ", ".join(f"{k} {v}" for k, v in kinds.items()), flush=True)
@@ -536,7 +655,7 @@ def cmd_inject(args) -> int:
     write_csv(csv_path, rows, columns)
     start = time.perf_counter()
     for row in rows:
-        row["status"] = run_injection(row, raw, family_dir, instruments)
+        row["status"] = run_injection(row, raw, family_dir, instruments, sources)
         write_csv(csv_path, rows, columns)
     failed = [r["index"] for r in rows if r["status"] != "done"]
     which = f" (injections {', '.join(map(str, failed))})" if failed else ""
@@ -565,8 +684,12 @@ def parser() -> argparse.ArgumentParser:
     common(i)
     i.add_argument("--count", type=int, default=50, help="injections to draw (50)")
     i.add_argument("--seed", type=int, default=7, help="seed of the draw (7)")
-    i.add_argument("--instruments", default="bela,gala",
-                   help="comma-separated instruments (names or YAML files); '' for none")
+    i.add_argument("--instruments", default=None,
+                   help="comma-separated instruments (names or YAML files; default bela,gala "
+                        "unless --instrument is given); '' for none")
+    i.add_argument("--instrument", action="append", metavar="NAME|FILE",
+                   help="one more instrument: a bundled name or any instrument YAML file "
+                        "(repeatable)")
     i.add_argument("--spacing", action="append", metavar="KEY=KIND",
                    help="draw KEY in linear, log or log1m coordinates instead of the "
                         "detected one (repeatable)")

@@ -74,3 +74,35 @@ def test_unknown_instrument_label_is_refused():
     assert recovery.instrument_source("bela_5ns").endswith("bela_5ns.yaml")
     with pytest.raises(StudyError):
         recovery.instrument_source("mla")
+
+
+def test_an_instrument_file_from_anywhere(tmp_path):
+    """Issue 41: the instrument of a label is the file given with --instrument, else the copy
+    inject kept in the family folder; not only bundled or study instruments."""
+    mla = "name: mla\nbase: bela\nadc:\n  sampling_interval: \"5 ns\"\n"
+    family = tmp_path / "gran_co2"
+    (family / "instruments").mkdir(parents=True)
+    (family / "instruments" / "mla.yaml").write_text(mla)
+    assert recovery.instrument_source("mla", family) == str(family / "instruments" / "mla.yaml")
+    own = tmp_path / "mine" / "mla.yaml"
+    own.parent.mkdir()
+    own.write_text(mla)
+    given = recovery.given_instruments([str(own), "bela"])
+    assert given == {"mla": str(own.resolve()), "bela": None}
+    assert recovery.instrument_source("mla", family, {"mla": given["mla"]}) == str(own.resolve())
+    assert recovery.instrument_source("bela", family) == "bela"
+    with pytest.raises(StudyError, match="--instrument FILE"):
+        recovery.instrument_source("other", family)
+
+
+def test_bad_instrument_files_are_refused_before_any_inversion(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: bad\nbase: bela\nadcc: {}\n")
+    with pytest.raises(StudyError, match="adcc"):
+        recovery.given_instruments([str(bad)])
+    with pytest.raises(StudyError, match="no such file"):
+        recovery.given_instruments([str(tmp_path / "missing.yaml")])
+    rc = recovery.main(["invert", "gran_co2", "--work", str(tmp_path), "--instrument",
+                        str(bad)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "adcc" in err[0]

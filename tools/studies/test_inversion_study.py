@@ -191,3 +191,70 @@ def test_photons_default_to_the_database(tmp_path):
     assert study.database_photons(db) == 400000
     assert study.default_photons(raw, db, None) == 400000             # the database's
     assert study.default_photons(raw, db, 1e5) == 100000              # --photons
+
+
+# --------------------------------------------------------------------------- instruments
+
+MLA = """\
+name: mla
+description: a user's instrument, BELA's chain sampled every 5 ns
+base: bela
+adc:
+  sampling_interval: "5 ns"
+"""
+
+
+def test_any_instrument_file_is_accepted_and_kept_with_the_study(tmp_path):
+    """Issue 41: an instrument file from anywhere, beside bundled and study names; a file is
+    copied into the family's instruments/ folder, which the injections are simulated with."""
+    mla = tmp_path / "elsewhere" / "mla.yaml"
+    mla.parent.mkdir()
+    mla.write_text(MLA)
+    resolved = study.resolve_instruments(["bela", str(mla), "bela_5ns"])
+    assert [label for label, _ in resolved] == ["bela", "mla", "bela_5ns"]
+    assert resolved[0][1] == "bela" and resolved[1][1] == str(mla.resolve())
+    assert resolved[2][1].endswith("presets/study/instruments/bela_5ns.yaml")
+    family = tmp_path / "work" / "gran_co2"
+    staged = dict(study.stage_instruments(family, resolved))
+    assert staged["bela"] == "bela"
+    assert staged["mla"] == str(family / "instruments" / "mla.yaml")
+    assert (family / "instruments" / "mla.yaml").read_text() == MLA
+    assert (family / "instruments" / "bela_5ns.yaml").is_file()
+    assert dict(study.stage_instruments(family, resolved)) == staged     # again: unchanged
+    mla.write_text(MLA.replace("5 ns", "2 ns"))
+    with pytest.raises(study.StudyError, match="another instrument 'mla'"):
+        study.stage_instruments(family, study.resolve_instruments([str(mla)]))
+
+
+def test_chosen_instruments():
+    assert study.chosen_instruments(None, None) == ["bela", "gala"]
+    assert study.chosen_instruments(None, ["a.yaml"]) == ["a.yaml"]
+    assert study.chosen_instruments("bela", ["a.yaml"]) == ["bela", "a.yaml"]
+    assert study.chosen_instruments("", None) == []
+
+
+@pytest.mark.parametrize("content, name, message", [
+    (None, "missing.yaml", "no such file"),
+    (MLA.replace("adc:", "adcc:"), "bad.yaml", "adcc"),
+    (MLA.replace('"5 ns"', "5"), "unitless.yaml", "sampling_interval"),
+    (None, "mla", "neither a bundled instrument"),
+])
+def test_bad_instruments_are_refused_in_one_line(tmp_path, capsys, content, name, message):
+    path = tmp_path / name
+    if content is not None:
+        path.write_text(content)
+    value = str(path) if name.endswith(".yaml") else name
+    with pytest.raises(study.StudyError, match=message) as caught:
+        study.resolve_instruments([value])
+    assert "\n" not in str(caught.value)
+    rc = study.main(["inject", "gran_co2", "--work", str(tmp_path / "w"), "--instrument", value])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and message in err[0]
+    assert not (tmp_path / "w").exists()                      # refused before anything
+
+
+def test_two_instruments_of_one_label_are_refused(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "bela.yaml").write_text(MLA.replace("name: mla", "name: bela"))
+    with pytest.raises(study.StudyError, match="second instrument labelled 'bela'"):
+        study.resolve_instruments(["bela", str(tmp_path / "a" / "bela.yaml")])

@@ -85,8 +85,8 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     started = time.perf_counter()
     fix = dict(fix or {})
     nuisance = {k: fix.pop(k) for k in list(fix) if k in NUISANCES}
-    # every option is checked against the database's manifests before its scenario files are
-    # read (a folder of a large sweep takes 40-60 s to load)
+    # every option is checked against the database's manifests before the database is read
+    # (its store, or every scenario file of a folder without one)
     head = header(database, database_source)
     if head is not None:
         check_complete(head)

@@ -3,8 +3,9 @@
 swept key with a value in its unit and range.
 
 A database folder's manifests say its swept keys, their values at every grid point and which
-scenarios are finished (:func:`header`): reading them takes milliseconds where loading the
-scenario files of a large sweep took 40 to 60 s, so a typo in an option is refused at once.
+scenarios are finished (:func:`header`): reading them takes milliseconds, less than reading the
+database (its store, or every scenario file of a folder without one: seconds for a large
+sweep), so a typo in an option is refused at once.
 """
 from __future__ import annotations
 

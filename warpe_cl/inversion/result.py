@@ -5,7 +5,7 @@ import json
 import math
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtrc     # chi2's survival function, without scipy.stats
 
 from ..errors import ConfigError
 from ..instrument.footprint import C_M_PER_NS
@@ -211,7 +211,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         "chi2": ((), fit.chi2),
         "dof": ((), dof),
         "chi2_per_dof": ((), fit.chi2 / dof if dof > 0 else np.nan),
-        "p_value": ((), float(chi2_dist.sf(fit.chi2, dof)) if dof > 0 else np.nan, {
+        "p_value": ((), float(chdtrc(dof, fit.chi2)) if dof > 0 else np.nan, {
             "long_name": "P(chi2 >= observed) for the best fit"}),
         "censored_samples": ((), fit.censored),
         "loglike": ((), best.loglike),
