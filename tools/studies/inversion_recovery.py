@@ -130,6 +130,9 @@ def recovery_row(row: dict, keys: list, fit, surface_ds, interp: dict) -> dict:
             out[f"{key}.{stat}"] = float(fit[stat].values[j])
         out[f"{key}.scale"] = (str(fit["scale"].values[j]) if "scale" in fit else
                                "log" if bool(fit["log_scale"].values[j]) else "linear")
+        out[f"{key}.width_ratio"] = (float(fit["width_ratio"].values[j])
+                                     if "width_ratio" in fit else math.nan)
+        out[f"{key}.rank"] = rank_of_truth(fit, key, float(row[key]), out[f"{key}.scale"])
     for name in FIT_SCALARS:
         out[name] = float(fit[name].values)
     for name, kind in FIT_ATTRS.items():
@@ -138,11 +141,30 @@ def recovery_row(row: dict, keys: list, fit, surface_ds, interp: dict) -> dict:
     return out
 
 
+def rank_of_truth(fit, key: str, truth: float, scale: str) -> float:
+    """The posterior's marginal CDF of ``key`` at the truth, in [0, 1]: the normalised rank
+    of the truth among posterior draws, uniform over injections drawn from the prior when
+    the posteriors are calibrated (simulation-based calibration). The marginal of FIT.nc's
+    refined grid, each point's mass spread over its trapezoid cell in the interpolation
+    coordinate ``scale``, as ``warpe_cl.inversion.posterior.intervals`` does."""
+    from warpe_cl.inversion.space import SCALES
+    coord = SCALES[scale][0]
+    dims = list(fit["posterior"].dims)
+    dim = next(d for d in dims if fit.coords[d].attrs.get("sweep_key") == key)
+    mass = fit["posterior"].sum([d for d in dims if d != dim]).values
+    u = coord(np.asarray(fit.coords[dim].values, float))
+    if u.size == 1:
+        return 0.5
+    bounds = np.concatenate([[u[0]], 0.5 * (u[1:] + u[:-1]), [u[-1]]])
+    cdf = np.concatenate([[0.0], np.cumsum(mass)])
+    return float(np.interp(coord(truth), bounds, cdf / cdf[-1]))
+
+
 def recovery_columns(keys: list) -> list:
     """The columns of ``recovery_LABEL.csv``."""
     cols = ["index", "tau0"]
     for key in keys:
-        cols += [f"{key}.{s}" for s in ("truth", *FIT_STATS, "scale")]
+        cols += [f"{key}.{s}" for s in ("truth", *FIT_STATS, "scale", "width_ratio", "rank")]
     return cols + [*FIT_SCALARS, *FIT_ATTRS, *INTERP_COLUMNS]
 
 
@@ -358,6 +380,56 @@ def _short(key: str) -> str:
     return key.rsplit(".", 1)[-1]
 
 
+#: A key is informed by the data where its 95 % interval is under half the prior's
+#: (``width_ratio``, docs/inversion.md §6.2).
+INFORMED = 0.5
+#: Bins of the rank histograms.
+RANK_BINS = 5
+
+
+def coverage_cell(hold: np.ndarray, nominal: float) -> str:
+    """``p ± σ`` of a coverage with its binomial error, ``!`` when p is more than 2σ (the
+    error at the nominal rate) from nominal."""
+    if hold.size == 0:
+        return "–"
+    p = hold.mean()
+    sigma = math.sqrt(nominal * (1 - nominal) / hold.size)
+    flag = " !" if abs(p - nominal) > 2 * sigma else ""
+    return f"{p:.2f} ± {sigma:.2f} (n {hold.size}){flag}"
+
+
+def calibration_tables(recoveries: dict) -> list:
+    """Coverage stratified by how informative the data are, and the rank histograms of
+    simulation-based calibration, as Markdown lines."""
+    from scipy.special import chdtrc
+    lines = ["", f"Coverage by how informative the data are (informed: width ratio < "
+             f"{INFORMED:g}); binomial error at the nominal rate, `!` beyond 2σ.", "",
+             "| instrument | key | stratum | 68 % coverage | 95 % coverage |",
+             "|---|---|---|---|---|"]
+    ranks = ["", f"Rank of the truth in its posterior (marginal CDF at the truth), "
+             f"{RANK_BINS} bins of 0.2; uniform when calibrated: χ² on {RANK_BINS - 1} dof.", "",
+             "| instrument | key | counts per bin | χ² | p |", "|---|---|---|---|---|"]
+    for label, (keys, rows) in recoveries.items():
+        for key in keys:
+            get = lambda s: np.array([r.get(f"{key}.{s}", math.nan) for r in rows])  # noqa: E731
+            truth, ratio = get("truth"), get("width_ratio")
+            for name, m in (("all", np.ones(truth.size, bool)),
+                            ("informed", ratio < INFORMED), ("not informed", ratio >= INFORMED)):
+                cells = [coverage_cell(((get(f"low{lv}") <= truth) & (truth <= get(f"high{lv}")))[m],
+                                       int(lv) / 100) for lv in ("68", "95")]
+                lines.append(f"| {label.upper()} | {_short(key)} | {name} | {cells[0]} | "
+                             f"{cells[1]} |")
+            rank = get("rank")
+            rank = rank[np.isfinite(rank)]
+            if rank.size:
+                counts = np.histogram(rank, bins=RANK_BINS, range=(0.0, 1.0))[0]
+                expect = rank.size / RANK_BINS
+                chi2 = float(np.sum((counts - expect) ** 2 / expect))
+                ranks.append(f"| {label.upper()} | {_short(key)} | {' '.join(map(str, counts))} "
+                             f"| {chi2:.1f} | {float(chdtrc(RANK_BINS - 1, chi2)):.3f} |")
+    return lines + ranks + [""]
+
+
 def report_tables(family: str, recoveries: dict) -> list:
     """Markdown lines for one family: ``recoveries`` maps instrument label -> (keys, rows)."""
     lines = [f"### {family}", ""]
@@ -376,6 +448,7 @@ def report_tables(family: str, recoveries: dict) -> list:
                 f"{s['spread']:.3f}{unit} | {c68[0]:.2f} ± {c68[1]:.2f} | "
                 f"{c95[0]:.2f} ± {c95[1]:.2f} | {np.median(s['width68']):.2f} | "
                 f"{s['unconstrained'].sum()}/{s['n']} |")
+    lines += calibration_tables(recoveries)
     classes = tau_classes(np.array([r["tau0"] for r in recoveries[labels[0]][1]]))
     lines += ["", "Identifiability by optical depth τ0 of the injected layer (thirds of the "
               "injections): median 68 % width / prior range, and how many injections leave the "

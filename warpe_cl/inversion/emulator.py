@@ -52,7 +52,7 @@ import numpy as np
 from ..instrument import radiometry
 from ..instrument.grid import deposit, rebin_density
 from .likelihood import padded
-from .space import combine, corner_weights, value_weights
+from .space import combine, corner_weights
 
 
 def kernel_of(forward) -> tuple[np.ndarray, int]:
