@@ -186,6 +186,13 @@ def test_labels_and_output_names_never_collide():
                                                                        "fit_co2_2.nc"]
 
 
+def test_labels_that_meet_a_given_label_are_numbered_on():
+    """Two folders named a and a file a_1: the numbered labels a_1, a_2 met the given a_1,
+    and the second fit_a_1.nc silently replaced the first; now every label differs."""
+    names = labels(["x/a", "y/a", "a_1"])
+    assert len(set(names)) == 3 and names[:2] == ["a_1", "a_2"]
+
+
 def test_compare_needs_two_databases():
     with pytest.raises(ConfigError, match="two or more"):
         compare(shots(n=4)[1], [granular()], "bela")
@@ -219,6 +226,26 @@ def test_cli_compares_databases_one_file_each(files, capsys):
     assert main(argv) == 2
     assert "fit_granular.nc exists" in capsys.readouterr().err
     assert main([*argv, "--overwrite"]) == 0
+
+
+def test_a_failed_figure_keeps_every_comparison_result(files, capsys, monkeypatch):
+    """The first database's figure fails: every FIT file and the ranking are still written,
+    one line says which figure failed, exit 1 (the loop once stopped at the first figure and
+    lost the other results)."""
+    import warpe_cl.inversion.plot as plot
+
+    def broken(ds, path):
+        raise RuntimeError("no figure today")
+    monkeypatch.setattr(plot, "plot_fit", broken)
+    out = files / "figfail.nc"
+    argv = ["invert", str(files / "obs.nc"), "--database", str(files / "granular.nc"),
+            "--database", str(files / "slab.nc"), "--out", str(out),
+            "--plot", str(files / "figfail.png")]
+    assert main(argv) == 1
+    printed, err = capsys.readouterr()
+    assert (files / "figfail_granular.nc").is_file() and (files / "figfail_slab.nc").is_file()
+    assert "ranked by log evidence" in printed
+    assert "figfail_granular.png could not be drawn" in err and err.count("\n") <= 3
 
 
 def test_cli_single_database_prints_the_evidence(files, capsys):

@@ -113,3 +113,27 @@ def test_the_emulator_has_no_interpolation_error_at_a_node(bela, tmp_path):
     emulator = Emulator(Space(db), bela)
     assert not np.any(emulator.variance({KEY: 2e-3}))
     assert np.any(emulator.variance({KEY: 2.8e-3}))
+
+
+def test_adequacy_with_a_key_fixed_between_nodes(bela):
+    """A second axis (compacity, three copies of the same surfaces) free and the thickness
+    fixed between its nodes: the adequacy advice reads the fixed value (it once looked it up
+    among the free keys only and raised KeyError), and the interpolation part of the fixed
+    axis' cell is counted."""
+    from warpe_cl.inversion.invert import invert
+    from warpe_cl.inversion.observed import Observed
+    one = mixture_database()
+    parts = []
+    for c in (0.2, 0.4, 0.6):
+        part = one.copy()
+        part["scenario_key"] = one["scenario_key"] + int(c * 1000)
+        parts.append(part.assign_coords({"medium.compacity": (
+            "scenario", [c] * one.sizes["scenario"], {"sweep_key": "medium.compacity",
+                                                      "units": "1"})}))
+    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
+    db["time_edges"] = one["time_edges"]
+    t, x = _shots(bela, mixture(2.8), shots=300, seed=5)
+    fit = invert(Observed("mv", t, x, "test", "bela"), db, "bela",
+                 fix={KEY: "2.8 mm"}, budget=30)
+    assert "halved spacing of medium.thickness around 0.0028" in fit.attrs["database_adequacy"]
+    assert float(fit["loglike_database_sd_interpolation"]) > 1.0

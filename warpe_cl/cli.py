@@ -209,8 +209,15 @@ def _write_outputs(ds, out: Path, plot, draw, say, started: float | None = None)
         stops.check()               # a stop whose exception was dropped: nothing written
     say(f"wrote {out}" + ("" if started is None else
                           f" ({time.perf_counter() - started:.2f} s in all)"))
-    if not plot:
-        return
+    if plot:
+        _draw_figure(ds, out, plot, draw, say)
+
+
+def _draw_figure(ds, out: Path, plot, draw, say):
+    """``draw(ds, plot)``, written whole or not at all, after the result ``out`` was written:
+    :class:`FigureError` (exit 1) says the result was kept; a stop while drawing carries
+    ``written``."""
+    from .io import Outputs
     try:
         with Outputs() as outputs:
             draw(ds, outputs.stage(plot))
@@ -363,13 +370,23 @@ def _invert_many(args, databases, inputs) -> int:
     truth = parse_overrides(args.truth or []) if args.truth else None
     fits = compare(obs, databases, args.instrument, free=free, fix=fix, truth=truth)
     say = _say(args)
-    for ds, out, plot in zip(fits, outs, plots):
+    for ds, out in zip(fits, outs):      # every result first: a figure's failure costs none
         for line in report.inversion_lines(ds) + check_lines(ds):
             say(line)
-        _write_outputs(ds, out, plot, plot_fit, say)
+        _write_outputs(ds, out, None, plot_fit, say)
     for line in ranking_lines(ranking(fits)):
         say(printable(line))
+    failed = []
+    for ds, out, plot in zip(fits, outs, plots):
+        if plot is None:
+            continue
+        try:
+            _draw_figure(ds, out, plot, plot_fit, say)
+        except FigureError as err:
+            failed.append(str(err))
     say(f"compared {len(fits)} databases in {time.perf_counter() - t0:.2f} s")
+    if failed:
+        raise FigureError("; ".join(failed))
     return EXIT_OK
 
 

@@ -10,11 +10,11 @@ PRESET is the preset the database was swept from (its ``sweep:`` block is droppe
 draws ``--points`` points uniformly in the database's interpolation coordinates, off the nodes;
 simulates each directly with ``--photons`` rays (its own seed); records ``--seeds`` noise
 realisations of each shot count with the instrument; and computes at each point log L three
-ways (:func:`warpe_cl.inversion.agreement.agreement`): through the database taken as exact,
-through the database with its error integrated out, and with the direct surface. It prints,
-per shot count, the mean and standard deviation of
+ways (:func:`warpe_cl.inversion.agreement.agreement`): through the database taken as exact
+(``plain``), through the database with its error integrated out, and with the direct
+surface. It prints, per shot count, the mean and standard deviation of
 
-    z = (log L_db − log L_direct − offset) / σ,
+    z = (log L_plain − log L_direct − offset) / σ,
 
 σ and the offset being the database's stated error and expected offset of log L at that point:
 z is about N(0, 1) where the stated error holds (sd(z) ≫ 1: the error is understated; ≪ 1:
@@ -42,13 +42,17 @@ def point_overrides(space, point: dict) -> dict:
 
 
 def draw_points(space, count: int, rng) -> list:
-    """``count`` points uniform in the interpolation coordinates, each at least a tenth of a
-    cell from every node along every axis of three values or more."""
+    """``count`` points uniform in the interpolation coordinates, each more than a tenth of a
+    cell from the nodes along every axis of two values or more (an axis of one value keeps
+    it)."""
     points = []
     while len(points) < count:
         point = {}
         for axis in space.axes:
             x = axis.nodes
+            if x.size < 2:
+                point[axis.key] = float(axis.values[0])
+                continue
             u = rng.uniform(x[0], x[-1])
             j = min(int(np.searchsorted(x, u, side="right")) - 1, x.size - 2)
             f = (u - x[j]) / (x[j + 1] - x[j])
@@ -64,6 +68,7 @@ def run(args) -> list:
     """Every row of the study (one per point, shot count and noise seed)."""
     from warpe_cl import load_preset, simulate
     from warpe_cl.database import load_result
+    from warpe_cl.errors import ConfigError
     from warpe_cl.instrument import apply_instrument, load_instrument
     from warpe_cl.inversion.agreement import agreement
     from warpe_cl.inversion.forward import Forward
@@ -72,6 +77,10 @@ def run(args) -> list:
 
     space = Space(load_result(Path(args.database)), source=args.database)
     params = load_instrument(args.instrument)
+    if params["detector.type"] == "photon_counting":
+        raise ConfigError(f"{params['name']} counts photons: the database's error is "
+                          "integrated for linear-mode receivers only (docs/inversion.md §4.3)",
+                          key="--instrument")
     forward = Forward(params)
     base = yaml.safe_load(Path(args.preset).read_text())
     base.pop("sweep", None)
@@ -130,6 +139,13 @@ def main(argv=None) -> int:
     except ValueError:
         print(f"emulator_check: --shots {args.shots!r}: give whole numbers, e.g. 100,1000",
               file=sys.stderr)
+        return 2
+    bad = ("--points must be 1 or more" if args.points < 1 else
+           "--seeds must be 1 or more" if args.seeds < 1 else
+           f"--preset {args.preset}: no such file" if not Path(args.preset).is_file() else
+           None)
+    if bad:
+        print(f"emulator_check: {bad}", file=sys.stderr)
         return 2
     from warpe_cl.errors import ConfigError
     try:

@@ -283,10 +283,11 @@ def warnings_of(c: Checks, *, fixed_amplitude: float | None, chi2: float, dof: i
         amplitude, what = c.shots_amplitude, (f"the shots' median amplitude (A fixed at "
                                               f"{fixed_amplitude:g})")
     if math.isfinite(amplitude) and not lo <= amplitude <= hi:
+        ratio = (f"the model is {1 / amplitude:.3g}x the shots' brightness" if amplitude > 0
+                 else "the shots hold no signal the model can scale to")
         lines.append(f"amplitude: {what} is {amplitude:.3g}, outside [1/3, 3] of the "
-                     f"instrument's radiometry: the model is {1 / amplitude:.3g}x the shots' "
-                     "brightness (another texture or composition than the database's, or a "
-                     "wrong link budget)")
+                     f"instrument's radiometry: {ratio} (another texture or composition than "
+                     "the database's, or a wrong link budget)")
     for e in c.edges:
         lines.append(f"edge: {e['mass']:.0%} of the posterior of {e['key']} lies in the "
                      f"grid's edge cell at its {e['side']} value {_show(e['value'], e['units'])} "

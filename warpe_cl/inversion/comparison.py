@@ -16,6 +16,7 @@ from ..errors import ConfigError
 from .checks import fit_warnings
 from .invert import invert
 from .observed import Observed, load_observed
+from .options import NUISANCES, check_complete, check_options, header
 
 #: Jeffreys' scale in ln: a database whose ln Z lies this far below the best's is strongly
 #: disfavoured (odds above 150 : 1).
@@ -62,11 +63,19 @@ def compare(observed, databases, instrument=None, *, free=None, fix=None, names=
     if len(names) != len(databases):
         raise ConfigError(f"{len(names)} name(s) for {len(databases)} databases: give one "
                           "per database", key="names")
+    # every database's options and completeness before the first inversion (minutes each)
+    nuisance = {k: v for k, v in dict(fix or {}).items() if k in NUISANCES}
+    swept = {k: v for k, v in dict(fix or {}).items() if k not in NUISANCES}
+    for db, name in zip(databases, names):
+        head = header(db, name)
+        if head is not None:
+            check_complete(head)
+            check_options(head, free, dict(swept), dict(nuisance))
     obs = observed if isinstance(observed, Observed) else load_observed(observed)
     fits = [invert(obs, db, instrument, free=free, fix=fix, database_source=name, **options)
             for db, name in zip(databases, names)]
     rows = ranking(fits)
-    top = rows[0]["log_evidence"]
+    top = rows[0]["log_evidence"]         # the best finite one (nan everywhere if none is)
     table = json.dumps(rows)
     for ds in fits:
         ds["delta_log_evidence"] = ((), float(ds["log_evidence"]) - top, {
@@ -133,7 +142,8 @@ def ranking_lines(rows) -> list:
 def labels(databases) -> list:
     """A short label per database path for the names of its outputs: the last part of its
     path less ``.nc`` / ``.sweep``, characters other than letters, digits, ``-`` and ``_``
-    replaced by ``_``; labels that repeat get ``_<i>`` (their place, from 1).
+    replaced by ``_``; labels that repeat get ``_<i>`` (their place, from 1), and any label
+    that would still meet another gets a further ``_<k>``: the labels are all different.
 
     Parameters
     ----------
@@ -150,7 +160,15 @@ def labels(databases) -> list:
             if name.lower().endswith(suffix):
                 name = name[: -len(suffix)]
         out.append(re.sub(r"[^A-Za-z0-9_-]", "_", name)[:60] or "database")
-    return [f"{x}_{i + 1}" if out.count(x) > 1 else x for i, x in enumerate(out)]
+    named = [f"{x}_{i + 1}" if out.count(x) > 1 else x for i, x in enumerate(out)]
+    unique, seen = [], set()
+    for x in named:          # a numbered label may meet a given one (a, a, a_1): number on
+        label, k = x, 2
+        while label in seen:
+            label, k = f"{x}_{k}", k + 1
+        seen.add(label)
+        unique.append(label)
+    return unique
 
 
 def output_paths(path, names) -> list:

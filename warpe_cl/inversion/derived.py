@@ -169,7 +169,7 @@ def quantities(space, db, tail_after_ns: float) -> list:
         units, long_name, symbol = {**STORED, **RESPONSE}[name]
         # a fraction is compared in its value: in ln, fractions of 1e-6 and 1e-3 that no
         # waveform tells apart would count as far apart
-        scale = "log" if lo > 0 and units != "1" or name in ("tau0",) else "linear"
+        scale = "log" if lo > 0 and (units != "1" or name == "tau0") else "linear"
         out.append(Quantity(name, units, long_name, symbol, scale, table, name in STORED))
     return out
 

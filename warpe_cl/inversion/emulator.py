@@ -33,15 +33,17 @@ node to leave out and no estimate (the report says so).
 
 **In the likelihood.** A common error e(t) ~ N(0, S(t)) of the model shifts every shot's
 sample k by a_s e(t_k − δ_s). Model time is cut in blocks one sampling interval long; the
-errors of different blocks are taken as independent. With each block's
-G_b = Σ a_s r_sk / Var_sk and W_b = Σ a_s² / Var_sk over the (uncensored) samples that fall in
-it and S_b their S weighted by a_s²/Var_sk, integrating e out of the Gaussian likelihood at the
-fitted nuisances adds exactly
+errors of different blocks are taken as independent. Each block has G_b = Σ a_s r_sk / Var_sk
+and W_b = Σ a_s² / Var_sk over the (uncensored) samples that fall in it and S_b their S
+weighted by a_s²/Var_sk. What the common amplitude and arrival absorb (errors along the
+blocks' μ and μ′) is projected out of W and G (W_eff, G_eff). With λ_i the eigenvalues of
+S^½ W_eff S^½ and v_i their vectors, integrating e out of the Gaussian likelihood at the
+fitted nuisances adds
 
-    Δ log L = Σ_b [ ½ G_b² S_b / (1 + S_b W_b) − ½ log(1 + S_b W_b) ],
+    Δ log L = ½ Σ_i (v_iᵀ S^½ G_eff)² / (1 + λ_i) − ½ Σ_i log(1 + λ_i),
 
-and the spread of log L that the error causes (its stated error) is
-σ² = Σ_b (G_b² S_b + ½ W_b² S_b²).
+and the error it leaves on log L (its stated error) is σ² = Σ λ_i + ½ Σ λ_i² around an
+expected offset −½ Σ λ_i (the spread and mean of G_effᵀ e − ½ eᵀ W_eff e over the noise and e).
 """
 from __future__ import annotations
 
@@ -115,7 +117,9 @@ class Emulator:
     def __init__(self, space, forward):
         self.space, self.forward = space, forward
         self._mu, self._var, self._loo = {}, {}, {}
-        self.unmeasured = [a.key for a in space.axes if 1 < a.values.size < 3]
+        self.unmeasured = [a.key for a in space.axes if 1 < a.values.size < 3
+                           and not (a.key in space.point
+                                    and np.isclose(a.values, space.point[a.key]).any())]
 
     def _node(self, index: tuple) -> tuple[np.ndarray, np.ndarray]:
         """μ (v = 0, amplitude 1) and its Monte Carlo variance at node ``index``."""
@@ -148,13 +152,14 @@ class Emulator:
 
     def variance(self, point: dict) -> np.ndarray:
         """S(t) at ``point`` (free keys -> values, axis units): the Monte Carlo and the
-        interpolation parts of the module docstring, on ``forward.t``."""
+        interpolation parts of the module docstring, on ``forward.t``: mV² (linear mode) or
+        (pe ns⁻¹)² (photon counting), at amplitude 1."""
         return sum(self.parts(point).values())
 
     def parts(self, point: dict) -> dict:
-        """The parts of S(t) at ``point``: ``"monte carlo"`` and, per axis of three values
-        or more whose cell the point is inside, the axis' dotted key (its interpolation
-        part)."""
+        """The parts of S(t) at ``point`` (units of :meth:`variance`): ``"monte carlo"`` and,
+        per axis of three values or more whose cell the point (or a fixed value) is inside,
+        the axis' dotted key (its interpolation part)."""
         space = self.space
         u = space.coords_of(point)
         idx, w = corner_weights(u, [a.nodes for a in space.axes])
@@ -198,53 +203,58 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu) -> dict:
     fit : ShotFit
         The nuisances at the best point.
     point : dict
-        The best point (free keys -> values, axis units).
+        The best point (free keys -> values, axis units; the fixed keys are the space's).
     mu, nu : array
         The model there (mV, mV²).
 
     Returns
     -------
     dict
-        ``sigma`` (all sources), ``sigma_monte_carlo``, ``sigma_interpolation`` (per axis
-        key), ``adequate`` (σ ≤ ``ADEQUATE_SD``), ``rays_factor`` (rays per node, as a factor
+        ``sigma`` (all sources), ``sigma_monte_carlo``, ``sigma_interpolation`` (every
+        axis' part together), ``sigma_per_axis`` (axis key -> its part alone), ``adequate`` (σ ≤ ``ADEQUATE_SD``), ``rays_factor`` (rays per node, as a factor
         of the database's, that bring the Monte Carlo part under half of it; the variance
         falls as 1/rays) and ``halvings`` (per axis, halvings of the cell spacing that bring
         its part under half of it; an interpolation error falls 4 times per halving, its
         variance 16 times), and ``advice``, one line.
     """
     parts = emulator.parts(point)
+    values = {**emulator.space.point, **point}      # fixed keys too: their cells count
 
     def sd(var):
         return shared_error(shots, fit, mu, nu, var)[1]
     total = sd(sum(parts.values()))
     mc = sd(parts["monte carlo"])
+    axes = {k: v for k, v in parts.items() if k != "monte carlo"}
+    interp = sd(sum(axes.values())) if axes else 0.0
     target = 0.5 * ADEQUATE_SD
     rays = 1
     while sd(parts["monte carlo"] / rays) > target and rays < MOST_RAYS:
         rays *= 2
-    interp, halvings = {}, {}
-    for key, var in parts.items():
-        if key == "monte carlo":
-            continue
-        interp[key] = sd(var)
+    advice = []
+    if rays > 1:
+        short = sd(parts["monte carlo"] / rays) > target
+        advice.append(f"{'more than ' if short else ''}{rays}x the rays per node")
+    per_axis, halvings = {}, {}
+    for key, var in axes.items():
+        per_axis[key] = sd(var)
         h = 0
         while sd(var / 16.0 ** h) > target and h < MOST_HALVINGS:
             h += 1
         halvings[key] = h
-    advice = []
-    if rays > 1:
-        advice.append(f"{rays}x the rays per node")
-    advice += [f"{h}x halved spacing of {key} around {point[key]:.4g}"
-               for key, h in halvings.items() if h > 0]
+        if h:
+            short = sd(var / 16.0 ** h) > target
+            advice.append(f"{'more than ' if short else ''}{h}x halved spacing of {key} "
+                          f"around {values[key]:.4g}")
     adequate = total <= ADEQUATE_SD
     line = (f"database adequate for these shots: its own error moves log L by {total:.2f} "
             f"(<= {ADEQUATE_SD:g})" if adequate else
             f"database not adequate for these shots: its own error moves log L by {total:.2f} "
             f"(> {ADEQUATE_SD:g}; Monte Carlo {mc:.2f}, interpolation "
-            + ", ".join(f"{k.rsplit('.', 1)[-1]} {v:.2f}" for k, v in interp.items())
+            + ", ".join(f"{k.rsplit('.', 1)[-1]} {v:.2f}" for k, v in per_axis.items())
             + "); for these shots: " + ("; ".join(advice) or "no single change suffices"))
     return {"sigma": total, "sigma_monte_carlo": mc, "sigma_interpolation": interp,
-            "adequate": adequate, "rays_factor": rays, "halvings": halvings, "advice": line}
+            "sigma_per_axis": per_axis, "adequate": adequate, "rays_factor": rays,
+            "halvings": halvings, "advice": line}
 
 
 class DirectSurface:

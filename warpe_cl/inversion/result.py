@@ -221,8 +221,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     if "adequacy" in summary:
         ad = summary["adequacy"]
         data["loglike_database_sd_monte_carlo"] = ((), ad["sigma_monte_carlo"])
-        data["loglike_database_sd_interpolation"] = ((), float(np.hypot.reduce(
-            [0.0] + list(ad["sigma_interpolation"].values()))))
+        data["loglike_database_sd_interpolation"] = ((), ad["sigma_interpolation"])
     attrs = provenance({
         "title": "warpe-cl inversion",
         "observed": obs.source,
