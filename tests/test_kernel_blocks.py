@@ -365,3 +365,58 @@ def test_nadir_score_bound_holds(engine, selftest, precision):
     out = np.zeros(1, dtype=np.float32)
     cl.enqueue_copy(engine.queue, out, d_b)
     assert out[0] == np.inf
+
+
+
+def _typeof_operands(text: str) -> list:
+    """The operand of every ``__typeof__(...)`` in ``text`` (parentheses balanced)."""
+    out, start = [], 0
+    while (at := text.find("__typeof__(", start)) >= 0:
+        depth, i = 1, at + len("__typeof__(")
+        while depth:
+            depth += {"(": 1, ")": -1}.get(text[i], 0)
+            i += 1
+        out.append(text[at + len("__typeof__("):i - 1])
+        start = i
+    return out
+
+
+def _is_sum_with_zero(operand: str) -> bool:
+    """Whether ``operand`` is ``EXPR + 0`` at its top level (outside every parenthesis): an
+    rvalue, whose type has no qualifier and no address space (C11 6.3.2.1 §2)."""
+    flat = "".join(operand.split())
+    if not flat.endswith("+0"):
+        return False
+    depth = 0
+    for ch in flat[:-2]:
+        depth += {"(": 1, ")": -1}.get(ch, 0)
+    return depth == 0
+
+
+def test_typeof_takes_no_address_space():
+    """Every ``__typeof__`` of the kernels names the type of an rvalue (``x + 0``): the
+    ``__typeof__`` of an lvalue (``r->alive``, ``(p)[0]``) keeps its address space where
+    pointers are generic, and NVIDIA's compiler rejects a private copy declared with it
+    ("automatic variable qualified with an invalid address space", issue 43; Intel's and
+    PoCL's compilers accept it, so only this source check sees it on a CPU)."""
+    from warpe_cl.device import kernel_dir
+    found = 0
+    for path in sorted(kernel_dir().iterdir()):
+        if path.suffix not in (".h", ".cl"):
+            continue
+        for operand in _typeof_operands(path.read_text()):
+            found += 1
+            assert _is_sum_with_zero(operand), f"{path.name}: __typeof__({operand}) is an lvalue"
+    assert found >= 1      # VSTORE / VLOAD's LANES_OF (cl/lanes_vector_inline.h)
+
+
+def test_typeof_check_refuses_lvalues():
+    """The check above: the form NVIDIA rejected, an lvalue, a sum inside parentheses and a
+    product are refused; the sums with zero are taken."""
+    assert _typeof_operands("const __typeof__(v) x; __typeof__((p)[0] + 0) y") == [
+        "v", "(p)[0] + 0"]
+    assert _typeof_operands("__typeof__(f(a, (b)))") == ["f(a, (b))"]
+    for lvalue in ("v", "r->alive", "(p)[0]", "(x + 0)", "(a + 0) * b", "a + 0)[0"):
+        assert not _is_sum_with_zero(lvalue), lvalue
+    for rvalue in ("(p)[0] + 0", "x+0", "(r->alive) + 0"):
+        assert _is_sum_with_zero(rvalue), rvalue
