@@ -111,6 +111,99 @@ def selftest(engine):
     return progs
 
 
+def lane_chain(engine, precision: str = "single") -> tuple:
+    """The lane widths the device under test walks a kernel with, widest first: its lane
+    chooser's chain (:meth:`warpe_cl.qualify.Qualifier.lane_chain`: 16 lanes, 8 in double, or
+    the driver's narrower preferred vector width, then 8, 4 and 1 on CPUs; 1 on GPUs, whose
+    work-items are the lanes; docs/devices.md "Fallback"). Tests that compare lane widths
+    walk these, never a width the device's own runs would not (issue 43: 16 lanes on NVIDIA's
+    GPUs). An engine without a chooser (never the session's) gets the same chain from
+    :func:`warpe_cl.engine.widest_lanes`.
+
+    Parameters
+    ----------
+    engine : warpe_cl.engine.Engine
+    precision : {"single", "double"}
+
+    Returns
+    -------
+    tuple of int
+        Photons per work-item, widest first, ending with 1.
+    """
+    qualifier = getattr(engine.choose_lanes, "qualifier", None)
+    if qualifier is not None:
+        return tuple(qualifier.lane_chain(precision))
+    from warpe_cl.engine import widest_lanes
+    from warpe_cl.qualify import FALLBACK_LANES
+    widest = widest_lanes(engine.info.kind, precision, engine.info.preferred_width(precision))
+    return (widest,) + tuple(w for w in FALLBACK_LANES if w < widest)
+
+
+def vector_widths(engine, precision: str = "single") -> tuple:
+    """The vector widths (more than one photon per work-item) of the device's lane chain
+    (:func:`lane_chain`), widest first; a device that walks none (a GPU) skips the test that
+    asks, saying so: its runs never walk one.
+
+    Parameters
+    ----------
+    engine : warpe_cl.engine.Engine
+    precision : {"single", "double"}
+
+    Returns
+    -------
+    tuple of int
+        Photons per work-item, at least one width.
+    """
+    chain = lane_chain(engine, precision)
+    vectors = tuple(w for w in chain if w > 1)
+    if not vectors:
+        pytest.skip(f"{engine.info.device} walks no vector lanes in {precision} precision "
+                    f"(its lane chain: {chain})")
+    return vectors
+
+
+def scalar_and_vector(engine, precision: str = "single") -> tuple:
+    """One lane and, where the device's chain has one, its widest vector width
+    (:func:`lane_chain`): the two forms of the walk a test that loops over them walks, without
+    skipping on a device that has only the first.
+
+    Parameters
+    ----------
+    engine : warpe_cl.engine.Engine
+    precision : {"single", "double"}
+
+    Returns
+    -------
+    tuple of int
+        ``(1,)`` or ``(1, widest vector width)``, photons per work-item.
+    """
+    return (1,) + tuple(w for w in lane_chain(engine, precision)[:1] if w > 1)
+
+
+def lanes_of(engine, form: str, precision: str = "single") -> int:
+    """The lane width of one form of the walk on the device under test: ``"scalar"``, one
+    photon per work-item (what GPUs walk); ``"vector"``, the widest vector width of the
+    device's chain (:func:`lane_chain`: what a CPU walks where it qualifies). A device whose
+    chain has no vector width (a GPU) skips the vector form: its runs never walk it.
+
+    Parameters
+    ----------
+    engine : warpe_cl.engine.Engine
+    form : {"scalar", "vector"}
+    precision : {"single", "double"}
+
+    Returns
+    -------
+    int
+        Photons per work-item.
+    """
+    if form == "scalar":
+        return 1
+    if form != "vector":
+        raise ValueError(f"form {form!r}: 'scalar' or 'vector'")
+    return vector_widths(engine, precision)[0]
+
+
 def walk_with_options(engine, structure: tuple, options: tuple, params: WalkParams,
                       photons: int, **run_kw):
     """Walk ``params`` with a walk program built from ``options`` in place of the engine's own

@@ -42,14 +42,16 @@ def assert_same_distribution(x, y, what):
 @pytest.mark.parametrize("precision", ["single", "double"])
 def test_one_layer_stack_is_the_single_layer_walk(engine, name, precision):
     """With one layer §7 reduces to §3 event for event (docs/walk.md §7.1): the layered build
-    walks every ray exactly as the slab or granular build, at 16 lanes and at 1."""
+    walks every ray exactly as the slab or granular build, at 1 lane and at the device's
+    widest vector width where it has one (conftest.scalar_and_vector)."""
+    from conftest import scalar_and_vector
     layer, bottom = SINGLE[name]
     common = dict(albedo=0.5, time_edges=LOG_EDGES, seed=7, bottom_interface=bottom)
     single = WalkParams(texture=layer.texture, thickness=layer.thickness,
                         extinction=layer.extinction, omega=layer.omega, g=layer.g, n=layer.n,
                         k=layer.k, **common)
     stack = stack_params([layer], **common)
-    for lanes in (1, 16):
+    for lanes in scalar_and_vector(engine, precision):
         a = run(engine, single, 3000, precision=precision, records=True, lanes=lanes)
         b = run(engine, stack, 3000, precision=precision, records=True, lanes=lanes)
         for field in a.records:
@@ -152,13 +154,18 @@ def test_per_layer_statistics_close_ray_by_ray(engine):
 
 def test_layered_walk_is_reproducible_across_lanes_and_budgets(engine):
     """docs/walk.md §5: the same bits for every lane width and event budget (rays parked with
-    their layer and resumed)."""
+    their layer and resumed), at the widths of the device's chain (conftest.lane_chain): the
+    widest, a narrower one with a short budget and one lane."""
+    from conftest import lane_chain
     layers = [Layer("granular", 0.003, 400.0, 0.98, 0.6, 1.2),
               Layer("slab", 0.004, 250.0, 0.95, 0.2, 1.4, 1e-4)]
     params = stack_params(layers, substrate=(1.7, 1e-3), albedo=0.6, time_edges=LOG_EDGES,
                           seed=9)
-    ref = run(engine, params, 4000, lanes=16)
-    for kw in (dict(lanes=1), dict(lanes=4, event_budget=3), dict(lanes=16, event_budget=29)):
+    chain = lane_chain(engine)
+    wide, narrow = chain[0], chain[min(2, len(chain) - 1)]    # 16 and 4 on a CPU, 1 on a GPU
+    ref = run(engine, params, 4000, lanes=wide)
+    for kw in (dict(lanes=1), dict(lanes=narrow, event_budget=3),
+               dict(lanes=wide, event_budget=29)):
         assert run(engine, params, 4000, **kw).same_as(ref), kw
 
 

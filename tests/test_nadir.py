@@ -198,27 +198,31 @@ def test_fold_adds_the_slices_exactly(engine):
 
 @pytest.mark.parametrize("name", ["granular", "slab_gap", "stack_gap"])
 def test_lane_widths_give_the_same_bits(engine, name):
-    """The vector (16 lanes) and scalar (1 lane) forms of the walk give the same bits, nadir
-    sums included: every score's last bit follows the ray's depth and path, so this fails
-    wherever the two forms round one operation differently (it did on Intel's CPU runtime
-    until the walk stopped calling rsqrt, whose vector and scalar forms differ there, and
-    until contraction into fma was turned off: cl/real.h, cl/scatter.h)."""
+    """The vector (the device's widest vector width, conftest.lanes_of) and scalar (1 lane)
+    forms of the walk give the same bits, nadir sums included: every score's last bit follows
+    the ray's depth and path, so this fails wherever the two forms round one operation
+    differently (it did on Intel's CPU runtime until the walk stopped calling rsqrt, whose
+    vector and scalar forms differ there, and until contraction into fma was turned off:
+    cl/real.h, cl/scatter.h)."""
+    from conftest import lanes_of
     params = _cases()[name]
-    wide = engine.run(params, 4000, lanes=16, qualified=True)
+    wide = engine.run(params, 4000, lanes=lanes_of(engine, "vector"), qualified=True)
     one = engine.run(params, 4000, lanes=1, qualified=True)
     assert wide.same_as(one)
     assert np.array_equal(wide.nadir_sum, one.nadir_sum)
 
 
-@pytest.mark.parametrize("lanes", [1, 16])
+@pytest.mark.parametrize("form", ["scalar", "vector"])
 @pytest.mark.parametrize("texture", ["granular", "slab"])
-def test_skipped_scores_change_no_bit(engine, texture, lanes):
+def test_skipped_scores_change_no_bit(engine, texture, form):
     """nadir_scatter leaves out the events at which every lane's score would lose the
     roulette for certain (cl/score.h's bound, walk.md §8.3). Every tally, the nadir sums and
     each ray's total score included, is the same bits as with every score computed
     (-DWARPE_NO_SCORE_SKIP), in a medium deep enough (tau0 = 200) that most events are left
-    out, in the vector form and in the GPUs' one-lane form."""
-    from conftest import walk_with_options
+    out, in the vector form (the device's widest, conftest.lanes_of) and in the GPUs' one-lane
+    form."""
+    from conftest import lanes_of, walk_with_options
+    lanes = lanes_of(engine, form)
     from warpe_cl.engine import kernel_key
     params = WalkParams(texture=texture, thickness=0.05, extinction=4000.0, omega=0.999, g=0.8,
                         n=1.3, k=0.0, albedo=0.15, bottom_interface="none", time_edges=EDGES,

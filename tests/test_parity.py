@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from conftest import medium
+from conftest import lanes_of, medium
 from warpe_cl.params import RECORD_INT_COLUMNS
 from warpe_cl.reference import simulate_reference
 
@@ -33,10 +33,12 @@ MEDIA = {
 EXACT_FIELDS = RECORD_INT_COLUMNS    # every integer column of a ray's record
 
 
-@pytest.mark.parametrize("lanes", [1, 8])
+@pytest.mark.parametrize("form", ["scalar", "vector"])
 @pytest.mark.parametrize("name", sorted(MEDIA))
-def test_double_kernel_follows_reference_per_photon(engine, name, lanes):
-    """Both forms of the kernel: one photon per work-item (GPUs) and vector lanes (CPUs)."""
+def test_double_kernel_follows_reference_per_photon(engine, name, form):
+    """Both forms of the kernel: one photon per work-item (GPUs) and vector lanes (CPUs), the
+    vector width the device's own lane chain starts with (conftest.lanes_of)."""
+    lanes = lanes_of(engine, form, "double")
     params = medium(**MEDIA[name])
     n = 3000
     ref = simulate_reference(params, n, first_photon=10, records=True)
@@ -50,15 +52,16 @@ def test_double_kernel_follows_reference_per_photon(engine, name, lanes):
     assert ker.same_as(ref)
 
 
-@pytest.mark.parametrize("lanes", [1, 16])
-def test_single_precision_per_photon_agreement(engine, lanes):
+@pytest.mark.parametrize("form", ["scalar", "vector"])
+def test_single_precision_per_photon_agreement(engine, form):
     """float32 walks drift from the float64 reference by rounding, and a drifted ray could take
     another branch. Measured on these media (PoCL 3.1, 2026-11, 20 000 photons each): 100 % of
     photons keep the same fate, component, counters, time and emergence bins; times agree to
     1.2e-5 relative, except the shortest paths, where a float32 uniform near 1 quantises the
     optical step -ln U in units of ~6e-8 (2.8e-3 relative at t = 2e-6 ns, 6e-9 ns absolute).
     The bounds below sit just outside that: >= 99.5 % identical histories, and
-    |dt| <= 1e-4 t + 1e-7 ns."""
+    |dt| <= 1e-4 t + 1e-7 ns. Both forms, as the double-precision test."""
+    lanes = lanes_of(engine, form, "single")
     for name in sorted(MEDIA):
         params = medium(**MEDIA[name])
         n = 3000

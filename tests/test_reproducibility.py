@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import SCATTERING, medium
+from conftest import SCATTERING, lanes_of, medium, vector_widths
 from warpe_cl.api import scenario_key
 from warpe_cl.config import load_preset
 from warpe_cl.qualify import compare_records
@@ -28,45 +28,93 @@ def test_counts_do_not_depend_on_launch_geometry(engine, precision):
 @pytest.mark.parametrize("texture", ["slab", "granular"])
 def test_counts_do_not_depend_on_lane_width(engine, precision, texture):
     """The vector form (several photons per work-item) and the one-photon-per-work-item form
-    (what GPUs run) are one kernel source: every lane width gives the same bits."""
+    (what GPUs run) are one kernel source: every lane width of the device's chain
+    (conftest.vector_widths) gives the same bits."""
     p = medium(**{**SCATTERING, "texture": texture})
     n = 20_000
+    widths = vector_widths(engine, precision)
     reference = engine.run(p, n, precision=precision, lanes=1, qualified=True)
-    for lanes in (2, 4, 8, 16):
+    for lanes in widths:
         other = engine.run(p, n, precision=precision, lanes=lanes, qualified=True)
         assert other.same_as(reference), lanes
 
 
-BUDGET_CASES = [pytest.param(mode, texture, lanes, marks=() if fast else pytest.mark.slow)
-                for mode, texture, lanes, fast in (
-                    ("analog", "slab", 16, True), ("weighted", "granular", 1, True),
-                    ("weighted", "slab", 16, False), ("analog", "granular", 16, False),
-                    ("analog", "slab", 1, False), ("weighted", "slab", 1, False),
-                    ("analog", "granular", 1, False), ("weighted", "granular", 16, False))]
+BUDGET_CASES = [pytest.param(mode, texture, form, marks=() if fast else pytest.mark.slow)
+                for mode, texture, form, fast in (
+                    ("analog", "slab", "vector", True), ("weighted", "granular", "scalar", True),
+                    ("weighted", "slab", "vector", False),
+                    ("analog", "granular", "vector", False),
+                    ("analog", "slab", "scalar", False), ("weighted", "slab", "scalar", False),
+                    ("analog", "granular", "scalar", False),
+                    ("weighted", "granular", "vector", False))]
+#: the event budget of the long case, and the launches it must take at least
+BUDGET, MIN_LAUNCHES = 29, 4
 
 
-@pytest.mark.parametrize("mode, texture, lanes", BUDGET_CASES)
-def test_counts_and_rays_do_not_depend_on_the_event_budget(engine, mode, texture, lanes):
+def budget_photons(engine, lanes: int, events_per_ray: float, budget: int = BUDGET,
+                   launches: int = MIN_LAUNCHES) -> int:
+    """Rays enough that a walk on an event budget of ``budget`` takes at least ``launches``
+    launches on this device, whatever its launch size.
+
+    A launch runs at most ``engine.default_global_size()`` work-items of ``lanes`` lanes, each
+    for at most ``budget`` steps of one event per lane (cl/walk.cl), so it walks at most
+    ``global_size * lanes * budget`` scattering events; a walk of ``n`` rays of
+    ``events_per_ray`` scattering events each takes at least
+    ``n * events_per_ray / (global_size * lanes * budget)`` launches. On a 2-core CPU (32
+    work-items of 16 lanes) that is 3000 rays, on a GPU (2^20 work-items of 1 lane, issue 43)
+    millions.
+
+    Parameters
+    ----------
+    engine : warpe_cl.engine.Engine
+    lanes : int
+        Photons per work-item of the walk.
+    events_per_ray : float
+        Mean scattering events per ray of the medium (measured on a short walk), > 0.
+    budget : int
+        Events per work-item and launch.
+    launches : int
+        Launches wanted at least.
+
+    Returns
+    -------
+    int
+        Rays, at least 3000 (the reference walk's check), with 25 % to spare for the
+        statistical error of ``events_per_ray``.
+    """
+    per_launch = engine.default_global_size() * lanes * budget
+    return max(3000, int(np.ceil(1.25 * launches * per_launch / events_per_ray)))
+
+
+@pytest.mark.parametrize("mode, texture, form", BUDGET_CASES)
+def test_counts_and_rays_do_not_depend_on_the_event_budget(engine, mode, texture, form):
     """A launch stops each work-item after event_budget events and parks its unfinished rays;
     the next launch resumes them (docs/walk.md §5). Whatever the budget, down to one event per
     launch (every ray parked after each event: its position, direction, path, counters,
     phase, weight and event block carried), every tally and every ray's record is the same
     bits as one unbounded launch; the slab has a vacuum gap, so rays are parked in it too.
     The unbounded launch itself follows the NumPy reference ray for ray (qualification's own
-    check of this lane width, warpe_cl.qualify.compare_records)."""
+    check of this lane width, warpe_cl.qualify.compare_records). The long case has rays
+    enough for more than 3 launches at this device's launch size (budget_photons), and the
+    lanes are the device's own (conftest.lanes_of)."""
+    lanes = lanes_of(engine, form, "double")
     p = medium(**{**SCATTERING, "texture": texture, "mode": mode})
-    for n, budgets in ((300, (1, 3)), (3000, (29,))):
-        reference = engine.run(p, n, precision="double", lanes=lanes, records=True,
-                               event_budget=2 ** 32 - 1, qualified=True)
-        if n == 3000:
-            walk = simulate_reference(p, n, records=True)
-            assert compare_records(reference, walk, "double", mode == "weighted") is None
+    unbounded = dict(precision="double", lanes=lanes, records=True, event_budget=2 ** 32 - 1,
+                     qualified=True)
+    short = engine.run(p, 300, **unbounded)
+    assert short.scattering_events > 0
+    many = budget_photons(engine, lanes, short.scattering_events / 300)
+    checked = engine.run(p, 3000, **unbounded)
+    walk = simulate_reference(p, 3000, records=True)
+    assert compare_records(checked, walk, "double", mode == "weighted") is None
+    for n, budgets in ((300, (1, 3)), (many, (BUDGET,))):
+        reference = {300: short, 3000: checked}.get(n) or engine.run(p, n, **unbounded)
         for budget in budgets:
             launches = []
             other = engine.run(p, n, precision="double", lanes=lanes, records=True,
                                event_budget=budget, progress=launches.append, qualified=True)
             assert other.same_as(reference), budget
-            assert len(launches) > 3 and launches[-1] == n, launches[:5]
+            assert len(launches) >= MIN_LAUNCHES and launches[-1] == n, launches[:5]
             for field, value in reference.records.items():
                 assert np.array_equal(other.records[field], value, equal_nan=True), field
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import LAMBDA, SCATTERING, medium
+from conftest import LAMBDA, SCATTERING, lanes_of, medium, vector_widths
 from warpe_cl import radiative
 from warpe_cl.params import C_M_PER_NS, RECORD_INT_COLUMNS, fixed_point, fixed_to_float
 from warpe_cl.reference import simulate_reference
@@ -49,11 +49,13 @@ def test_fixed_to_float_is_correctly_rounded():
     assert huge[0] == float(2 ** (1100 - FIXED_SHIFT)) and huge[1] == 3 * 2.0 ** -FIXED_SHIFT
 
 
-@pytest.mark.parametrize("lanes", [1, 8])
+@pytest.mark.parametrize("form", ["scalar", "vector"])
 @pytest.mark.parametrize("kw", [dict(texture="slab"), dict(texture="slab", bottom_interface="none"),
                                 dict(texture="granular")])
-def test_double_kernel_follows_reference_per_photon(engine, kw, lanes):
-    """Same events as the reference walk; weights to 1e-12 (exp() of two libms)."""
+def test_double_kernel_follows_reference_per_photon(engine, kw, form):
+    """Same events as the reference walk; weights to 1e-12 (exp() of two libms), one photon
+    per work-item and the device's widest vector lanes (conftest.lanes_of)."""
+    lanes = lanes_of(engine, form, "double")
     params = medium(mode="weighted", roulette_weight=0.05, albedo=0.3, **kw)
     n = 3000
     ref = simulate_reference(params, n, first_photon=5, records=True)
@@ -90,11 +92,12 @@ def test_weighted_sums_across_lane_widths(engine, precision, rtol):
     is the same bits (the absorbed fraction is the walk's own exp_neg, cl/scatter.h; with the
     driver's exp, whose vector and scalar forms differ in the last bit, the sums differed by
     2e-5): sums identical. In double precision the driver's exp: sums equal to rounding
-    (measured 2e-14)."""
+    (measured 2e-14). The widths: the device's own chain (conftest.vector_widths)."""
     p = medium(**SCATTERING, mode="weighted")
     n = 20_000
+    widths = vector_widths(engine, precision)
     base = engine.run(p, n, precision=precision, lanes=1, qualified=True)
-    for lanes in (4, 16 if precision == "single" else 8):
+    for lanes in widths:
         other = engine.run(p, n, precision=precision, lanes=lanes, qualified=True)
         assert other.fates.tolist() == base.fates.tolist()
         assert np.array_equal(other.time_any, base.time_any)
