@@ -161,6 +161,57 @@ def test_show_config_presets_devices(capsys):
     assert "picks" in capsys.readouterr().out
 
 
+def _fake_gpu(monkeypatch, tmp_path, node=True, library=True):
+    """A fake NVIDIA GPU for warpe_cl.drivers.unregistered_gpu_hint: its device node and its
+    OpenCL library under tmp_path (the probe's places monkeypatched); returns the library."""
+    from warpe_cl import drivers
+    lib_dir = tmp_path / "lib64"
+    lib_dir.mkdir()
+    lib = lib_dir / "libnvidia-opencl.so.1"
+    if library:
+        lib.write_bytes(b"\x7fELF")
+    dev = tmp_path / "nvidia0"
+    if node:
+        dev.write_text("")
+    monkeypatch.setattr(drivers, "GPU_DRIVERS", (
+        ("NVIDIA", (str(dev),), ("libnvidia-opencl.so.1",), "nvidia.icd"),))
+    monkeypatch.setattr(drivers, "GPU_LIBRARY_DIRS", (str(tmp_path / "none"), str(lib_dir)))
+    return lib
+
+
+def test_hint_for_a_gpu_the_loader_does_not_see(monkeypatch, tmp_path):
+    """A GPU in /dev and its driver's OpenCL library on disk, but no OpenCL GPU: one line
+    naming the library and the OCL_ICD_VENDORS recipe; nothing where OpenCL lists a GPU or
+    no GPU is there; what to install where only the device node is."""
+    from warpe_cl.drivers import unregistered_gpu_hint
+    lib = _fake_gpu(monkeypatch, tmp_path)
+    hint = unregistered_gpu_hint(gpu_listed=False)
+    assert len(hint.splitlines()) == 1 and str(lib) in hint
+    assert "OCL_ICD_VENDORS=" in hint and f"echo {lib} > " in hint and ".icd" in hint
+    assert unregistered_gpu_hint(gpu_listed=True) is None
+    lib.unlink()
+    hint = unregistered_gpu_hint(gpu_listed=False)
+    assert "no libnvidia-opencl.so.1 was found" in hint and "nvidia0" in hint
+
+
+def test_no_hint_without_a_gpu(monkeypatch, tmp_path):
+    from warpe_cl.drivers import unregistered_gpu_hint
+    _fake_gpu(monkeypatch, tmp_path, node=False, library=False)
+    assert unregistered_gpu_hint(gpu_listed=False) is None
+
+
+def test_devices_says_the_gpu_is_unregistered(monkeypatch, tmp_path, capsys):
+    """`warpe-cl devices` with no OpenCL device at all and a GPU on the system: exit 3, the
+    install line and the hint."""
+    import warpe_cl.device
+    lib = _fake_gpu(monkeypatch, tmp_path)
+    monkeypatch.setattr(warpe_cl.device, "list_devices", lambda: [])
+    assert main(["devices"]) == 3
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("no OpenCL platform found")
+    assert lines[1].startswith("hint: an NVIDIA GPU") and str(lib) in lines[1]
+
+
 def test_python_dash_m_entry_point():
     res = subprocess.run([sys.executable, "-m", "warpe_cl", "show-config", str(PRESET)],
                          capture_output=True, text=True, cwd=REPO)

@@ -416,9 +416,13 @@ def cmd_devices(args) -> int:
     from . import report
     from .device import INSTALL_HINT, list_devices, probe, resolve_spec
     from .qualify import qualification, select_device
+    from .drivers import unregistered_gpu_hint
     devices = list_devices()
+    hint = unregistered_gpu_hint(any(info.kind == "gpu" for info, _ in devices))
     if not devices:
         print(f"no OpenCL platform found; {INSTALL_HINT}")
+        if hint:
+            print(hint)
         return EXIT_DEVICE
     if args.requalify:
         from .qualify import VerdictCache
@@ -431,6 +435,8 @@ def cmd_devices(args) -> int:
             print(line)
         if status is not None:
             _print_all_verdicts(info, check=args.all and status.usable)
+    if hint:
+        print(hint)
     spec = resolve_spec(args.device)
     try:
         info, _ = select_device(spec)

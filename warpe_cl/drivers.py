@@ -192,3 +192,55 @@ def register() -> dict:
         return {}
     os.environ["OCL_ICD_VENDORS"] = str(folder)
     return libs
+
+
+#: GPU drivers whose device shows in /dev while their OpenCL library may be unregistered:
+#: ``(vendor, device nodes, OpenCL library file names, .icd file name)``
+GPU_DRIVERS = (
+    ("NVIDIA", ("/dev/nvidia0",), ("libnvidia-opencl.so.1", "libnvidia-opencl.so"), "nvidia.icd"),
+    ("AMD", ("/dev/kfd",), ("libamdocl64.so",), "amdocl64.icd"),
+)
+#: where GPU images put the drivers' libraries (container runtimes: /usr/local/nvidia/lib64)
+GPU_LIBRARY_DIRS = ("/usr/local/nvidia/lib64", "/usr/local/nvidia/lib",
+                    "/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64",
+                    "/usr/lib", "/opt/rocm/lib", "/opt/rocm/opencl/lib")
+
+
+def unregistered_gpu_hint(gpu_listed: bool) -> str | None:
+    """One line where a GPU is visible to the system but OpenCL lists none: a GPU's device
+    node (``/dev/nvidia0``, ``/dev/kfd``) or its driver's OpenCL library
+    (``libnvidia-opencl.so.1``, ``libamdocl64.so`` in :data:`GPU_LIBRARY_DIRS`) is there, and
+    no ``.icd`` file registers it (issue 43: many GPU images ship the library without
+    ``/etc/OpenCL/vendors/nvidia.icd``). The line names the library and how to register it
+    without root (``$OCL_ICD_VENDORS``, docs/devices.md); where no library is found, what to
+    install. Looks at the file system only.
+
+    Parameters
+    ----------
+    gpu_listed : bool
+        Whether OpenCL lists a GPU device (then there is nothing to say).
+
+    Returns
+    -------
+    str or None
+    """
+    if gpu_listed:
+        return None
+    for vendor, nodes, libraries, icd_name in GPU_DRIVERS:
+        present = [n for n in nodes if os.path.exists(n)]
+        found = [str(Path(d) / name) for d in GPU_LIBRARY_DIRS for name in libraries
+                 if (Path(d) / name).is_file()]
+        if not present and not found:
+            continue
+        seen = ", ".join(present + found[:1])
+        if not found:
+            return (f"hint: an {vendor} GPU is visible to the system ({seen}) but not to OpenCL, "
+                    f"and no {libraries[0]} was found in {', '.join(GPU_LIBRARY_DIRS)}: install "
+                    f"its driver's OpenCL library, then register it (docs/devices.md)")
+        folder = "$HOME/.opencl-vendors"
+        return (f"hint: an {vendor} GPU is visible to the system ({seen}) but not to OpenCL: "
+                f"register its driver's library without root: mkdir -p {folder} && "
+                f"cp /etc/OpenCL/vendors/*.icd {folder}/ 2>/dev/null; "
+                f"echo {found[0]} > {folder}/{icd_name} && export OCL_ICD_VENDORS={folder} "
+                f"(docs/devices.md)")
+    return None
