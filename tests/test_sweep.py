@@ -293,6 +293,27 @@ def test_one_worker_process_per_device(reference, engine, tmp_path):
     assert os.getpid() not in {r["pid"] for r in _manifest(folder)["scenarios"]}
 
 
+@pytest.mark.slow
+def test_one_worker_process_per_driver(reference, tmp_path):
+    """The sweep over several devices (docs/cluster.md "Several GPUs"), with this machine's two
+    CPU drivers standing in for two GPUs: `--device A,B` spawns one worker process per device;
+    every scenario is walked on one of them, and the grid is the same bits as `warpe-cl run`
+    on the session's device (the walk gives the same bits on every qualified driver)."""
+    from warpe_cl.device import list_devices
+    cpus = {info.spec: info.device for info, _ in list_devices() if info.kind == "cpu"}
+    if len(cpus) < 2:
+        pytest.skip(f"one CPU driver only ({sorted(cpus)}): no two devices to spread over")
+    specs = sorted(cpus)[:2]
+    _, preset, run, _ = reference
+    folder = tmp_path / "drivers"
+    assert main(["sweep", str(preset), "--out", str(folder), "--device", ",".join(specs),
+                 "--quiet"]) == 0
+    _assert_same_bits(warpe_cl.open_database(folder), run)
+    records = _manifest(folder)["scenarios"]
+    assert {r["device"] for r in records} <= {cpus[s] for s in specs}, records
+    assert os.getpid() not in {r["pid"] for r in records}
+
+
 def test_out_file_gets_the_combined_grid(reference, tmp_path):
     _, preset, run, _ = reference
     out = tmp_path / "all.nc"
