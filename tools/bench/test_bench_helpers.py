@@ -173,3 +173,56 @@ def test_bench_invert_grid_and_rounds():
         ["store", "files", "files", "store", "store", "files"]
     assert bench_invert.spread_text([3.0, 1.0, 2.0]) == "2 s [1, 3] (3 rounds)"
     assert bench_invert.spread([0.5]) == {"median": 0.5, "min": 0.5, "max": 0.5, "n": 1}
+
+
+# --------------------------------------------------------------------------- gpu_check.py
+
+import gpu_check  # noqa: E402
+
+
+def test_gpu_check_plan_has_every_step_on_the_device(tmp_path):
+    """The five steps in order, each pointed at the device (the tests through
+    $WARPE_CL_DEVICE, the tools through --device); MCX skipped, and said so, without pmcx."""
+    steps = gpu_check.plan("2:0", tmp_path, quick=False, mcx=None, python="py")
+    assert [s.name for s in steps] == ["devices", "tests", "bench", "mcx", "paper"]
+    assert all(s.env["WARPE_CL_DEVICE"] == "2:0" for s in steps)
+    devices, tests, bench_, mcx, paper = steps
+    assert devices.command[-3:] == ["--requalify", "--device", "2:0"]
+    assert set(gpu_check.TEST_FILES) <= set(tests.command) and "-k" not in tests.command
+    assert "analog,weighted" in bench_.command and "--scenes" not in bench_.command
+    assert bench_.command[bench_.command.index("--rounds") + 1] == "3"
+    assert mcx.skip and "pmcx" in mcx.skip
+    assert paper.command[paper.command.index("--photons") + 1] == "1e+06"
+    assert "--only" not in paper.command and str(tmp_path / "paper" / "data") in paper.command
+    quick = gpu_check.plan("0:0", tmp_path, quick=True, mcx="pmcx", python="py")
+    assert "-k" in quick[1].command and quick[3].skip is None and "--only" in quick[4].command
+
+
+def test_gpu_check_reads_pytest_and_bench():
+    assert gpu_check.pytest_counts("...\n3 failed, 131 passed, 2 skipped in 9.10s\n") == {
+        "failed": 3, "passed": 131, "skipped": 2}
+    assert gpu_check.pytest_counts("no summary") == {}
+    result = {"scenes": {"B1": {"opencl": {"scattering_events_per_s": 2e10},
+                                "opencl_weighted": {"scattering_events_per_s": 3e10},
+                                "ratio_to_mcxcl": 2.5},
+                         "T1": {"opencl": {"scattering_events_per_s": 1.8e10}}},
+              "tail_over_b1": {"ratio_events_per_s": {"median": 0.9, "min": 0.8, "max": 1.0}}}
+    figures = gpu_check.bench_figures(result)
+    assert figures == {"B1 analog": 2e10, "B1 weighted": 3e10, "ours/MCX": 2.5,
+                       "T1 analog": 1.8e10, "T1/B1": 0.9}
+    rows = gpu_check.verdicts(figures, paper_s=29.5)
+    assert [ok for _, _, ok in rows] == [True, True, False]
+    lines = gpu_check.summary_lines("2:0", [{"name": "mcx", "skip": "no pmcx"},
+                                            {"name": "paper", "rc": 0, "wall_s": 29.5}],
+                                    figures, quick=False)
+    assert "| mcx | skipped | 0.0 | no pmcx |" in lines and "| paper < 5.0 s | 29.5 | NO |" in lines
+
+
+def test_gpu_check_refuses_bad_input(capsys):
+    for argv in (["--device", "gpu0"], ["--photons", "0"]):
+        with pytest.raises(SystemExit) as err:
+            gpu_check.parse_args(argv)
+        assert err.value.code == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert gpu_check.mcx_available(lambda name: None) is None
+    assert gpu_check.mcx_available(lambda name: name == "pmcx" or None) == "pmcx"
