@@ -149,7 +149,9 @@ families:
   - {name: syn, database: DB}
 instruments:
   - {name: bela}
-  - {name: fast, instrument: bela, set: {transmitter.pulse_fwhm: "2 ns", adc.sampling_interval: "1 ns"}}
+  - name: fast
+    instrument: bela
+    set: {transmitter.pulse_fwhm: "2 ns", adc.sampling_interval: "1 ns"}
 """
 
 

@@ -9,7 +9,7 @@ instruments and options, checked whole before any work.
         photons: 3e4                        # optional, with preset: rays per scenario
     instruments:
       - name: bela                          # a label
-        instrument: bela                    # bela, gala, atlas or an instrument YAML (default: name)
+        instrument: bela                    # bela, gala, atlas or a YAML file (default: name)
         set: {shots: 100, transmitter.pulse_fwhm: "1 ns"}   # instrument keys, as --set
     options:
       phases: 8                             # sampling phases averaged
