@@ -328,6 +328,23 @@ def cmd_invert(args) -> int:
     return EXIT_OK
 
 
+def cmd_design(args) -> int:
+    """``warpe-cl design STUDY.yaml --out DIR``: expected posterior widths of surface families
+    for candidate instruments (docs/design.md)."""
+    from .design.run import run_study
+    say = _say(args)
+    t0 = time.perf_counter()
+    done = run_study(args.study, args.out, overwrite=args.overwrite, say=say, quiet=args.quiet,
+                     device=args.device)
+    for line in done["summary"].splitlines():
+        say(line)
+    for path in done["files"]:
+        say(f"wrote {path}")
+    say(f"expected widths in {done['elapsed_s']:.2f} s ({time.perf_counter() - t0:.2f} s in "
+        "all)")
+    return EXIT_OK
+
+
 def _scenario(args):
     """``--scenario`` as an index, or None."""
     if args.scenario is None:
@@ -722,6 +739,18 @@ def make_parser() -> argparse.ArgumentParser:
     inv.add_argument("--scenario", help="the scenario of an instrument file holding a sweep")
     inv.add_argument("--quiet", action="store_true", help="print nothing but errors")
     inv.set_defaults(func=cmd_invert)
+
+    de = sub.add_parser("design", help="expected posterior widths of surface families for "
+                                       "candidate instruments (an instrument-design study)")
+    de.add_argument("study", help="a design study YAML file (docs/design.md)")
+    de.add_argument("--out", required=True,
+                    help="output folder: design.nc, summary.txt and the figures")
+    de.add_argument("--overwrite", action="store_true",
+                    help="replace the files of an earlier study in --out")
+    de.add_argument("--device", default=None,
+                    help="device of the sweeps of families given by a preset (as for sweep)")
+    de.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    de.set_defaults(func=cmd_design)
     return p
 
 

@@ -1,0 +1,200 @@
+"""``warpe-cl design`` (docs/design.md): the Fisher widths against the spread of noisy fits, the
+ordering of receivers, the scaling with shots, and the refusals of bad study files.
+
+Synthetic databases (tests/conftest.py): exponential responses R_d ∝ exp(−t/τ) at τ = 1, 2,
+4, 8 ns stored as a "thickness" τ mm. Displacement interpolation of exponentials in ln τ is
+exact (their quantile functions scale with τ), so the database is the truth between nodes.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import xarray as xr
+from scipy.optimize import minimize_scalar
+
+from conftest import synthetic_database, synthetic_surface
+from warpe_cl.cli import main
+from warpe_cl.design.expected import expected
+from warpe_cl.design.family import Family
+from warpe_cl.design.fisher import linear_information
+from warpe_cl.instrument import apply_instrument, load_instrument
+from warpe_cl.inversion.forward import Forward
+from warpe_cl.inversion.space import Space
+
+KEY = "medium.thickness"
+TAUS = (1.0, 2.0, 4.0, 8.0)
+
+
+@pytest.fixture(scope="module")
+def database(tmp_path_factory):
+    return synthetic_database(tmp_path_factory.mktemp("design") / "db.nc", taus=TAUS)
+
+
+@pytest.fixture(scope="module")
+def family(database):
+    return Family("synthetic", xr.open_dataset(database))
+
+
+@pytest.mark.parametrize("tau", [2.8, 5.6])
+def test_fisher_sd_matches_the_spread_of_noisy_fits(database, tau):
+    """Shots of the full chain (apply_instrument: Poisson-Gamma photoelectrons, speckle,
+    electronic noise, quantisation) of a surface between nodes, fitted for ln τ with the
+    nuisances known (each shot's sampling phase and speckle factor, v = 0): the sd of 30 fits
+    agrees with the Fisher sd at fixed nuisances. The sample sd of R fits has the standard
+    error sd / sqrt(2 (R - 1)) (13 % for R = 30); the tolerance is 3 of them. The Fisher sd
+    is taken at a = 1 for every shot, the fits see E[a²] = 1 + 1/M (M = 78 for BELA): 1.3 %,
+    well inside it."""
+    space = Space(xr.open_dataset(database))
+    params = load_instrument("bela")
+    f = Forward(params)
+
+    def wave(u):
+        return f.waveform(f.photons(space.surface({KEY: math.exp(u)})), 0.0)
+    u0, h = math.log(tau * 1e-3), 0.02
+    mu, nu = wave(u0)
+    (mp, np_), (mm, nm) = wave(u0 + h), wave(u0 - h)
+    shots, runs = 20, 30
+    info = linear_information(f, mu, nu, ((mp - mm) / (2 * h))[None],
+                              ((np_ - nm) / (2 * h))[None], shots, nuisances=())
+    fisher_sd = 1.0 / math.sqrt(info[0, 0])
+    rec = apply_instrument(synthetic_surface(diffuse_integral=0.05, tau=tau), params,
+                           shots=shots * runs, seed=3)
+    x = rec["signal_mv"].values - f.baseline
+    phase, factor = rec["sampling_phase"].values, rec["speckle_factor"].values
+    at = rec["sample_time"].values[None, :] + phase[:, None]
+    lo, hi = math.log(TAUS[0] * 1e-3), math.log(TAUS[-1] * 1e-3)
+    fits = []
+    for r in range(runs):
+        s = slice(r * shots, (r + 1) * shots)
+
+        def nll(u):
+            m, n = wave(u)
+            mean = factor[s, None] * np.interp(at[s], f.t, m)
+            var = f.sigma_n ** 2 + factor[s, None] * np.interp(at[s], f.t, n)
+            return 0.5 * np.sum((x[s] - mean) ** 2 / var + np.log(var))
+        fits.append(minimize_scalar(nll, bounds=(lo, hi), method="bounded",
+                                    options={"xatol": 1e-5}).x)
+    sd = float(np.std(fits, ddof=1))
+    se = sd / math.sqrt(2 * (runs - 1))
+    assert abs(sd - fisher_sd) < 3 * se, (sd, fisher_sd, se)
+    assert abs(np.mean(fits) - u0) < 3 * sd / math.sqrt(runs) + 0.01   # unbiased
+
+
+def test_a_narrower_pulse_and_finer_sampling_never_widen_the_interval(family):
+    """At equal photons (the same pulse energy and receiver), a 3 ns pulse sampled every 2.5 ns
+    gives no wider expected interval than BELA's 6.5 ns pulse sampled every 12.5 ns, at every
+    node, for every parameter."""
+    wide = expected(family, load_instrument("bela"))
+    narrow = expected(family, load_instrument("bela", {"transmitter.pulse_fwhm": "3 ns",
+                                                       "adc.sampling_interval": "2.5 ns"}))
+    assert np.all(narrow.width_ratio <= wide.width_ratio + 1e-12)
+    assert np.all(narrow.sd <= wide.sd * (1 + 1e-9))
+    assert np.all(narrow.min_delta_chi2 >= wide.min_delta_chi2 * (1 - 1e-9))
+    assert np.any(narrow.width_ratio < wide.width_ratio - 0.05)      # and better somewhere
+
+
+def noisy_family(error=0.05):
+    """The synthetic family with a Monte Carlo standard error of ``error`` of the response in
+    every log time bin."""
+    parts = []
+    for t in TAUS:
+        ds = synthetic_surface(diffuse_integral=0.05, tau=t)
+        ds["reflectance_stderr"] = error * ds["reflectance"]
+        parts.append(ds)
+    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
+    db["time_edges"] = parts[0]["time_edges"]
+    db = db.assign_coords({KEY: ("scenario", np.asarray(TAUS) * 1e-3,
+                                 {"sweep_key": KEY, "units": "m"})})
+    return Family("noisy", db)
+
+
+def test_widths_fall_as_one_over_root_shots_unless_the_database_limits_them(family):
+    """Without the database's own error the Fisher sd falls as 1/sqrt(shots) exactly; with it
+    (a 5 % Monte Carlo error per log bin of every node) 100 times the shots give less than
+    10 times narrower intervals: the error is common to the shots and does not average
+    down."""
+    few = expected(family, load_instrument("bela", {"shots": 100}), database_error=False)
+    many = expected(family, load_instrument("bela", {"shots": 100000}), database_error=False)
+    ok = np.isfinite(few.sd) & np.isfinite(many.sd)
+    np.testing.assert_allclose(many.sd[ok] * math.sqrt(1000), few.sd[ok], rtol=1e-6)
+    noisy = noisy_family()
+    exact = expected(noisy, load_instrument("bela", {"shots": 100000}), database_error=False)
+    capped = expected(noisy, load_instrument("bela", {"shots": 100000}))
+    np.testing.assert_allclose(exact.sd[ok], many.sd[ok], rtol=1e-9)
+    assert np.all(capped.sd[ok] >= many.sd[ok] * (1 - 1e-9))
+    assert np.any(capped.sd[ok] > 2.0 * many.sd[ok])
+
+
+def test_photon_counting_information_scales_with_shots(family):
+    """A photon-counting receiver (ATLAS's, moved to the database's 1064 nm): Poisson
+    information on the summed histogram, finite, and proportional to the shots."""
+    atlas = {"wavelength": "1064 nm"}
+    a = expected(family, load_instrument("atlas", {**atlas, "shots": 1000}))
+    b = expected(family, load_instrument("atlas", {**atlas, "shots": 4000}))
+    assert np.all(np.isfinite(a.sd[:, 0]))
+    np.testing.assert_allclose(b.sd * 2.0, a.sd, rtol=1e-6)
+
+
+def _study(tmp_path, database, text):
+    path = tmp_path / "study.yaml"
+    path.write_text(text.replace("DB", str(database)))
+    return path
+
+
+GOOD = """\
+name: t
+families:
+  - {name: syn, database: DB}
+instruments:
+  - {name: bela}
+  - name: fast
+    instrument: bela
+    set: {transmitter.pulse_fwhm: "2 ns", adc.sampling_interval: "1 ns"}
+"""
+
+
+def test_design_writes_its_dataset_table_and_figures(tmp_path, database, capsys):
+    """The verb end to end: design.nc with long_name and units on every variable and
+    coordinate, summary.txt, a map per instrument and the ranking; a second run without
+    --overwrite is refused."""
+    study = _study(tmp_path, database, GOOD)
+    out = tmp_path / "out"
+    assert main(["design", str(study), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| bela |" in printed and "| fast |" in printed
+    ds = xr.open_dataset(out / "design.nc")
+    assert dict(ds.sizes) == {"point": 4, "instrument": 2, "parameter": 2}
+    for name, var in {**ds.data_vars, **ds.coords}.items():
+        assert "long_name" in var.attrs and "units" in var.attrs, name
+    assert (out / "summary.txt").read_text().count("| ") > 4
+    for name in ("map_syn_bela.png", "map_syn_fast.png", "ranking.png"):
+        assert (out / name).stat().st_size > 1000
+    ds.close()
+    assert main(["design", str(study), "--out", str(out)]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text, words", [
+    (GOOD.replace("database: DB", "datbase: DB"),
+     ["families[0].datbase", "unknown key", "database, preset, photons"]),
+    (GOOD.replace('"2 ns"', '"2 furlong"'),
+     ["transmitter.pulse_fwhm", "2 furlong", "with a unit"]),
+    (GOOD.replace("DB", "/nonexistent/db"),
+     ["families[0].database", "/nonexistent/db", "no such database"]),
+    (GOOD + "options: {phases: 0}\n", ["options.phases", "0", "[1, 64]"]),
+    (GOOD.replace("- {name: bela}", "- {name: bela, instrument: atlas}"),
+     ["532 nm", "1064 nm", "several wavelengths"]),
+])
+def test_bad_study_files_exit_2_with_one_line(tmp_path, database, capsys, text, words):
+    """An unknown key, a value with a unit not allowed, a missing database, an option out of
+    range, an instrument at another wavelength than the database: exit 2, one line on stderr
+    naming the key, the value and what is allowed, before any work."""
+    study = _study(tmp_path, database, text)
+    assert main(["design", str(study), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+    assert not (tmp_path / "out" / "design.nc").exists()

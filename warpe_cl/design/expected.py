@@ -1,0 +1,203 @@
+"""Expected posterior widths and distinguishability at every node of a family for one
+instrument (docs/design.md §2-§3).
+
+For each node: the information matrix of :mod:`.fisher` about the swept keys (in their
+interpolation coordinates), its inverse as the posterior covariance, and
+
+- per swept key, the width ratio 2 z₉₇.₅ sd / (0.95 × range), the posterior 95 % width over the
+  prior's in the prior's coordinate (the inversion's ``width_ratio``, docs/inversion.md §5),
+  capped at 1: a Fisher width wider than the prior means the prior, not the data, bounds it;
+- per derived quantity (E, τ0, ⟨t⟩), the same with the sd of its comparison coordinate (ln of
+  the value) along its gradient, over its prior 95 % width;
+- the Asimov Δχ² to each neighbouring node: the information along the step from the node to
+  the neighbour, nuisances marginalised (linear in the step); its least over the neighbours,
+  and whether it reaches :data:`DISTINGUISHABLE`.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..inversion.emulator import Emulator
+from ..inversion.forward import Forward
+from ..inversion.invert import DETECTION_SIGMA
+from .family import slope
+from .fisher import NUISANCES, counting_information, covariance, linear_information, sd_along
+
+#: z of the 97.5 % point of a Gaussian: a 95 % interval is ± this many sd.
+Z95 = 1.959963984540054
+#: Δχ² from which a node is told apart from a neighbour: the 95 % point of χ² with one
+#: degree of freedom.
+DISTINGUISHABLE = 3.841458820694124
+#: A photon-counting observation with fewer expected signal counts (all shots) is not
+#: detected.
+COUNTS_DETECTED = 10.0
+#: Step of the pulse-broadening nuisance v for its derivative, in units of the pulse's σ².
+PULSE_STEP = 0.1
+
+
+@dataclass
+class Expected:
+    """What :func:`expected` finds for one family and one instrument (arrays over the
+    family's nodes, in the order of ``family.nodes``).
+
+    Attributes
+    ----------
+    width_ratio : array (nodes, parameters)
+        Expected 95 % width over the prior's, capped at 1 (NaN: no range).
+    width_ratio_exact : array (nodes, parameters)
+        The same with the database taken as exact (equal to ``width_ratio`` for counts).
+    sd : array (nodes, parameters)
+        Fisher standard deviation in the comparison coordinate (inf: not constrained).
+    detected : array of bool (nodes,)
+    peak_snr : array (nodes,)
+        Linear mode: the expected peak over σ_n; counting: the expected signal counts of
+        all shots.
+    min_delta_chi2 : array (nodes,)
+        The least Asimov Δχ² to a neighbouring node.
+    nearest : array of int (nodes,)
+        The index (in ``family.nodes``) of that neighbour (-1 for none).
+    elapsed_s : float
+    """
+    width_ratio: np.ndarray
+    width_ratio_exact: np.ndarray
+    sd: np.ndarray
+    detected: np.ndarray
+    peak_snr: np.ndarray
+    min_delta_chi2: np.ndarray
+    nearest: np.ndarray
+    elapsed_s: float
+
+
+def expected(family, params, *, phases: int = 8, database_error: bool = True,
+             nuisances=NUISANCES) -> Expected:
+    """Expected widths and distinguishability at every node of ``family`` for one instrument.
+
+    Parameters
+    ----------
+    family : Family
+    params : InstrumentParams
+        The instrument, its ``shots`` the observation's.
+    phases : int
+        Sampling phases averaged (:func:`.fisher.linear_information`).
+    database_error : bool
+        Count the database's own error (linear mode; docs/inversion.md §4.3).
+    nuisances : iterable of str
+        The nuisances marginalised (:data:`.fisher.NUISANCES`).
+
+    Returns
+    -------
+    Expected
+    """
+    started = time.perf_counter()
+    forward = Forward(params)
+    shots = int(params["shots"])
+    counting = forward.counting
+    emulator = Emulator(family.space, forward) if database_error and not counting else None
+    n_nodes, n_axes = len(family.nodes), len(family.axes)
+    n_par = n_axes + len(family.derived)
+    out = Expected(np.full((n_nodes, n_par), np.nan), np.full((n_nodes, n_par), np.nan),
+                   np.full((n_nodes, n_par), np.nan), np.zeros(n_nodes, bool),
+                   np.zeros(n_nodes), np.zeros(n_nodes), np.full(n_nodes, -1), 0.0)
+    position = {node.index: i for i, node in enumerate(family.nodes)}
+    waves = [forward.waveform(forward.photons(node.surface), 0.0) for node in family.nodes]
+    h = PULSE_STEP * forward.sigma_p ** 2
+
+    def information(mu, nu, d_mu, d_nu, pulse, variance):
+        if counting:
+            return counting_information(forward, mu, d_mu, shots, pulse=pulse[0],
+                                        phases=phases, nuisances=nuisances)
+        return linear_information(forward, mu, nu, d_mu, d_nu, shots, pulse=pulse,
+                                  variance=variance, phases=phases, nuisances=nuisances)
+
+    for i, node in enumerate(family.nodes):
+        mu, nu = waves[i]
+        nu = np.zeros_like(mu) if nu is None else nu
+        if counting:
+            strength = shots * float(np.sum(mu)) * forward.step
+            detected = strength >= COUNTS_DETECTED
+        else:
+            strength = float(mu.max()) / forward.sigma_n
+            detected = strength >= DETECTION_SIGMA
+        out.peak_snr[i], out.detected[i] = strength, detected
+        photons = forward.photons(node.surface)
+        d_mu, d_nu = [], []
+        for j in range(n_axes):
+            sides = []
+            for moved in (node.below[j], node.above[j]):
+                if moved is None:
+                    sides.append(None)
+                    continue
+                m, n = forward.waveform(forward.photons(moved[0]), 0.0)
+                sides.append(((m, np.zeros_like(m) if n is None else n), moved[1]))
+            d_mu.append(slope(mu, *[None if s is None else (s[0][0], s[1]) for s in sides]))
+            d_nu.append(slope(nu, *[None if s is None else (s[0][1], s[1]) for s in sides]))
+        d_mu, d_nu = np.array(d_mu), np.array(d_nu)
+        pulse = _pulse_derivative(forward, photons, mu, nu, h)
+        variance = None
+        if emulator is not None:
+            points = [m[2] for m in node.below + node.above if m is not None]
+            variance = sum(emulator.variance(p) for p in points) / max(len(points), 1)
+        # one information matrix holds the axes and the steps to the neighbours: its
+        # diagonal element of a step is the Asimov Δχ² of that step alone (the nuisances
+        # marginalised, the other directions held)
+        near = [position[nb] for nb in family.neighbours(node.index)]
+        steps_mu = [waves[k][0] - mu for k in near]
+        steps_nu = [(np.zeros_like(mu) if waves[k][1] is None else waves[k][1]) - nu
+                    for k in near]
+        all_mu = np.concatenate([d_mu, np.array(steps_mu).reshape(-1, mu.size)])
+        all_nu = np.concatenate([d_nu, np.array(steps_nu).reshape(-1, mu.size)])
+        ratios = {}
+        for label, var in (("model", variance), ("exact", None)):
+            if label == "exact" and emulator is None:
+                ratios["exact"] = ratios["model"]
+                break
+            full = information(mu, nu, all_mu, all_nu, pulse, var)
+            cov = covariance(full[:n_axes, :n_axes])
+            sd = np.full(n_par, np.inf)
+            for j, axis in enumerate(family.axes):
+                sd[j] = sd_along(cov, np.eye(n_axes)[j])
+            for k, der in enumerate(family.derived):
+                q = der.quantity
+                here = q.coord(node.derived_here[k])
+                gradient = np.array([
+                    slope(here, None if node.below[j] is None else
+                          (q.coord(node.derived_below[j][k]), node.below[j][1]),
+                          None if node.above[j] is None else
+                          (q.coord(node.derived_above[j][k]), node.above[j][1]))
+                    for j in range(n_axes)])
+                sd[n_axes + k] = sd_along(cov, gradient)
+            widths = [family.prior_width(a) for a in family.axes] + \
+                     [d.prior_width for d in family.derived]
+            ratio = np.array([min(1.0, 2.0 * Z95 * s / w) if w > 0 else np.nan
+                              for s, w in zip(sd, widths)])
+            if not detected:
+                ratio = np.where(np.isfinite(ratio), 1.0, ratio)
+            ratios[label] = ratio
+            if label == "model":
+                out.sd[i] = sd
+                chi2 = np.diag(full)[n_axes:] if detected else np.zeros(len(near))
+                if near:
+                    k = int(np.argmin(chi2))
+                    out.min_delta_chi2[i], out.nearest[i] = float(chi2[k]), near[k]
+                else:
+                    out.min_delta_chi2[i] = np.nan
+        out.width_ratio[i], out.width_ratio_exact[i] = ratios["model"], ratios["exact"]
+    out.elapsed_s = time.perf_counter() - started
+    return out
+
+
+def _pulse_derivative(forward, photons, mu, nu, h):
+    """∂μ/∂v and ∂ν/∂v at v = 0 (central, or forward where v cannot go below 0 by h)."""
+    up = forward.waveform(photons, h)
+    if forward.v_bounds[0] <= -h:
+        down = forward.waveform(photons, -h)
+        dm = (up[0] - down[0]) / (2 * h)
+        dn = None if up[1] is None else (up[1] - down[1]) / (2 * h)
+    else:
+        dm = (up[0] - mu) / h
+        dn = None if up[1] is None else (up[1] - nu) / h
+    return dm, (np.zeros_like(dm) if dn is None else dn)
