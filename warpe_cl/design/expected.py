@@ -15,7 +15,6 @@ interpolation coordinates), its inverse as the posterior covariance, and
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 

@@ -17,8 +17,8 @@ import numpy as np
 
 from ..database import database_folder, load_result
 from ..errors import ConfigError
-from ..inversion.derived import (EDGE_BAND, _grid_values, _prior_grid, _quantiles,
-                                 _values_at, quantities)
+from ..inversion.derived import (EDGE_BAND, grid_values, prior_grid, quantiles,
+                                 values_at, quantities)
 from ..inversion.options import check_complete, dataset_header, header
 from ..inversion.space import Space
 
@@ -109,11 +109,11 @@ class Family:
                  if q.name in DERIVED]
         if not found:
             return []
-        coords, weights = _prior_grid(self.space)
-        values, w = _grid_values(self.space, found, coords, weights, math.inf)
+        coords, weights = prior_grid(self.space)
+        values, w = grid_values(self.space, found, coords, weights, math.inf)
         out = []
         for k, q in enumerate(found):
-            low, high = _quantiles(q.coord(values[k]).ravel(), w.ravel(),
+            low, high = quantiles(q.coord(values[k]).ravel(), w.ravel(),
                                    (EDGE_BAND, 1.0 - EDGE_BAND))
             out.append(Derived(q, float(high - low)))
         return out
@@ -125,7 +125,7 @@ class Family:
         point = {a.key: float(a.values[i]) for a, i in zip(self.axes, index)}
         found = [d.quantity for d in self.derived]
         here = NodePoints(index, point, space.nodes[index].surface,
-                          derived_here=_values_at(space, found, point, math.inf) if found
+                          derived_here=values_at(space, found, point, math.inf) if found
                           else [])
         for j, axis in enumerate(self.axes):
             x = axis.nodes
@@ -141,7 +141,7 @@ class Family:
                 moved = dict(point)
                 moved[axis.key] = float(axis.value(x[i] + side * step))
                 target.append((space.surface(moved), step, moved))
-                values.append(_values_at(space, found, moved, math.inf) if found else [])
+                values.append(values_at(space, found, moved, math.inf) if found else [])
         return here
 
     def neighbours(self, index: tuple) -> list:

@@ -174,7 +174,7 @@ def quantities(space, db, tail_after_ns: float) -> list:
     return out
 
 
-def _values_at(space, found: list, point: dict, tail_after_ns: float) -> list:
+def values_at(space, found: list, point: dict, tail_after_ns: float) -> list:
     """Each quantity's value at ``point`` (free key -> value in its unit)."""
     idx, w = corner_weights(space.coords_of(point), [a.nodes for a in space.axes])
     out, response = [], None
@@ -189,7 +189,7 @@ def _values_at(space, found: list, point: dict, tail_after_ns: float) -> list:
     return out
 
 
-def _grid_values(space, found, coords: list, weights: np.ndarray, tail_after_ns: float):
+def grid_values(space, found, coords: list, weights: np.ndarray, tail_after_ns: float):
     """Each quantity's value at every point of a grid of the free axes' coordinates (NaN and
     no mass at the points lighter than NEGLIGIBLE of the heaviest): (values, weights), each
     quantity's values with the grid's shape."""
@@ -198,11 +198,11 @@ def _grid_values(space, found, coords: list, weights: np.ndarray, tail_after_ns:
     w = np.where(weights >= NEGLIGIBLE * weights.max(), weights, 0.0)
     for index in zip(*np.nonzero(w)):
         point = {a.key: float(a.value(c[i])) for a, c, i in zip(axes, coords, index)}
-        values[(slice(None),) + index] = _values_at(space, found, point, tail_after_ns)
+        values[(slice(None),) + index] = values_at(space, found, point, tail_after_ns)
     return values, w / w.sum()
 
 
-def _prior_grid(space) -> tuple:
+def prior_grid(space) -> tuple:
     """A uniform grid over the prior box (every free axis' range, each node cell divided the
     same number of times, at most PRIOR_POINTS points) and its prior mass."""
     nodes = [a.nodes for a in space.free_axes]
@@ -218,7 +218,7 @@ def _prior_grid(space) -> tuple:
     return coords, vol / vol.sum()
 
 
-def _quantiles(x: np.ndarray, w: np.ndarray, qs) -> list:
+def quantiles(x: np.ndarray, w: np.ndarray, qs) -> list:
     """Weighted quantiles of values ``x`` of masses ``w``. The masses of equal values are
     gathered (on a rectangular grid a derived quantity takes a few values many times: E is
     constant along the diagonals of a ln d x ln c grid) and each is spread over the cell
@@ -358,27 +358,27 @@ def derived_measures(space, db, final, tail_after_ns: float, truth: dict | None 
     if not found:
         return []
     post_w = final.weights()
-    values, w = _grid_values(space, found, final.coords, post_w, tail_after_ns)
+    values, w = grid_values(space, found, final.coords, post_w, tail_after_ns)
     vol = np.ones(post_w.shape)
     for i, c in enumerate(final.coords):
         vol = vol * cell_widths(c).reshape([-1 if j == i else 1 for j in range(len(final.coords))])
     density = np.where(w > 0, w / vol, 0.0)
-    prior_coords, prior_w = _prior_grid(space)
-    prior_values, _ = _grid_values(space, found, prior_coords, prior_w, tail_after_ns)
+    prior_coords, prior_w = prior_grid(space)
+    prior_values, _ = grid_values(space, found, prior_coords, prior_w, tail_after_ns)
     free_index = [space.axes.index(a) for a in space.free_axes]
     inside = truth and all(
         a.key in truth and a.values[0] * (1 - 1e-9) <= truth[a.key] <= a.values[-1] * (1 + 1e-9)
         for a in space.free_axes)      # beyond the grid the interpolation would clip
-    true_values = (_values_at(space, found, {a.key: truth[a.key] for a in space.free_axes},
+    true_values = (values_at(space, found, {a.key: truth[a.key] for a in space.free_axes},
                               tail_after_ns) if inside else None)
     out = []
     for k, q in enumerate(found):
         c = q.coord(values[k])
         pc = q.coord(prior_values[k]).ravel()
-        med, l68, h68, l95, h95, l90, h90 = _quantiles(c.ravel(), w.ravel(),
+        med, l68, h68, l95, h95, l90, h90 = quantiles(c.ravel(), w.ravel(),
                                                        (0.5, 0.16, 0.84, 0.025, 0.975, 0.05,
                                                         0.95))
-        pl, ph = _quantiles(pc, prior_w.ravel(), (EDGE_BAND, 1.0 - EDGE_BAND))
+        pl, ph = quantiles(pc, prior_w.ravel(), (EDGE_BAND, 1.0 - EDGE_BAND))
         ratio = (h95 - l95) / (ph - pl) if ph > pl else math.nan
         peak = float(density.max())
         low_open = bool(np.any(density[c <= pl] >= EDGE_OPEN * peak))
