@@ -275,15 +275,22 @@ sweep:
 """
 
 
+def sweep_of(parts: list, values, key: str = "medium.thickness", units: str = "m"):
+    """Synthetic surfaces (:func:`synthetic_surface` results) stacked along ``scenario`` as a
+    sweep over ``key`` (``values`` in ``units``): what a `warpe-cl sweep` database reads back
+    as, with scenario keys 100, 101, ..."""
+    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
+    db["time_edges"] = parts[0]["time_edges"]
+    db = db.assign_coords({key: ("scenario", np.asarray(values, float),
+                                 {"sweep_key": key, "units": units})})
+    db["scenario_key"] = ("scenario", np.arange(len(parts)) + 100)
+    return db
+
+
 def synthetic_database(path, key: str = "medium.thickness", taus=(1.0, 2.0, 4.0)):
     """Write a sweep-like NetCDF of synthetic surfaces (:func:`synthetic_surface`, decay
     times ``taus`` in ns) along ``key`` (the decay time in mm, stored in m) to ``path``;
     returns ``path``."""
     parts = [synthetic_surface(diffuse_integral=0.05, tau=t) for t in taus]
-    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
-    db["time_edges"] = parts[0]["time_edges"]
-    db = db.assign_coords({key: ("scenario", np.asarray(taus) * 1e-3,
-                                 {"sweep_key": key, "units": "m"})})
-    db["scenario_key"] = ("scenario", np.arange(len(taus)) + 100)
-    db.to_netcdf(path, engine="h5netcdf")
+    sweep_of(parts, np.asarray(taus) * 1e-3, key).to_netcdf(path, engine="h5netcdf")
     return path

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import synthetic_surface
+from conftest import sweep_of, synthetic_surface
 from warpe_cl.cli import main
 from warpe_cl.instrument import apply_instrument, load_instrument
 from warpe_cl.inversion.forward import Forward
@@ -29,13 +29,8 @@ THICKNESS = TAUS * 1e-3                               # m: the swept values (log
 
 def database(taus=TAUS, integral=0.05):
     """A sweep of synthetic surfaces along KEY (a stand-in for a `warpe-cl sweep` database)."""
-    parts = [synthetic_surface(diffuse_integral=integral, tau=t) for t in taus]
-    ds = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
-    ds["time_edges"] = parts[0]["time_edges"]
-    ds = ds.assign_coords({KEY: ("scenario", np.asarray(taus) * 1e-3,
-                                 {"sweep_key": KEY, "units": "m"})})
-    ds["scenario_key"] = ("scenario", np.arange(len(taus)) + 100)
-    return ds
+    return sweep_of([synthetic_surface(diffuse_integral=integral, tau=t) for t in taus],
+                    np.asarray(taus) * 1e-3, KEY)
 
 
 def observation(tau, integral=0.05, shots=40, seed=4, **overrides):

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import synthetic_surface
+from conftest import sweep_of, synthetic_surface
 from warpe_cl.cli import main
 from warpe_cl.errors import ConfigError, WarpeWarning
 from warpe_cl.instrument import apply_instrument
@@ -34,13 +34,8 @@ TAUS = np.array([0.5, 1.0, 2.0, 4.0, 8.0, 16.0])
 
 def database(taus=TAUS, **surface):
     """A synthetic sweep along KEY (τ in ns stored as thickness in m)."""
-    parts = [synthetic_surface(tau=t, **surface) for t in taus]
-    ds = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
-    ds["time_edges"] = parts[0]["time_edges"]
-    ds = ds.assign_coords({KEY: ("scenario", np.asarray(taus) * 1e-3,
-                                 {"sweep_key": KEY, "units": "m"})})
-    ds["scenario_key"] = ("scenario", np.arange(len(taus)) + 100)
-    return ds
+    return sweep_of([synthetic_surface(tau=t, **surface) for t in taus],
+                    np.asarray(taus) * 1e-3, KEY)
 
 
 def granular(taus=TAUS, integral=0.05):

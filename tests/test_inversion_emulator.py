@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import synthetic_database, synthetic_surface
+from conftest import sweep_of, synthetic_database, synthetic_surface
 from warpe_cl.instrument import apply_instrument, load_instrument
 from warpe_cl.inversion.agreement import agreement
-from warpe_cl.inversion.emulator import Emulator, response_variance, shared_error
+from warpe_cl.inversion.emulator import Emulator, response_variance
 from warpe_cl.inversion.forward import Forward
-from warpe_cl.inversion.likelihood import Shots
 from warpe_cl.surface import SurfaceResponse, response
 from warpe_cl.inversion.space import Space
 
@@ -81,13 +80,7 @@ def mixture(x: float):
 
 
 def mixture_database(nodes=(1.0, 2.0, 4.0)):
-    parts = [mixture(x) for x in nodes]
-    db = xr.concat(parts, dim="scenario", data_vars="different", compat="equals")
-    db["time_edges"] = parts[0]["time_edges"]
-    db = db.assign_coords({KEY: ("scenario", np.asarray(nodes) * 1e-3,
-                                 {"sweep_key": KEY, "units": "m"})})
-    db["scenario_key"] = ("scenario", np.arange(len(nodes)) + 100)
-    return db
+    return sweep_of([mixture(x) for x in nodes], np.asarray(nodes) * 1e-3, KEY)
 
 
 @pytest.mark.parametrize("x", [1.4, 2.8])
