@@ -255,6 +255,18 @@ def synthetic_surface(diffuse_integral=0.0, tau=5.0, f_spec=0.0, f_bf=0.0, t_bf=
     return ds
 
 
+def quiet_sweep(preset, folder, **kw):
+    """:func:`warpe_cl.sweep.run_sweep` of ``preset`` into ``folder``, printing nothing."""
+    from warpe_cl.sweep import run_sweep
+    return run_sweep(preset, folder, quiet=True, say=lambda line: None, **kw)
+
+
+def read_manifest(folder, name: str = "manifest.json") -> dict:
+    """The manifest ``name`` of the database folder ``folder``, as a dict."""
+    import json
+    return json.loads((Path(folder) / name).read_text())
+
+
 def tiny_grid(photons: int, seed: int) -> str:
     """A preset of four slab scenarios (thickness 5 and 10 mm x tau0 0.5 and 2.0) as YAML
     text: the sweep grid of the database tests."""

@@ -18,21 +18,12 @@ import warpe_cl
 import warpe_cl.sweep as sweep_module
 from warpe_cl.cli import main
 from warpe_cl.errors import ConfigError
-from conftest import tiny_grid
+from conftest import quiet_sweep, read_manifest, tiny_grid
 
 GRID = tiny_grid(photons=300, seed=1)
 
 
-def _silent(line):
-    pass
 
-
-def _sweep(preset, folder, **kw):
-    return sweep_module.run_sweep(preset, folder, quiet=True, say=_silent, **kw)
-
-
-def _manifest(folder: Path, name="manifest.json") -> dict:
-    return json.loads((folder / name).read_text())
 
 
 @pytest.fixture
@@ -48,7 +39,7 @@ def done_db(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("done")
     path = tmp / "grid.yaml"
     path.write_text(GRID)
-    summary = _sweep(path, tmp / "db")
+    summary = quiet_sweep(path, tmp / "db")
     assert summary.exit_code == 0 and summary.done == 4
     return tmp / "db", path
 
@@ -94,10 +85,10 @@ def test_a_held_manifest_lock_refuses_a_second_sweep(preset, tmp_path, capsys):
         assert sorted(p.name for p in folder.iterdir()) == [".manifest.json.lock",
                                                              ".warpe-cl.lock"]
         with pytest.raises(ConfigError, match="is writing this database"):
-            _sweep(preset, folder)
+            quiet_sweep(preset, folder)
     finally:
         lock.release()
-    assert _sweep(preset, folder).done == 4          # free again
+    assert quiet_sweep(preset, folder).done == 4          # free again
     assert not _hidden(folder), "temporary files left behind"
 
 
@@ -134,7 +125,7 @@ def test_two_sweeps_of_different_seeds_into_one_folder(preset, tmp_path, monkeyp
 
     def run(name, seed):
         try:
-            outcome[name] = _sweep(preset, folder, overrides={"simulation.seed": seed}).done
+            outcome[name] = quiet_sweep(preset, folder, overrides={"simulation.seed": seed}).done
         except ConfigError as err:
             outcome[name] = err
 
@@ -198,7 +189,7 @@ def test_resume_rejects_truncated_and_changed_files(db, capsys):
     assert len(err) == 2
     assert files[1].name in err[0] and "unreadable" in err[0]
     assert files[2].name in err[1] and "sha256" in err[1]
-    rows = _manifest(folder)["scenarios"]
+    rows = read_manifest(folder)["scenarios"]
     assert [r["this_run"] for r in rows] == ["skipped", "computed", "computed", "skipped"]
     assert len(warpe_cl.open_database(folder)["scenario"]) == 4
 
@@ -208,7 +199,7 @@ def test_resume_rejects_truncated_and_changed_files(db, capsys):
 def test_every_done_row_records_its_files_sha256(done_db):
     folder, _ = done_db
     from warpe_cl.database import file_sha256
-    rows = _manifest(folder)["scenarios"]
+    rows = read_manifest(folder)["scenarios"]
     assert all(r["sha256"] == file_sha256(folder / r["file"]) for r in rows)
 
 
@@ -265,7 +256,7 @@ def test_a_tampered_manifest_is_refused(db, tamper, key, capsys):
     open_database and sweep --resume refuse with one line naming the file and the key
     (never relabelled data, another grid's result or a Python error)."""
     folder, preset = db
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     tamper(manifest)
     (folder / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(ConfigError, match=key.replace("[", r"\[").replace("]", r"\]")):
@@ -301,14 +292,14 @@ def test_out_file_of_something_else_needs_overwrite(preset, tmp_path):
     out = tmp_path / "all.nc"
     out.write_text("not a combined file of this grid")
     with pytest.raises(ConfigError, match="--overwrite"):
-        _sweep(preset, out)
+        quiet_sweep(preset, out)
     assert out.read_text() == "not a combined file of this grid"
     assert not (tmp_path / "all.sweep").exists()
-    assert _sweep(preset, out, overwrite=True).combined == out
+    assert quiet_sweep(preset, out, overwrite=True).combined == out
     combined = warpe_cl.open_database(tmp_path / "all.sweep")
     assert h5py.File(out, "r").attrs["sweep_fingerprint"] == combined.attrs["sweep_fingerprint"]
     # the combined file of this same grid is no obstacle
-    assert _sweep(preset, out, resume=True).skipped == 4
+    assert quiet_sweep(preset, out, resume=True).skipped == 4
 
 
 # --------------------------------------------------------------------------- grids (7)
@@ -355,12 +346,12 @@ def test_a_dropped_sigterm_stops_the_sweep_between_scenarios(preset, tmp_path, m
     folder = tmp_path / "db"
     try:
         with pytest.raises(stops.Terminated) as caught:
-            _sweep(preset, folder)
+            quiet_sweep(preset, folder)
     finally:
         stops.clear()
     summary = caught.value.summary
     assert (summary.done, summary.pending) == (1, 3)
-    rows = [r for r in _manifest(folder)["scenarios"] if r["status"] == "done"]
+    rows = [r for r in read_manifest(folder)["scenarios"] if r["status"] == "done"]
     assert [r["file"] for r in rows] == [p.name for p in folder.glob("s*.nc")]
     assert not _hidden(folder), "temporary files left behind"
 
@@ -404,7 +395,7 @@ def test_resume_checks_files_outside_the_folder_lock(db, monkeypatch):
             other.release()
         return real(path, *args)
     monkeypatch.setattr(sweep_module, "_file_problem", problem)
-    assert _sweep(preset, folder, resume=True).skipped == 4
+    assert quiet_sweep(preset, folder, resume=True).skipped == 4
     assert seen and all(seen), "files hashed under the folder lock"
 
 
@@ -414,12 +405,12 @@ def test_resume_after_another_shard_layout_keeps_a_correct_file(preset, tmp_path
     is checked as open_database checks it, not against the stale shard row."""
     folder = tmp_path / "db"
     for shard in ((0, 2), (1, 2)):
-        assert _sweep(preset, folder, shard=shard).done == 2
+        assert quiet_sweep(preset, folder, shard=shard).done == 2
     next(folder.glob("s00000_*.nc")).unlink()
-    assert _sweep(preset, folder, resume=True).done == 1
+    assert quiet_sweep(preset, folder, resume=True).done == 1
     warpe_cl.open_database(folder)
     capsys.readouterr()
-    summary = _sweep(preset, folder, resume=True)
+    summary = quiet_sweep(preset, folder, resume=True)
     assert (summary.done, summary.skipped) == (0, 4), capsys.readouterr().err
     assert not (folder / "rejected").exists()
 
@@ -476,7 +467,7 @@ def test_a_device_error_on_resume_comes_before_files_are_moved(db, monkeypatch):
         return real(scheduler, device, runnable)
     monkeypatch.setattr(sweep_module.Workers, "open", staticmethod(open_))
     with pytest.raises(DeviceError):
-        _sweep(preset, folder, resume=True)
+        quiet_sweep(preset, folder, resume=True)
     assert path.exists() and not (folder / "rejected").exists()
     assert (folder / "manifest.json").read_bytes() == before
 
@@ -484,11 +475,11 @@ def test_a_device_error_on_resume_comes_before_files_are_moved(db, monkeypatch):
 def test_a_rejected_file_line_is_printable(preset, tmp_path, capsys):
     """The --resume line naming a rejected file goes through errors.printable."""
     folder = tmp_path / "db\x1b[31m"
-    assert _sweep(preset, folder).done == 4
+    assert quiet_sweep(preset, folder).done == 4
     path = sorted(folder.glob("s*.nc"))[0]
     path.write_bytes(path.read_bytes()[:1000])
     capsys.readouterr()
-    assert _sweep(preset, folder, resume=True).done == 1
+    assert quiet_sweep(preset, folder, resume=True).done == 1
     err = [x for x in capsys.readouterr().err.splitlines() if "rejected/" in x]
     assert len(err) == 1 and "\x1b" not in err[0] and "\\x1b" in err[0], err
 
@@ -531,7 +522,7 @@ def test_a_failed_record_carries_no_sha256(preset, tmp_path, monkeypatch):
         return real(*args, **kw).drop_vars("photons")
     monkeypatch.setattr(api, "simulate_point", no_photons)
     folder = tmp_path / "db"
-    summary = _sweep(preset, folder)
+    summary = quiet_sweep(preset, folder)
     assert summary.exit_code == 1 and len(summary.failed) == 4
-    rows = _manifest(folder)["scenarios"]
+    rows = read_manifest(folder)["scenarios"]
     assert all(r["status"] == "failed" and "sha256" not in r for r in rows), rows

@@ -19,21 +19,12 @@ import warpe_cl.sweep as sweep_module
 from warpe_cl.database import STORE, file_sha256
 from warpe_cl.errors import WarpeWarning
 from warpe_cl.io import write_netcdf
-from conftest import tiny_grid
+from conftest import quiet_sweep, read_manifest, tiny_grid
 
 GRID = tiny_grid(photons=300, seed=1)
 
 
-def _silent(line):
-    pass
 
-
-def _sweep(preset, folder, **kw):
-    return sweep_module.run_sweep(preset, folder, quiet=True, say=_silent, **kw)
-
-
-def _manifest(folder: Path, name="manifest.json") -> dict:
-    return json.loads((folder / name).read_text())
 
 
 def _write_manifest(folder: Path, manifest: dict, name="manifest.json") -> None:
@@ -46,7 +37,7 @@ def done_db(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("store")
     preset = tmp / "grid.yaml"
     preset.write_text(GRID)
-    summary = _sweep(preset, tmp / "db")
+    summary = quiet_sweep(preset, tmp / "db")
     assert summary.exit_code == 0 and summary.done == 4
     assert summary.store == tmp / "db" / STORE
     return tmp / "db", preset
@@ -81,7 +72,7 @@ def _open_warns(folder) -> tuple:
 def test_a_finished_sweep_writes_its_store_and_records_it(done_db):
     folder, _ = done_db
     store = folder / STORE
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     record = manifest["store"]
     assert record["file"] == STORE and record["sha256"] == file_sha256(store)
     assert record["fingerprint"] == manifest["fingerprint"]
@@ -134,7 +125,7 @@ def test_a_store_older_than_a_recomputed_scenario_is_not_used(db):
     """A scenario file replaced by new bytes whose manifest row records them (what a resume
     that recomputes it does): the store holds the old values, so it is not used."""
     folder, _ = db
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     row = manifest["scenarios"][2]
     path = folder / row["file"]
     ds = xr.load_dataset(path, engine="h5netcdf")
@@ -151,7 +142,7 @@ def test_a_store_older_than_a_recomputed_scenario_is_not_used(db):
 
 def test_a_store_holding_a_scenario_no_longer_done_is_not_used(db):
     folder, _ = db
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     row = manifest["scenarios"][1]
     row["status"] = "pending"
     del row["sha256"]
@@ -163,7 +154,7 @@ def test_a_store_holding_a_scenario_no_longer_done_is_not_used(db):
 
 def test_a_store_of_another_grid_or_a_malformed_entry_is_not_used(db):
     folder, _ = db
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     good = dict(manifest["store"])
     manifest["store"] = {**good, "fingerprint": "0" * 64}
     _write_manifest(folder, manifest)
@@ -181,7 +172,7 @@ def test_edited_rows_make_the_store_unused_and_the_files_refuse_them(db):
     for other rows), and the files, read instead, refuse the relabelling as they always did."""
     from warpe_cl.errors import ConfigError
     folder, _ = db
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     rows = manifest["scenarios"]
     rows[0]["point"], rows[1]["point"] = rows[1]["point"], rows[0]["point"]
     _write_manifest(folder, manifest)
@@ -224,7 +215,7 @@ def test_an_unreadable_store_its_manifest_vouches_for_is_not_used(db):
     else, its entry edited to match): refused when read, the files read instead."""
     folder, _ = db
     (folder / STORE).write_bytes(b"not an HDF5 file")
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     manifest["store"]["sha256"] = file_sha256(folder / STORE)
     _write_manifest(folder, manifest)
     out, message = _open_warns(folder)
@@ -250,12 +241,12 @@ def test_an_incomplete_sweep_writes_no_store_the_shard_that_completes_does(tmp_p
     preset = tmp_path / "grid.yaml"
     preset.write_text(GRID)
     folder = tmp_path / "db"
-    assert _sweep(preset, folder, shard=(0, 2)).store is None
+    assert quiet_sweep(preset, folder, shard=(0, 2)).store is None
     assert not (folder / STORE).exists()
-    assert "store" not in _manifest(folder, "manifest-shard-0-of-2.json")
-    summary = _sweep(preset, folder, shard=(1, 2))
+    assert "store" not in read_manifest(folder, "manifest-shard-0-of-2.json")
+    summary = quiet_sweep(preset, folder, shard=(1, 2))
     assert summary.store == folder / STORE
-    record = _manifest(folder, "manifest-shard-1-of-2.json")["store"]
+    record = read_manifest(folder, "manifest-shard-1-of-2.json")["store"]
     assert record["sha256"] == file_sha256(folder / STORE) and len(record["scenarios"]) == 4
     assert warpe_cl.open_database(folder).attrs["sweep_store"] == STORE
 
@@ -273,20 +264,20 @@ def test_a_stopped_sweep_writes_no_store(tmp_path, monkeypatch):
         return real(task)
     monkeypatch.setattr(sweep_module, "run_scenario", stop_after_two)
     with pytest.raises(KeyboardInterrupt):
-        _sweep(preset, tmp_path / "db")
+        quiet_sweep(preset, tmp_path / "db")
     assert not (tmp_path / "db" / STORE).exists()
-    assert "store" not in _manifest(tmp_path / "db")
+    assert "store" not in read_manifest(tmp_path / "db")
 
 
 def test_resume_on_a_complete_folder_writes_a_missing_store(db):
     folder, preset = db
     (folder / STORE).unlink()
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     del manifest["store"]
     _write_manifest(folder, manifest)
-    summary = _sweep(preset, folder, resume=True)
+    summary = quiet_sweep(preset, folder, resume=True)
     assert summary.skipped == 4 and summary.done == 0 and summary.store == folder / STORE
-    assert _manifest(folder)["store"]["sha256"] == file_sha256(folder / STORE)
+    assert read_manifest(folder)["store"]["sha256"] == file_sha256(folder / STORE)
     assert warpe_cl.open_database(folder).attrs["sweep_store"] == STORE
 
 
@@ -294,17 +285,17 @@ def test_resume_keeps_a_good_store_and_rewrites_a_stale_one(db):
     folder, preset = db
     store = folder / STORE
     before = store.stat()
-    summary = _sweep(preset, folder, resume=True)
+    summary = quiet_sweep(preset, folder, resume=True)
     after = store.stat()
     assert summary.store is None                         # kept, not written again
     assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)
-    assert _manifest(folder)["store"]["sha256"] == file_sha256(store)
+    assert read_manifest(folder)["store"]["sha256"] == file_sha256(store)
     with open(store, "r+b") as fh:                       # now a changed byte
         fh.seek(200)
         fh.write(b"\xff\xff")
-    summary = _sweep(preset, folder, resume=True)
+    summary = quiet_sweep(preset, folder, resume=True)
     assert summary.store == store
-    assert _manifest(folder)["store"]["sha256"] == file_sha256(store)
+    assert read_manifest(folder)["store"]["sha256"] == file_sha256(store)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert warpe_cl.open_database(folder).attrs["sweep_store"] == STORE
@@ -312,17 +303,17 @@ def test_resume_keeps_a_good_store_and_rewrites_a_stale_one(db):
 
 def test_resume_that_recomputes_a_changed_file_rebuilds_the_store(db, capsys):
     folder, preset = db
-    manifest = _manifest(folder)
+    manifest = read_manifest(folder)
     path = folder / manifest["scenarios"][3]["file"]
     data = bytearray(path.read_bytes())
     data[-100] ^= 0xFF
     path.write_bytes(bytes(data))
-    summary = _sweep(preset, folder, resume=True)
+    summary = quiet_sweep(preset, folder, resume=True)
     assert summary.done == 1 and summary.store == folder / STORE
     assert (folder / "rejected" / path.name).is_file()
-    record = _manifest(folder)["store"]
+    record = read_manifest(folder)["store"]
     assert record["scenarios"]["3"] == file_sha256(path) == \
-        _manifest(folder)["scenarios"][3]["sha256"]
+        read_manifest(folder)["scenarios"][3]["sha256"]
     fast = warpe_cl.open_database(folder)
     assert fast.attrs["sweep_store"] == STORE
     assert _without_store_attr(fast).identical(warpe_cl.open_database(folder, store=False))
@@ -331,7 +322,7 @@ def test_resume_that_recomputes_a_changed_file_rebuilds_the_store(db, capsys):
 def test_out_nc_gets_its_combined_file_and_the_folder_its_store(tmp_path):
     preset = tmp_path / "grid.yaml"
     preset.write_text(GRID)
-    summary = _sweep(preset, tmp_path / "x.nc")
+    summary = quiet_sweep(preset, tmp_path / "x.nc")
     assert summary.combined == tmp_path / "x.nc"
     assert summary.store == tmp_path / "x.sweep" / STORE
     combined = xr.load_dataset(tmp_path / "x.nc", engine="h5netcdf")
@@ -344,5 +335,5 @@ def test_a_store_is_no_foreign_file_of_a_folder_without_manifest(db):
     folder, preset = db
     for path in folder.glob("manifest*.json"):
         path.unlink()
-    summary = _sweep(preset, folder, resume=True)
+    summary = quiet_sweep(preset, folder, resume=True)
     assert summary.exit_code == 0 and summary.store == folder / STORE

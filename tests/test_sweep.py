@@ -19,7 +19,7 @@ import warpe_cl
 from warpe_cl.cli import main
 from warpe_cl.config import load_grid, load_preset
 from warpe_cl.errors import ConfigError
-from conftest import tiny_grid
+from conftest import read_manifest, tiny_grid
 
 GRID = tiny_grid(photons=3000, seed=3)
 THICKNESS = ["5 mm", "5 mm", "10 mm", "10 mm"]          # outer product, first key slowest
@@ -55,9 +55,6 @@ def _hidden(folder: Path) -> list:
                        r"\.lock$")
     return sorted(p.name for p in folder.glob(".*") if not locks.match(p.name))
 
-
-def _manifest(folder: Path, name="manifest.json") -> dict:
-    return json.loads((folder / name).read_text())
 
 
 def _assert_same_bits(a: xr.Dataset, b: xr.Dataset):
@@ -128,7 +125,7 @@ def test_local_sweep_equals_run(reference):
         local["medium.thickness"].attrs
     assert np.allclose(local["thickness_m"], [0.005, 0.005, 0.01, 0.01], rtol=1e-12)
     assert set(local.coords) == set(run.coords) and set(local.dims) == set(run.dims)
-    manifest = _manifest(tmp / "local")
+    manifest = read_manifest(tmp / "local")
     assert [r["status"] for r in manifest["scenarios"]] == ["done"] * 4
     assert [r["key"] for r in manifest["scenarios"]] == list(run["scenario_key"].values)
     for rec in manifest["scenarios"]:
@@ -227,7 +224,7 @@ def test_shards_in_one_folder_and_in_separate_folders(reference, tmp_path, capsy
     for i in range(3):
         assert main(["sweep", str(preset), "--out", str(folder), "--shard", f"{i}/3",
                      "--quiet"]) == 0
-        owned = [r["index"] for r in _manifest(folder, f"manifest-shard-{i}-of-3.json")
+        owned = [r["index"] for r in read_manifest(folder, f"manifest-shard-{i}-of-3.json")
                  ["scenarios"] if r["status"] == "done"]
         assert owned == [j for j in range(4) if j % 3 == i]     # round robin: i mod N
     _assert_same_bits(warpe_cl.open_database(folder), run)
@@ -250,7 +247,7 @@ def test_dask_local_cluster_gives_the_same_bits(reference, tmp_path):
     assert main(["sweep", str(preset), "--out", str(folder), "--scheduler", "local:2",
                  "--quiet"]) == 0
     _assert_same_bits(warpe_cl.open_database(folder), run)
-    records = _manifest(folder)["scenarios"]
+    records = read_manifest(folder)["scenarios"]
     assert len({r["pid"] for r in records}) <= 2 and os.getpid() not in {r["pid"] for r in records}
     # cluster hygiene: PoCL threads from the CPUs shared by 2 workers, node-local kernel cache
     cpus = len(os.sched_getaffinity(0))
@@ -290,7 +287,7 @@ def test_one_worker_process_per_device(reference, engine, tmp_path):
     assert main(["sweep", str(preset), "--out", str(folder), "--device", f"{spec},{spec}",
                  "--quiet"]) == 0
     _assert_same_bits(warpe_cl.open_database(folder), run)
-    assert os.getpid() not in {r["pid"] for r in _manifest(folder)["scenarios"]}
+    assert os.getpid() not in {r["pid"] for r in read_manifest(folder)["scenarios"]}
 
 
 @pytest.mark.slow
@@ -309,7 +306,7 @@ def test_one_worker_process_per_driver(reference, tmp_path):
     assert main(["sweep", str(preset), "--out", str(folder), "--device", ",".join(specs),
                  "--quiet"]) == 0
     _assert_same_bits(warpe_cl.open_database(folder), run)
-    records = _manifest(folder)["scenarios"]
+    records = read_manifest(folder)["scenarios"]
     assert {r["device"] for r in records} <= {cpus[s] for s in specs}, records
     assert os.getpid() not in {r["pid"] for r in records}
 
@@ -345,7 +342,7 @@ def test_sigkill_then_resume_recomputes_nothing(tmp_path, capsys):
     before = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in folder.glob("s*.nc")}
     assert 0 < len(before) < 4, f"the kill came too late to test resuming: {sorted(before)}"
     # a partial file a killed writer could leave: never a result, removed on resume
-    pending = next(r for r in _manifest(folder)["scenarios"] if r["file"] not in before)
+    pending = next(r for r in read_manifest(folder)["scenarios"] if r["file"] not in before)
     partial = folder / f".{pending['file']}.x1y2z3.tmp"
     partial.write_bytes(b"\x89HDF\r\n half a file")
     assert main(["sweep", str(preset), "--out", str(folder), "--photons", "2e6"]) == 2, \
@@ -358,7 +355,7 @@ def test_sigkill_then_resume_recomputes_nothing(tmp_path, capsys):
     after = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in folder.glob("s*.nc")}
     assert len(after) == 4 and all(after[n] == v for n, v in before.items())  # none recomputed
     assert not _hidden(folder), "temporary files left behind"
-    records = _manifest(folder)["scenarios"]
+    records = read_manifest(folder)["scenarios"]
     assert [r["status"] for r in records] == ["done"] * 4
     assert sorted(r["file"] for r in records if r["this_run"] == "skipped") == sorted(before)
     db = warpe_cl.open_database(folder)
@@ -390,10 +387,10 @@ def test_sigterm_flushes_the_manifest_and_names_resume(tmp_path):
     assert len(said) == 1 and "stopped by SIGTERM after" in said[0] \
         and "--resume" in said[0], err
     assert f"after {len(files)} of 4 scenarios" in said[0], (said, files)
-    done = sorted(r["file"] for r in _manifest(folder)["scenarios"] if r["status"] == "done")
+    done = sorted(r["file"] for r in read_manifest(folder)["scenarios"] if r["status"] == "done")
     assert done == files
     assert not _hidden(folder), "temporary files left behind"
-    assert all(r["photons"] == 2_000_000 for r in _manifest(folder)["scenarios"]
+    assert all(r["photons"] == 2_000_000 for r in read_manifest(folder)["scenarios"]
                if r["status"] == "done")
 
 
@@ -413,7 +410,7 @@ def test_a_stop_between_a_record_and_its_count_counts_it(tmp_path, monkeypatch):
                                quiet=True, say=lambda line: None)
     summary = caught.value.summary
     files = sorted(p.name for p in folder.glob("s*.nc"))
-    done = sorted(r["file"] for r in _manifest(folder)["scenarios"] if r["status"] == "done")
+    done = sorted(r["file"] for r in read_manifest(folder)["scenarios"] if r["status"] == "done")
     assert len(files) == 1 and done == files
     assert (summary.done, summary.pending, summary.photons) == (1, 3, 300)
 
@@ -438,7 +435,7 @@ def test_a_stop_after_a_file_is_in_place_counts_it_with_its_rays(tmp_path, monke
                                quiet=True, say=lambda line: None)
     summary = caught.value.summary
     files = sorted(p.name for p in folder.glob("s*.nc"))
-    rows = [r for r in _manifest(folder)["scenarios"] if r["status"] == "done"]
+    rows = [r for r in read_manifest(folder)["scenarios"] if r["status"] == "done"]
     assert len(files) == 1 and [r["file"] for r in rows] == files
     assert rows[0]["note"] == "file in place when the run was stopped"
     assert rows[0]["photons"] == 300
@@ -455,7 +452,7 @@ def test_a_bad_point_is_recorded_and_the_rest_completes(tmp_path, capsys):
     assert "2 done, 0 skipped (already in the folder), 2 failed" in captured.out
     assert "medium.compacity: 1.2 is not allowed" in captured.err
     assert "Traceback" not in captured.err
-    records = _manifest(folder)["scenarios"]
+    records = read_manifest(folder)["scenarios"]
     assert [r["status"] for r in records] == ["done", "failed", "failed", "done"]
     assert "1.2 is not allowed" in records[1]["error"] and records[1]["file"] is None
     assert "not allowed for a granular medium" in records[2]["error"]   # found at run time
