@@ -15,6 +15,7 @@ import json
 import numpy as np
 
 from .errors import printable
+from .inversion.identifiability import verdict
 from .plot import cases_of
 
 __all__ = ["point_text", "derived_lines", "run_header", "scenario_lines", "instrument_lines",
@@ -325,10 +326,8 @@ def inversion_lines(ds) -> list:
             return f"< {show(limit, units)} (95 %)"
         return ""
 
-    def measured(ratio, kl, constrained):
-        verdict = ("constrained" if constrained else
-                   "not constrained" if not ratio < 0.9 else "weakly constrained")
-        return f"width {ratio:.2f} of the prior's, KL {kl:.2f} nats: {verdict}"
+    def measured(ratio, kl):
+        return f"width {ratio:.2f} of the prior's, KL {kl:.2f} nats: {verdict(ratio)}"
 
     lines = [f"inversion: {ds.attrs['shots_used']} of {ds.attrs['shots_total']} shots, "
              f"{ds.attrs['instrument_name']}, database {ds.attrs['database']}"]
@@ -343,8 +342,7 @@ def inversion_lines(ds) -> list:
                 f"{show(float(r['high68']), u)}]   95 % [{show(float(r['low95']), u)}, "
                 f"{show(float(r['high95']), u)}]")
         if "width_ratio" in r:
-            text += "   " + measured(float(r["width_ratio"]), float(r["kl_divergence"]),
-                                     bool(r["constrained"]))
+            text += "   " + measured(float(r["width_ratio"]), float(r["kl_divergence"]))
         lines.append(text)
     if "derived" in ds.coords:
         lines.append("  derived quantities (posterior over the same grid, docs/inversion.md "
@@ -362,7 +360,7 @@ def inversion_lines(ds) -> list:
                 f"[{show(float(r['derived_low68']), u)}, {show(float(r['derived_high68']), u)}]"
                 f"   95 % [{show(float(r['derived_low95']), u)}, "
                 f"{show(float(r['derived_high95']), u)}]   "
-                + measured(ratio, float(r["derived_kl_divergence"]), ratio < 0.5))
+                + measured(ratio, float(r["derived_kl_divergence"])))
     for line in json.loads(ds.attrs.get("degeneracy", "[]")):
         lines.append(f"  {line}")
 

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import xarray as xr
 
-from ..inversion.derived import CONSTRAINED
+from ..inversion.identifiability import CONSTRAINED
 from ..io import provenance
 from .expected import DISTINGUISHABLE
 from .family import SYMBOLS

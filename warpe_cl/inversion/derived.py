@@ -53,10 +53,6 @@ RESPONSE = {
     "tail_fraction": ("1", "fraction of the diffuse return later than the instrument's "
                            "nominal pulse FWHM", "tail"),
 }
-#: A swept key or derived quantity is ``constrained`` when its posterior 95 % interval is
-#: narrower than this fraction of the prior's 95 % interval, in the prior's coordinate (a
-#: uniform posterior over half the prior range: 1 bit, ln 2 = 0.69 nats of information).
-CONSTRAINED = 0.5
 #: Ratio of the posterior density at a prior edge to its peak above which the posterior is
 #: not falling off there (a Gaussian 2 sigma from its peak: exp(-2)); the interval is then
 #: reported as a one-sided bound.

@@ -10,7 +10,8 @@ from scipy.special import chdtrc     # chi2's survival function, without scipy.s
 from ..errors import ConfigError
 from ..instrument.footprint import C_M_PER_NS
 from ..io import provenance
-from .derived import CONSTRAINED, variables as measure_variables
+from .derived import variables as measure_variables
+from .identifiability import CONSTRAINED
 
 #: Posterior points drawn for the 68 % band of the fitted waveform.
 BAND_POINTS = 64
