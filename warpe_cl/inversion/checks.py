@@ -99,6 +99,14 @@ class Checks:
     warnings: list = field(default_factory=list)
 
 
+def amplitude_log_prior(x, sigma: float, h: float):
+    """The amplitude's part of ln Z at profiled ln Â = ``x`` (a number or an array): the
+    likelihood taken as quadratic in ln A with curvature ``h`` around ``x``, integrated
+    against the prior ln A ~ N(0, ``sigma``²) (Laplace, §5.1):
+    −x² / (2 (σ² + 1/h)) − ½ ln(1 + h σ²)."""
+    return -x * x / (2.0 * (sigma ** 2 + 1.0 / max(h, 1e-300))) - 0.5 * math.log1p(h * sigma ** 2)
+
+
 def log_evidence(post, axes, amplitude: tuple | None = None) -> float:
     """ln Z = ln ∫ L(θ) π(θ) dθ of a grid posterior, by the trapezoid rule in the
     interpolation coordinates, with the prior uniform in them over the database's range.
@@ -134,8 +142,7 @@ def log_evidence(post, axes, amplitude: tuple | None = None) -> float:
         x = np.full(post.loglike.shape, 0.0)
         for index, e in post.evaluations.items():
             x[index] = math.log(max(float(e.fit.overall), 1e-300))
-        terms = terms - x * x / (2.0 * (sigma ** 2 + 1.0 / max(h, 1e-300))) \
-            - 0.5 * math.log1p(h * sigma ** 2)
+        terms = terms + amplitude_log_prior(x, sigma, h)
     top = float(np.max(terms))
     if not math.isfinite(top):
         return -math.inf
@@ -333,9 +340,8 @@ def check(problem, nodes, final, *, chi2: float, dof: int, p_value: float) -> Ch
         curvature = amplitude_curvature(problem, u, best)
         amplitude = (AMPLITUDE_PRIOR_SIGMA, curvature)
         x = math.log(max(float(best.fit.overall), 1e-300))
-    s2 = AMPLITUDE_PRIOR_SIGMA ** 2
     prior_part = 0.0 if amplitude is None else \
-        -x * x / (2.0 * (s2 + 1.0 / max(curvature, 1e-300))) - 0.5 * math.log1p(curvature * s2)
+        amplitude_log_prior(x, AMPLITUDE_PRIOR_SIGMA, curvature)
     test = amplitude_test(problem, u, best)
     parts = [p for p in (p_value, test["p"]) if math.isfinite(p)]
     c = Checks(log_evidence=log_evidence(final, axes, amplitude),
