@@ -71,6 +71,7 @@ def run(args) -> list:
     from warpe_cl.errors import ConfigError
     from warpe_cl.instrument import apply_instrument, load_instrument
     from warpe_cl.inversion.agreement import agreement
+    from warpe_cl.inversion.emulator import Emulator
     from warpe_cl.inversion.forward import Forward
     from warpe_cl.inversion.space import Space
     from warpe_cl.surface import response
@@ -82,6 +83,7 @@ def run(args) -> list:
                           "integrated for linear-mode receivers only (docs/inversion.md §4.3)",
                           key="--instrument")
     forward = Forward(params)
+    emulator = Emulator(space, forward)         # node waveforms and leave-one-out errors once
     base = yaml.safe_load(Path(args.preset).read_text())
     base.pop("sweep", None)
     rng = np.random.default_rng(args.seed)
@@ -95,7 +97,7 @@ def run(args) -> list:
             for s in range(args.seeds):
                 rec = apply_instrument(surface_ds, params, shots=shots, seed=7 + s)
                 out = agreement(space, forward, rec["sample_time"].values,
-                                rec["signal_mv"].values, point, surface)
+                                rec["signal_mv"].values, point, surface, emulator=emulator)
                 rows.append({"point": p, **{k: f"{v:.6g}" for k, v in point.items()},
                              "shots": shots, "seed": 7 + s,
                              **{k: f"{out[k]:.6g}" for k in ("plain", "database", "direct",

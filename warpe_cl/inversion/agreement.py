@@ -11,7 +11,8 @@ from .likelihood import Shots
 from .posterior import Problem
 
 
-def agreement(space, forward, time_ns, samples, point: dict, surface, v=None) -> dict:
+def agreement(space, forward, time_ns, samples, point: dict, surface, v=None,
+              emulator=None) -> dict:
     """log L at ``point`` three ways, the nuisances fitted each time.
 
     Parameters
@@ -28,6 +29,10 @@ def agreement(space, forward, time_ns, samples, point: dict, surface, v=None) ->
         The directly simulated surface at ``point``, with its standard errors.
     v : float, optional
         The broadening nuisance, ns² (None: profiled).
+    emulator : Emulator, optional
+        The database's error model of ``space`` and ``forward``; give the same one to every
+        call on a database, so that its node waveforms and leave-one-out errors are computed
+        once (default: a new one).
 
     Returns
     -------
@@ -42,11 +47,11 @@ def agreement(space, forward, time_ns, samples, point: dict, surface, v=None) ->
     u = space.coords_of(point)[[space.axes.index(a) for a in space.free_axes]]
     out = {}
     direct = DirectSurface(surface, forward, space.free_axes)
-    for name, where, emulator in (("plain", space, None), ("database", space,
-                                                           Emulator(space, forward)),
-                                  ("direct", direct, direct)):
+    emulator = emulator if emulator is not None else Emulator(space, forward)
+    for name, where, error in (("plain", space, None), ("database", space, emulator),
+                               ("direct", direct, direct)):
         problem = Problem(where, forward, Shots(time_ns, samples, forward), v=v,
-                          emulator=emulator)
+                          emulator=error)
         e = problem.evaluate(u)
         out[name] = e.loglike
         if name == "database":
