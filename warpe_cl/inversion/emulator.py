@@ -19,17 +19,20 @@ with P the photons per unit reflectance, o_jb the overlap of fine bin j (width �
 bin b, and s the mV (or pe ns⁻¹) per photoelectron per bin times η. The pieces of one log
 bin on the fine grid are one Monte Carlo estimate, fully correlated: c_b = min(max(w_b/δt, 1),
 L) counts the pieces the kernel (effective length L = (Σ K)² / Σ K² fine bins) sees at once.
-At a point between nodes with corner weights w_i, Var = Σ w_i² Var_i (the nodes' errors are
-independent).
+At a point between nodes, Var = Σ w_i² Var_i over the nodes that make it, with their weights
+w_i in the response (:meth:`~.space.Space.node_weights`: the corners' and the curvature
+terms'); the nodes' errors are independent.
 
 **Interpolation part.** Leave one out along each axis: node m predicted from its neighbours
-m − 1 and m + 1 (the interpolation of :mod:`.space` on the cell of width D = x_{m+1} − x_{m−1},
-at fraction f₀ of it) gives the error E_m(t) of that wider cell. Linear interpolation errs by
-½ c Δ² f (1 − f) (c the curvature) in a cell of width Δ at fraction f; so inside a cell of the
-grid the error is g E_m with g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), zero at the nodes. E_m² is
-taken less the Monte Carlo variance of the three nodes (its own noise), floored at 0; the
-variance used is Σ_corners w_c g_c² E_c² summed over the axes. An axis of two values has no
-node to leave out and no estimate (the report says so).
+m − 1 and m + 1 (:meth:`~.space.Space.left_out`, the cell of width D = x_{m+1} − x_{m−1}, m at
+fraction f₀ of it) gives the error E_m(t) of that wider cell. Linear interpolation errs by
+½ c Δ² f (1 − f) (c the curvature) in a cell of width Δ at fraction f, so inside a cell of the
+grid it errs by g E_m, g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), zero at the nodes. The space adds
+that term back (its curvature correction, :mod:`.space`); what is left is the part of the
+curvature that changes from cell to cell, of unknown sign, and its size is taken as that of
+the correction itself: E_m² less the Monte Carlo variance of the three nodes (its own noise),
+floored at 0, and the variance used is Σ_corners w_c g_c² E_c² summed over the axes. An axis
+of two values has no node to leave out, no correction and no estimate (the report says so).
 
 **In the likelihood.** A common error e(t) ~ N(0, S(t)) of the model shifts every shot's
 sample k by a_s e(t_k − δ_s). Model time is cut in blocks one sampling interval long; the
@@ -54,7 +57,6 @@ import numpy as np
 from ..instrument import radiometry
 from ..instrument.grid import deposit, rebin_density
 from .likelihood import padded
-from .space import combine, corner_weights
 
 
 def kernel_of(forward) -> tuple[np.ndarray, int]:
@@ -129,25 +131,19 @@ class Emulator:
             self._var[index] = response_variance(surface, self.forward)
         return self._mu[index], self._var[index]
 
-    def _left_out(self, index: tuple, d: int) -> np.ndarray:
-        """E_m² of node ``index`` (interior along axis ``d``) predicted from its two
-        neighbours, less their Monte Carlo variance, floored at 0."""
-        key = (index, d)
+    def _left_out(self, middle: tuple, d: int) -> np.ndarray:
+        """E_m² of node ``middle`` (interior along axis ``d``) predicted from its two
+        neighbours (:meth:`~.space.Space.left_out`), less the three nodes' Monte Carlo
+        variance, floored at 0."""
+        key = (middle, d)
         if key not in self._loo:
-            axis = self.space.axes[d]
-            m = index[d]
-            lo, hi = index[:d] + (m - 1,) + index[d + 1:], index[:d] + (m + 1,) + index[d + 1:]
-            x = axis.nodes
-            f0 = (x[m] - x[m - 1]) / (x[m + 1] - x[m - 1])
-            v = axis.values
-            fv = (v[m] - v[m - 1]) / (v[m + 1] - v[m - 1])
-            surface = combine([self.space.nodes[lo], self.space.nodes[hi]], [1 - f0, f0],
-                              self.space.edges, delay_weights=[1 - fv, fv])
-            predicted = self.forward.waveform(self.forward.photons(surface), 0.0)[0]
-            mu, var = self._node(index)
+            guess, _, f0 = self.space.left_out(middle, d)
+            predicted = self.forward.waveform(self.forward.photons(guess.surface), 0.0)[0]
+            mu, var = self._node(middle)
+            m = middle[d]
+            lo, hi = (middle[:d] + (k,) + middle[d + 1:] for k in (m - 1, m + 1))
             noise = var + (1 - f0) ** 2 * self._node(lo)[1] + f0 ** 2 * self._node(hi)[1]
-            self._loo[key] = (np.maximum((predicted - mu) ** 2 - noise, 0.0), x[m + 1] - x[m - 1],
-                              f0)
+            self._loo[key] = np.maximum((predicted - mu) ** 2 - noise, 0.0)
         return self._loo[key]
 
     def variance(self, point: dict) -> np.ndarray:
@@ -161,26 +157,12 @@ class Emulator:
         per axis of three values or more whose cell the point (or a fixed value) is inside,
         the axis' dotted key (its interpolation part)."""
         space = self.space
-        u = space.coords_of(point)
-        idx, w = corner_weights(u, [a.nodes for a in space.axes])
-        out = {"monte carlo": sum(wi ** 2 * self._node(i)[1] for i, wi in zip(idx, w))}
-        for d, axis in enumerate(space.axes):
-            n = axis.values.size
-            if n < 3:
-                continue
-            x = axis.nodes
-            j = int(np.clip(np.searchsorted(x, u[d], side="right") - 1, 0, n - 2))
-            f = float(np.clip((u[d] - x[j]) / (x[j + 1] - x[j]), 0.0, 1.0))
-            if f <= 0.0 or f >= 1.0:
-                continue
-            cell = x[j + 1] - x[j]
-            part = 0.0
-            for i, wi in zip(idx, w):
-                m = min(max(i[d], 1), n - 2)
-                e2, wide, f0 = self._left_out(i[:d] + (m,) + i[d + 1:], d)
-                g = cell ** 2 * f * (1 - f) / (wide ** 2 * f0 * (1 - f0))
-                part = part + wi * g ** 2 * e2
-            out[axis.key] = part
+        weights = space.node_weights(point)
+        out = {"monte carlo": sum(w ** 2 * self._node(i)[1] for i, w in weights.items()
+                                  if w != 0.0)}
+        for d, middle, w, g in space.bends(point):
+            key = space.axes[d].key
+            out[key] = out.get(key, 0.0) + w * g ** 2 * self._left_out(middle, d)
         return out
 
 

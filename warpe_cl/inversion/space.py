@@ -24,8 +24,20 @@ smoothly with the parameters:
   coordinate put the echo of a 700 mm slab between 500 and 1000 mm nodes 6 % late, and the
   fitted thickness came back 674 mm; docs/inversion.md §2.)
 
-At a grid point the corner weights are (1, 0, …) and every step is exact: the response is the
-node's own, to rounding (tests/test_inversion.py).
+**Curvature.** Multilinear interpolation errs with one sign across a cell wherever the
+response is convex or concave in the coordinate (the late diffuse tail of a thick granular
+layer lies low everywhere between nodes). Along each axis of three values or more, node m is
+predicted from its neighbours m ± 1 on their cell (width D, m at fraction f₀ of it); that
+prediction's error, scaled to the point's own cell (width Δ, fraction f) by the quadratic
+law g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), is added back: the response is the interpolation
+plus Σ_axes Σ_corners w g (node m − its prediction), m the corner's index kept off the ends
+(:meth:`Space.bends`), on the diffuse response and the returns' fractions (each floored at 0;
+the delays stay exact). For what is combined linearly this is quadratic (Lagrange)
+interpolation through three nodes, and a blend of the two stencils with four or more
+(tests/test_inversion_curvature.py).
+
+At a grid point the corner weights are (1, 0, …), there is no curvature term, and every step
+is exact: the response is the node's own, to rounding (tests/test_inversion.py).
 """
 from __future__ import annotations
 
@@ -269,6 +281,7 @@ class Space:
             index = tuple(int(np.searchsorted(a.values, v[i])) for a, v in zip(self.axes, values))
             self.nodes[index] = NodeResponse(r, float(t1[i]))
         self.wavelength = self.nodes.flat[0].surface.wavelength
+        self._left_out = {}
         self.point = {}
         for key, value in fix.items():
             if key in self.fixed:
@@ -306,17 +319,105 @@ class Space:
 
     def surface(self, point: dict) -> SurfaceResponse:
         """The surface response at ``point`` (dotted key -> value of every free axis, in the
-        axis unit), by the interpolation of the module docstring."""
+        axis unit), by the interpolation of the module docstring, corrected for each axis'
+        curvature (:meth:`bends`)."""
         idx, w = corner_weights(self.coords_of(point), [a.nodes for a in self.axes])
         nodes = [self.nodes[i] for i in idx]
         if len(nodes) == 1:
             return nodes[0].surface
         delay_w = value_weights(self.values_of(point), [a.values for a in self.axes], idx)
-        return combine(nodes, w, self.edges, delay_weights=delay_w)
+        return combine(nodes, w, self.edges, delay_weights=delay_w,
+                       bend=self._bend(self.bends(point)))
+
+    def bends(self, point: dict) -> list:
+        """The curvature terms at ``point``: for every corner of its cell (weight w) and every
+        axis of three values or more whose cell holds the point inside (fraction f of a cell
+        of width Δ), the node m that axis' terms leave out (the corner's own index along the
+        axis, kept off the ends) and the cell factor g = Δ² f (1 − f) / (D² f₀ (1 − f₀))
+        (module docstring).
+
+        Returns
+        -------
+        list of (int, tuple, float, float)
+            (axis, index of m, w, g); empty at the nodes and on axes of two values.
+        """
+        u = self.coords_of(point)
+        idx, w = corner_weights(u, [a.nodes for a in self.axes])
+        out = []
+        for d, axis in enumerate(self.axes):
+            n = axis.values.size
+            if n < 3:
+                continue
+            x = axis.nodes
+            j = int(np.clip(np.searchsorted(x, u[d], side="right") - 1, 0, n - 2))
+            f = float(np.clip((u[d] - x[j]) / (x[j + 1] - x[j]), 0.0, 1.0))
+            if f <= 0.0 or f >= 1.0:
+                continue
+            cell = x[j + 1] - x[j]
+            for i, wi in zip(idx, w):
+                m = min(max(i[d], 1), n - 2)
+                middle = i[:d] + (m,) + i[d + 1:]
+                _, wide, f0 = self.left_out(middle, d)
+                out.append((d, middle, wi, cell ** 2 * f * (1 - f) / (wide ** 2 * f0 * (1 - f0))))
+        return out
+
+    def left_out(self, middle: tuple, d: int) -> tuple:
+        """Node ``middle`` (interior along axis ``d``) predicted from its two neighbours along
+        that axis, by the interpolation of the module docstring on the cell they span.
+
+        Returns
+        -------
+        (NodeResponse, float, float)
+            The prediction, the width D of the neighbours' cell and the node's fraction f₀ of
+            it (interpolation coordinate). Kept: an inversion visits a few cells.
+        """
+        key = (middle, d)
+        if key not in self._left_out:
+            m = middle[d]
+            lo, hi = (middle[:d] + (k,) + middle[d + 1:] for k in (m - 1, m + 1))
+            x, v = self.axes[d].nodes, self.axes[d].values
+            f0 = (x[m] - x[m - 1]) / (x[m + 1] - x[m - 1])
+            fv = (v[m] - v[m - 1]) / (v[m + 1] - v[m - 1])
+            predicted = combine([self.nodes[lo], self.nodes[hi]], [1 - f0, f0], self.edges,
+                                delay_weights=[1 - fv, fv])
+            self._left_out[key] = (NodeResponse(predicted, self.nodes[middle].first_bf),
+                                   float(x[m + 1] - x[m - 1]), float(f0))
+        return self._left_out[key]
+
+    def _bend(self, terms: list):
+        """The curvature correction Σ w g (node m − its prediction) of the diffuse response
+        (sr⁻¹ ns⁻¹), the specular fraction and each passage's fraction, or None."""
+        if not terms:
+            return None
+        diffuse, specular, passages = np.zeros(self.edges.size - 1), 0.0, {}
+        for d, middle, w, g in terms:
+            node, (guess, _, _) = self.nodes[middle], self.left_out(middle, d)
+            a = w * g
+            diffuse += a * (node.surface.diffuse - guess.surface.diffuse)
+            specular += a * (node.specular - guess.specular)
+            for k in set(node.passages) | set(guess.passages):
+                passages[k] = passages.get(k, 0.0) + a * (node.passages.get(k, (0, 0.0))[1]
+                                                          - guess.passages.get(k, (0, 0.0))[1])
+        return diffuse, specular, passages
+
+    def node_weights(self, point: dict) -> dict:
+        """Each node's weight in the response at ``point`` (index -> weight): the corners'
+        multilinear weights and the curvature terms' (+a on m, −a (1 − f₀) and −a f₀ on its
+        neighbours, a = w g), to first order in the nodes: what their Monte Carlo errors are
+        carried by (:mod:`.emulator`)."""
+        idx, w = corner_weights(self.coords_of(point), [a.nodes for a in self.axes])
+        out = dict(zip(idx, w))
+        for d, middle, wi, g in self.bends(point):
+            _, _, f0 = self.left_out(middle, d)
+            m = middle[d]
+            for k, share in ((m, 1.0), (m - 1, -(1 - f0)), (m + 1, -f0)):
+                index = middle[:d] + (k,) + middle[d + 1:]
+                out[index] = out.get(index, 0.0) + wi * g * share
+        return out
 
 
 def combine(nodes: list, weights: list, edges: np.ndarray,
-            delay_weights: list | None = None) -> SurfaceResponse:
+            delay_weights: list | None = None, bend=None) -> SurfaceResponse:
     """The displacement interpolation of the module docstring.
 
     Parameters
@@ -332,6 +433,9 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         The corners' multilinear weights in the axis values (sum 1,
         :func:`value_weights`), for the back-and-forth delays, which are linear in the
         thicknesses; default ``weights``.
+    bend : tuple, optional
+        The curvature correction (:meth:`Space._bend`): added to the diffuse response, the
+        specular fraction and each passage's fraction, each floored at 0.
 
     Returns
     -------
@@ -351,8 +455,10 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         diffuse = total * np.diff(cdf) / np.diff(edges)
     else:
         diffuse = sum(wi * n.surface.diffuse for wi, n in zip(w, nodes))
+    d_diffuse, d_specular, d_passages = bend if bend is not None else (0.0, 0.0, {})
+    diffuse = np.maximum(diffuse + d_diffuse, 0.0)
     returns = []
-    specular = float(np.sum(w * [n.specular for n in nodes]))
+    specular = max(float(np.sum(w * [n.specular for n in nodes])) + d_specular, 0.0)
     if specular > 0:
         returns.append(("specular", 0.0, specular))
     ks = sorted(set(k for n in nodes for k in n.passages))
@@ -364,6 +470,7 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
                 t_k = np.mean([m.passages[k][0] for m in nodes if k in m.passages])
             delay += wdi * t_k              # t_k = 2 k h n_eff / c: linear in h
             frac += wi * (n.passages[k][1] if k in n.passages else 0.0)
+        frac += d_passages.get(k, 0.0)
         if frac > 0:
             returns.append(("bf_direct", float(delay), float(frac)))
     return SurfaceResponse(edges, diffuse, returns, nodes[0].surface.wavelength)

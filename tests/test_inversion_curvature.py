@@ -1,0 +1,91 @@
+"""The curvature correction of the database's interpolation (warpe_cl/inversion/space.py,
+docs/inversion.md §2).
+
+Between nodes the response is the multilinear (displacement) interpolation plus, along every
+axis of three values or more, the leave-one-out curvature term g (node m − its prediction
+from m ± 1). For anything the interpolation combines linearly (the specular and
+back-and-forth fractions) this is quadratic interpolation: exact for a fraction quadratic in
+the axis' coordinate, on any spacing. Without it the interpolation of a convex response errs
+with one sign everywhere in the cell, and at 1000 BELA shots that bias pulled the thickness of
+granular CO2 0.025 dex high and left its 68 % interval holding the truth in half the cases.
+
+The databases here are synthetic (tests/conftest.py): fractions as ray counts of 1e6 rays,
+so a fraction is exact to 1e-6. No Monte Carlo.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import sweep_of, synthetic_surface
+from warpe_cl.inversion.space import Space
+
+KEY = "medium.thickness"
+PHOTONS = 10 ** 6
+
+
+def quadratic(u):
+    """A specular fraction quadratic in the ln-thickness coordinate u."""
+    return 0.2 + 0.05 * u + 0.1 * u ** 2
+
+
+def space_over(thicknesses):
+    """A database of specular-only surfaces whose fraction is :func:`quadratic` of ln h."""
+    hs = np.asarray(thicknesses, float)
+    parts = [synthetic_surface(f_spec=quadratic(np.log(h)), photons=PHOTONS) for h in hs]
+    space = Space(sweep_of(parts, hs, KEY))
+    assert space.axes[0].log                      # the coordinate is ln h
+    return space
+
+
+def specular(surface) -> float:
+    return sum(f for c, _, f in surface.returns if c == "specular")
+
+
+GRIDS = {"even": (0.5, 1.0, 2.0), "uneven": (0.1, 1.0, 3.0), "four": (0.5, 1.0, 2.0, 4.0)}
+
+
+@pytest.mark.parametrize("grid, h", [(g, h) for g, hs in (("even", (0.62, 0.9, 1.41, 1.9)),
+                                                         ("uneven", (0.2, 0.62, 1.41, 2.5)),
+                                                         ("four", (0.62, 1.41, 1.9, 3.1)))
+                                     for h in hs])
+def test_a_quadratic_fraction_is_interpolated_exactly(grid, h):
+    """Evenly and unevenly spaced nodes, three and four of them: the fraction at an off-node
+    thickness is the quadratic's to the ray counts' rounding (1e-6), where the multilinear
+    interpolation alone is off by up to 0.012."""
+    space = space_over(GRIDS[grid])
+    assert specular(space.surface({KEY: h})) == pytest.approx(quadratic(np.log(h)), abs=2e-6)
+
+
+def test_without_the_correction_the_same_point_is_off():
+    """The check above can fail: the multilinear part alone misses the quadratic at 1.41 m by
+    ½ c Δ² f (1 − f) = 0.012 (c = 0.2 the quadratic's second derivative, Δ = ln 2)."""
+    space = space_over((0.5, 1.0, 2.0))
+    u = np.log(1.41)
+    x = space.axes[0].nodes
+    f = (u - x[1]) / (x[2] - x[1])
+    linear = (1 - f) * quadratic(x[1]) + f * quadratic(x[2])
+    assert linear - quadratic(u) == pytest.approx(0.5 * 0.2 * (x[2] - x[1]) ** 2 * f * (1 - f),
+                                                  rel=1e-9)
+    assert abs(linear - quadratic(u)) > 0.01
+    assert abs(specular(space.surface({KEY: 1.41})) - linear) > 0.01
+
+
+@pytest.mark.parametrize("h", [0.3, 1.3, 2.5])
+def test_node_weights_are_the_quadratic_lagrange_weights(h):
+    """The nodes' weights in a response (what their Monte Carlo errors are carried by) are
+    those of the quadratic through the three nodes, on uneven nodes too."""
+    space = space_over(GRIDS["uneven"])
+    x = space.axes[0].nodes
+    u = np.log(h)
+    lagrange = [np.prod([(u - x[j]) / (x[i] - x[j]) for j in range(3) if j != i])
+                for i in range(3)]
+    weights = space.node_weights({KEY: h})
+    assert [weights.get((i,), 0.0) for i in range(3)] == pytest.approx(lagrange, abs=1e-12)
+
+
+def test_the_nodes_are_untouched():
+    """At a node the response is the node's own: no curvature term."""
+    space = space_over((0.5, 1.0, 2.0))
+    assert space.bends({KEY: 1.0}) == []
+    assert specular(space.surface({KEY: 1.0})) == pytest.approx(quadratic(0.0), abs=1e-12)
