@@ -249,28 +249,19 @@ def _finer(coords: list, box: list, budget: int, narrow: list):
     narrow third one kept a single point, its intervals the grid's cell and not the posterior
     (docs/inversion.md §5).
     """
-    out, fine = [], []
-    for c, (lo, hi), n in zip(coords, box, narrow):
-        if not n:
-            out.append(c[max(lo - 1, 0): min(hi + 1, c.size - 1) + 1])
-            continue
-        a, b = c[max(lo - 1, 0)], c[min(hi + 1, c.size - 1)]
-        step = float(np.min(np.diff(c[max(lo - 1, 0): min(hi + 1, c.size - 1) + 1])))
-        out.append((a, b, step))
-        fine.append(len(out) - 1)
+    spans = [c[max(lo - 1, 0): min(hi + 1, c.size - 1) + 1] for c, (lo, hi) in zip(coords, box)]
+    fine = [j for j, n in enumerate(narrow) if n]
     if not fine:
         return None
-    kept = int(np.prod([out[j].size for j in range(len(out)) if j not in fine]))
+    kept = int(np.prod([s.size for j, s in enumerate(spans) if j not in fine]))
     points = int((budget / kept) ** (1.0 / len(fine)))
-    refined = False
+    out, refined = list(spans), False
     for j in fine:
-        a, b, step = out[j]
-        if points >= 3 and (b - a) / (points - 1) <= step * (2.0 / 3.0):
-            out[j] = np.linspace(a, b, points)
+        s = spans[j]
+        finer = (s[-1] - s[0]) / max(points - 1, 1)
+        if points >= 3 and finer <= float(np.min(np.diff(s))) * (2.0 / 3.0):
+            out[j] = np.linspace(s[0], s[-1], points)
             refined = True
-        else:
-            lo, hi = box[j]
-            out[j] = coords[j][max(lo - 1, 0): min(hi + 1, coords[j].size - 1) + 1]
     return out if refined else None
 
 
