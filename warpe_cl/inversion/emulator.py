@@ -157,10 +157,11 @@ class Emulator:
         per axis of three values or more whose cell the point (or a fixed value) is inside,
         the axis' dotted key (its interpolation part)."""
         space = self.space
-        weights = space.node_weights(point)
+        bends = space.bends(point)
+        weights = space.node_weights(point, bends)
         out = {"monte carlo": sum(w ** 2 * self._node(i)[1] for i, w in weights.items()
                                   if w != 0.0)}
-        for d, middle, w, g in space.bends(point):
+        for d, middle, w, g in bends:
             key = space.axes[d].key
             out[key] = out.get(key, 0.0) + w * g ** 2 * self._left_out(middle, d)
         return out

@@ -400,14 +400,15 @@ class Space:
                                                           - guess.passages.get(k, (0, 0.0))[1])
         return diffuse, specular, passages
 
-    def node_weights(self, point: dict) -> dict:
+    def node_weights(self, point: dict, bends: list | None = None) -> dict:
         """Each node's weight in the response at ``point`` (index -> weight): the corners'
         multilinear weights and the curvature terms' (+a on m, −a (1 − f₀) and −a f₀ on its
         neighbours, a = w g), to first order in the nodes: what their Monte Carlo errors are
-        carried by (:mod:`.emulator`)."""
+        carried by (:mod:`.emulator`). ``bends``: the point's :meth:`bends`, if the caller
+        has them already."""
         idx, w = corner_weights(self.coords_of(point), [a.nodes for a in self.axes])
         out = dict(zip(idx, w))
-        for d, middle, wi, g in self.bends(point):
+        for d, middle, wi, g in (self.bends(point) if bends is None else bends):
             _, _, f0 = self.left_out(middle, d)
             m = middle[d]
             for k, share in ((m, 1.0), (m - 1, -(1 - f0)), (m + 1, -f0)):
