@@ -307,7 +307,14 @@ def cmd_invert(args) -> int:
     from .inversion.observed import load_observed
     from .inversion.plot import plot_fit
     databases = list(args.database)
-    inputs = _inputs(args.observed, databases, args.instrument)
+    instruments = list(args.instrument or [])
+    inputs = _inputs(args.observed, databases, instruments)
+    if args.joint:
+        return _invert_joint(args, databases, instruments, inputs)
+    if len(instruments) > 1:
+        raise ConfigError(f"--instrument given {len(instruments)} times: one instrument for "
+                          "the observed shots (one per observed file with --joint)",
+                          key="--instrument")
     if len(databases) > 1:
         return _invert_many(args, databases, inputs)
     out = _check_outputs(args, inputs)
@@ -317,7 +324,8 @@ def cmd_invert(args) -> int:
     t0 = time.perf_counter()
     obs = load_observed(args.observed, scenario=scenario)
     truth = parse_overrides(args.truth or []) if args.truth else None
-    ds = invert(obs, databases[0], args.instrument, free=free, fix=fix, truth=truth)
+    ds = invert(obs, databases[0], instruments[0] if instruments else None, free=free, fix=fix,
+                truth=truth)
     say = _say(args)
     for line in report.inversion_lines(ds) + check_lines(ds):
         say(line)
@@ -363,9 +371,64 @@ def _invert_many(args, databases, inputs) -> int:
     from . import report
     from .config.keys import parse_overrides
     from .inversion.checks import check_lines
-    from .inversion.comparison import compare, labels, output_paths, ranking, ranking_lines
+    from .inversion.comparison import compare, labels, ranking, ranking_lines
     from .inversion.observed import load_observed
-    from .inversion.plot import plot_fit
+    outs, plots = _labelled_outputs(args, labels(databases), inputs)
+    fix = parse_overrides(args.fix or [])
+    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
+    t0 = time.perf_counter()
+    obs = load_observed(args.observed, scenario=_scenario(args))
+    truth = parse_overrides(args.truth or []) if args.truth else None
+    fits = compare(obs, databases, args.instrument[0] if args.instrument else None, free=free,
+                   fix=fix, truth=truth)
+    say = _say(args)
+    lines = [line for ds in fits for line in report.inversion_lines(ds) + check_lines(ds)]
+    lines += [printable(line) for line in ranking_lines(ranking(fits))]
+    _write_labelled(fits, outs, plots, lines, say)
+    say(f"compared {len(fits)} databases in {time.perf_counter() - t0:.2f} s")
+    return EXIT_OK
+
+
+def _invert_joint(args, databases, instruments, inputs) -> int:
+    """``warpe-cl invert A.nc B.nc --database DB_A --database DB_B --joint``: the shots of one
+    surface by several instruments or at several wavelengths, each file against its own
+    database (in the order given), inverted together (docs/inversion.md §5.5); one FIT file
+    per channel, ``--out`` FIT.nc giving FIT_<label>.nc."""
+    from . import report
+    from .config.keys import parse_overrides
+    from .inversion.checks import check_lines
+    from .inversion.comparison import labels
+    from .inversion.joint import invert_joint
+    observed = list(args.observed)
+    if args.scenario is not None:
+        raise ConfigError("--scenario picks one scenario of one file; with --joint give one "
+                          "single-scenario file per channel", key="--scenario")
+    if len(observed) != len(databases):        # before any output is checked or file read
+        raise ConfigError(f"{len(observed)} observed files but {len(databases)} --database: "
+                          "--joint needs one database per observed file, in the same order",
+                          key="--database")
+    if instruments and len(instruments) != len(observed):
+        raise ConfigError(f"{len(observed)} observed files but {len(instruments)} "
+                          "--instrument: give none (each file's own) or one per observed file, "
+                          "in the same order", key="--instrument")
+    names = labels([Path(o).stem + "_" + Path(str(d).rstrip("/\\")).name
+                    for o, d in zip(observed, databases)])
+    outs, plots = _labelled_outputs(args, names, inputs)
+    fix = parse_overrides(args.fix or [])
+    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
+    truth = parse_overrides(args.truth or []) if args.truth else None
+    fits = invert_joint(observed, databases, instruments or None, free=free, fix=fix,
+                        truth=truth, names=databases)
+    say = _say(args)
+    lines = report.joint_lines(fits, [check_lines(ds) for ds in fits])
+    _write_labelled(fits, outs, plots, lines, say)
+    return EXIT_OK
+
+
+def _labelled_outputs(args, names, inputs) -> tuple:
+    """``--out`` FIT.nc (and ``--plot``) as one file per label, FIT_<label>.nc, every one
+    checked before any work as ``--out`` is: (outputs, figures or Nones)."""
+    from .inversion.comparison import output_paths
     if Path(args.out).suffix.lower() != ".nc":         # the pattern: its format and folder
         raise ConfigError(f"{args.out} is not a NetCDF file name; give a name ending in .nc",
                           key="--out")
@@ -373,26 +436,23 @@ def _invert_many(args, databases, inputs) -> int:
     if args.plot:
         _check_figure_name(Path(args.plot), "--plot")
         _check_writable(Path(args.plot), "--plot")
-    names = labels(databases)
     outs = output_paths(args.out, names)
     plots = output_paths(args.plot, names) if args.plot else [None] * len(outs)
     for out, plot in zip(outs, plots):          # each file: not an input, new or --overwrite
         _check_new(out, "--out", args.overwrite, inputs)
         if plot is not None:
             _check_new(plot, "--plot", args.overwrite, [*inputs, out])
-    fix = parse_overrides(args.fix or [])
-    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
-    t0 = time.perf_counter()
-    obs = load_observed(args.observed, scenario=_scenario(args))
-    truth = parse_overrides(args.truth or []) if args.truth else None
-    fits = compare(obs, databases, args.instrument, free=free, fix=fix, truth=truth)
-    say = _say(args)
-    for ds, out in zip(fits, outs):      # every result first: a figure's failure costs none
-        for line in report.inversion_lines(ds) + check_lines(ds):
-            say(line)
+    return outs, plots
+
+
+def _write_labelled(fits, outs, plots, lines, say) -> None:
+    """Say ``lines``, write every FIT file, then draw the figures (a figure's failure costs
+    no result)."""
+    from .inversion.plot import plot_fit
+    for line in lines:
+        say(line)
+    for ds, out in zip(fits, outs):
         _write_outputs(ds, out, None, plot_fit, say)
-    for line in ranking_lines(ranking(fits)):
-        say(printable(line))
     failed = []
     for ds, out, plot in zip(fits, outs, plots):
         if plot is None:
@@ -401,10 +461,8 @@ def _invert_many(args, databases, inputs) -> int:
             _draw_figure(ds, out, plot, plot_fit, say)
         except FigureError as err:
             failed.append(str(err))
-    say(f"compared {len(fits)} databases in {time.perf_counter() - t0:.2f} s")
     if failed:
         raise FigureError("; ".join(failed))
-    return EXIT_OK
 
 
 def cmd_sweep(args) -> int:
@@ -722,9 +780,14 @@ def make_parser() -> argparse.ArgumentParser:
                                     "figure file (PNG, PDF, SVG, ...)")
     inv.add_argument("--overwrite", action="store_true",
                      help="replace --out and --plot files that exist (never an input)")
-    inv.add_argument("--instrument",
+    inv.add_argument("--instrument", action="append",
                      help="bela, gala, atlas, or an instrument YAML file (default: the observed "
-                          "file's instrument)")
+                          "file's instrument); with --joint, one per observed file")
+    inv.add_argument("--joint", action="store_true",
+                     help="the observed files are shots of one surface by several instruments "
+                          "or at several wavelengths: invert them together, the i-th file "
+                          "against the i-th --database (the same swept keys and nodes), "
+                          "writing FIT_<label>.nc per file")
     inv.add_argument("--free", action="append", metavar="KEY[,KEY...]",
                      help="swept keys to report (default: all not fixed; the others are "
                           "marginalised)")

@@ -311,6 +311,48 @@ def inversion_lines(ds) -> list:
     -------
     list of str
     """
+    return [printable(line) for line in
+            [_channel_head(ds, "inversion")] + posterior_lines(ds) + fit_lines(ds)]
+
+
+def _channel_head(ds, what: str) -> str:
+    """``WHAT: N of M shots, INSTRUMENT, database DB``."""
+    return (f"{what}: {ds.attrs['shots_used']} of {ds.attrs['shots_total']} shots, "
+            f"{ds.attrs['instrument_name']}, database {ds.attrs['database']}")
+
+
+def joint_lines(fits, notes=None) -> list:
+    """The result of ``warpe-cl invert --joint``: the joint posterior once, then each
+    channel's nuisances and goodness of fit, and the joint log evidence.
+
+    Parameters
+    ----------
+    fits : list of xarray.Dataset
+        The channels' FIT Datasets (:func:`warpe_cl.inversion.joint.invert_joint`).
+    notes : list of list of str, optional
+        Further lines per channel (its checks and warnings), said after its fit.
+
+    Returns
+    -------
+    list of str
+    """
+    first = fits[0]
+    lines = [f"joint inversion of {len(fits)} channels (one surface; log L summed, each "
+             "channel's nuisances its own)"] + posterior_lines(first)
+    for i, ds in enumerate(fits):
+        wavelength = json.loads(ds.attrs["joint"])[i]["wavelength_nm"]
+        lines.append(_channel_head(ds, f"  channel at {wavelength:g} nm")
+                     + f", ln L at the best point {float(ds['loglike']):.6g}")
+        lines += ["  " + line for line in fit_lines(ds) + (list(notes[i]) if notes else [])]
+    lines.append(f"  joint ln Z {float(first['log_evidence']):.6g}; "
+                 f"{first.attrs['joint_evaluations']} model evaluations in "
+                 f"{first.attrs['elapsed_s']:.2f} s")
+    return [printable(line) for line in lines]
+
+
+def posterior_lines(ds) -> list:
+    """The posterior part of :func:`inversion_lines`: each parameter's median and intervals,
+    the derived quantities, the degenerate pairs, the best grid point and the truth."""
     def show(value, units):
         if not np.isfinite(value):
             return "nan"
@@ -329,8 +371,7 @@ def inversion_lines(ds) -> list:
     def measured(ratio, kl):
         return f"width {ratio:.2f} of the prior's, KL {kl:.2f} nats: {verdict(ratio)}"
 
-    lines = [f"inversion: {ds.attrs['shots_used']} of {ds.attrs['shots_total']} shots, "
-             f"{ds.attrs['instrument_name']}, database {ds.attrs['database']}"]
+    lines = []
     for key in ds["parameter"].values:
         r = ds.sel(parameter=key)
         u = str(r["units"].values)
@@ -372,6 +413,13 @@ def inversion_lines(ds) -> list:
     if "truth" in ds and np.isfinite(ds["truth"].values).any():
         known = ", ".join(f"{k} {show(x, u)}" for k, x, u in each("truth") if np.isfinite(x))
         lines.append(f"  truth ({ds.attrs.get('truth_source', '')}): {known}")
+    return lines
+
+
+def fit_lines(ds) -> list:
+    """The channel part of :func:`inversion_lines`: the nuisances, the goodness of fit and
+    the database's adequacy for these shots."""
+    lines = []
     lines.append(f"  nuisances: amplitude {float(ds['amplitude']):.3g}, pulse FWHM "
                  f"{float(ds['pulse_fwhm']):.3g} ns (or footprint sigma "
                  f"{float(ds['footprint_sigma']):.3g} ns), arrival {float(ds['arrival_time']):.3g} ns")
@@ -380,4 +428,4 @@ def inversion_lines(ds) -> list:
                  f"in {ds.attrs['elapsed_s']:.2f} s")
     if "database_adequacy" in ds.attrs:
         lines.append(f"  {ds.attrs['database_adequacy']}")
-    return [printable(line) for line in lines]     # names and units come from the files
+    return lines

@@ -122,10 +122,12 @@ def log_evidence(post, axes, amplitude: tuple | None = None) -> float:
         (the refined grid spans every node within 20 in ln L of the best).
     axes : list of Axis
         The free axes (their ``nodes`` give the prior range in the coordinate).
-    amplitude : (float, float), optional
+    amplitude : (float, float) or list of them, optional
         (σ of the ln A prior, H = −d² ln L/d(ln A)²): add at each point the Gaussian
         integral over ln A of ln L (quadratic in ln A around the profiled ln Â of that point)
-        times the prior N(0, σ²): −ln²Â/(2(σ² + 1/H)) − ½ ln(1 + H σ²). None: A fixed.
+        times the prior N(0, σ²): −ln²Â/(2(σ² + 1/H)) − ½ ln(1 + H σ²). None: A fixed. A
+        list: one per channel of a joint inversion (each evaluation's ``parts``, each
+        channel's own A; None for a channel whose A is fixed).
 
     Returns
     -------
@@ -141,11 +143,15 @@ def log_evidence(post, axes, amplitude: tuple | None = None) -> float:
         span = float(axis.nodes[-1] - axis.nodes[0])
         volume += math.log(span) if span > 0 else 0.0
     terms = np.where(np.isfinite(post.loglike), post.loglike, -np.inf) + log_w
-    if amplitude is not None:
-        sigma, h = amplitude
+    channels = amplitude if isinstance(amplitude, list) else [amplitude]
+    for i, part in enumerate(channels):
+        if part is None:
+            continue
+        sigma, h = part
         x = np.full(post.loglike.shape, 0.0)
         for index, e in post.evaluations.items():
-            x[index] = math.log(max(float(e.fit.overall), 1e-300))
+            fit = e.parts[i].fit if isinstance(amplitude, list) else e.fit
+            x[index] = math.log(max(float(fit.overall), 1e-300))
         terms = terms + amplitude_log_prior(x, sigma, h)
     top = float(np.max(terms))
     if not math.isfinite(top):

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +84,72 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
         waveform and the goodness of fit.
     """
     started = time.perf_counter()
+    channel = prepare(observed, database, instrument, free=free, fix=fix,
+                      pulse_range=pulse_range, broadening_max=broadening_max,
+                      database_error=database_error, observed_source=observed_source,
+                      database_source=database_source, truth=truth)
+    nodes, final = refine(channel.problem, budget=budget)
+    return conclude(channel, nodes, final, started)
+
+
+@dataclass
+class Channel:
+    """One set of recorded shots ready to be inverted: what :func:`prepare` read and checked.
+
+    Attributes
+    ----------
+    obs : Observed
+        The recorded shots.
+    params : InstrumentParams
+        The receiving instrument.
+    space : Space
+        The database's surface at any point of its grid.
+    db : xarray.Dataset
+        The database.
+    db_source : str
+        Its name (path) for messages and FIT.nc.
+    problem : Problem
+        log L of these shots at any point of the grid.
+    used : array of bool
+        The shots used (detected).
+    echoed : dict
+        The fixed keys as read, with their units (FIT.nc attribute ``fixed``).
+    report : list of str
+        The keys reported (the others are marginalised).
+    truth : dict
+        Swept key -> true value, when known; ``truth_source`` where it came from.
+    """
+    obs: Observed
+    params: InstrumentParams
+    space: Space
+    db: object
+    db_source: str
+    problem: Problem
+    used: np.ndarray
+    echoed: dict
+    report: list
+    truth: dict
+    truth_source: str
+
+
+def prepare(observed, database, instrument=None, *, free=None, fix=None,
+            pulse_range=PULSE_RANGE, broadening_max: float = BROADENING_MAX_NS,
+            database_error: bool = True, observed_source: str | None = None,
+            database_source: str | None = None, truth: dict | None = None) -> Channel:
+    """Read and check everything :func:`invert` needs before its posterior: the options
+    against the database's manifests (before its scenario files are read), the shots against
+    the instrument, the database's wavelength against the instrument's; then build the
+    likelihood. The parameters are :func:`invert`'s.
+
+    Returns
+    -------
+    Channel
+
+    Raises
+    ------
+    ConfigError
+        One line naming what is refused and what is allowed.
+    """
     fix = dict(fix or {})
     nuisance = {k: fix.pop(k) for k in list(fix) if k in NUISANCES}
     # every option is checked against the database's manifests before the database is read
@@ -142,21 +209,44 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     overall = None if overall is None else parse_value("amplitude", overall, None, "(> 0)")
     emulator = Emulator(space, forward) if database_error and not counting else None
     problem = Problem(space, forward, shots, overall=overall, v=v_fixed, emulator=emulator)
-    nodes, final = refine(problem, budget=budget)
-    summary = _summarise(problem, final, report)
-    summary["measure"] = measure(problem, final, db, truth)
-    if emulator is not None:      # is the database good enough for these shots? (§4.3)
+    return Channel(obs, params, space, db, db_source, problem, used, echoed, report, truth,
+                   truth_source)
+
+
+def conclude(channel: Channel, nodes, final, started: float):
+    """The FIT Dataset of a channel from its posterior: intervals, derived quantities, the
+    database's adequacy for these shots, the evidence, goodness of fit and warnings
+    (docs/inversion.md §5-§6).
+
+    Parameters
+    ----------
+    channel : Channel
+    nodes, final : GridPosterior
+        The posterior at the database's nodes and on the refined grid; their evaluations are
+        this channel's.
+    started : float
+        ``time.perf_counter()`` when the inversion began (FIT.nc ``elapsed_s``).
+
+    Returns
+    -------
+    xarray.Dataset
+    """
+    problem, space, forward = channel.problem, channel.space, channel.problem.forward
+    summary = _summarise(problem, final, channel.report)
+    summary["measure"] = measure(problem, final, channel.db, channel.truth)
+    if problem.emulator is not None:      # is the database good enough for these shots? (§4.3)
         best = summary["best"]
         point = problem.point(summary["best_u"])
         mu, nu = forward.waveform(forward.photons(space.surface(point)), best.v)
-        summary["adequacy"] = adequacy(emulator, shots, best.fit, point, mu, nu)
-    summary["measure"]["truth_source"] = truth_source
+        summary["adequacy"] = adequacy(problem.emulator, problem.shots, best.fit, point, mu, nu)
+    summary["measure"]["truth_source"] = channel.truth_source
     summary["elapsed_s"] = time.perf_counter() - started
     summary["evaluations"] = problem.count
-    ds = build_result(obs, params, space, problem, nodes, final, summary, used,
-                      db_source=db_source, db_attrs=dict(db.attrs), fixed=echoed)
+    ds = build_result(channel.obs, channel.params, space, problem, nodes, final, summary,
+                      channel.used, db_source=channel.db_source, db_attrs=dict(channel.db.attrs),
+                      fixed=channel.echoed)
     # evidence, complete goodness of fit and warnings (docs/inversion.md §5.1-§5.3)
-    return checked(ds, problem, nodes, final, db_source)
+    return checked(ds, problem, nodes, final, channel.db_source)
 
 
 #: How many per-sample noise standard deviations σ_n an observed sample may lie beyond the

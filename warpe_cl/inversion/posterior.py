@@ -39,10 +39,12 @@ V_GAIN = 0.01
 
 @dataclass
 class Evaluation:
-    """The likelihood at one point: log L with v profiled, the nuisances at the best v."""
+    """The likelihood at one point: log L with v profiled, the nuisances at the best v
+    (a joint inversion's: the sum over its channels, and each channel's own in ``parts``)."""
     loglike: float
     v: float
     fit: object            # likelihood.ShotFit
+    parts: tuple = ()
 
 
 @dataclass
