@@ -14,7 +14,7 @@ import pytest
 import xarray as xr
 from scipy.optimize import minimize_scalar
 
-from conftest import synthetic_database, synthetic_surface
+from conftest import sweep_of, synthetic_database, synthetic_surface
 from warpe_cl.cli import main
 from warpe_cl.design.expected import expected
 from warpe_cl.design.family import Family
@@ -185,12 +185,20 @@ def test_design_writes_its_dataset_table_and_figures(tmp_path, database, capsys)
      ["families[0].database", "/nonexistent/db", "no such database"]),
     (GOOD + "options: {phases: 0}\n", ["options.phases", "0", "[1, 64]"]),
     (GOOD.replace("- {name: bela}", "- {name: bela, instrument: atlas}"),
-     ["532 nm", "1064 nm", "several wavelengths"]),
+     ["532 nm", "1064 nm", "add a database computed at 532 nm"]),
+    (GOOD + "combinations:\n  - {name: both, instruments: [bela, slow]}\n",
+     ["combinations[0].instruments", "slow", "bela, fast"]),
+    (GOOD.replace("database: DB", 'database: DB, wavelengths: ["532 nm"]'),
+     ["families[0].wavelengths", "applies to a preset"]),
+    (GOOD.replace("database: DB", "database: [DB, DB]"),
+     ["syn", "same wavelength", "one database per wavelength"]),
 ])
 def test_bad_study_files_exit_2_with_one_line(tmp_path, database, capsys, text, words):
     """An unknown key, a value with a unit not allowed, a missing database, an option out of
-    range, an instrument at another wavelength than the database: exit 2, one line on stderr
-    naming the key, the value and what is allowed, before any work."""
+    range, an instrument at another wavelength than the database, a combination of an
+    unknown instrument, wavelengths without a preset, two databases at one wavelength:
+    exit 2, one line on stderr naming the key, the value and what is allowed, before any
+    work."""
     study = _study(tmp_path, database, text)
     assert main(["design", str(study), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
@@ -198,3 +206,37 @@ def test_bad_study_files_exit_2_with_one_line(tmp_path, database, capsys, text, 
     for w in words:
         assert w in err, (w, err)
     assert not (tmp_path / "out" / "design.nc").exists()
+
+
+def test_a_combination_across_wavelengths_adds_the_instruments_information(tmp_path, database):
+    """BELA reads the family's 1064 nm database, ATLAS its 532 nm one (same nodes); the
+    combination's information about the one axis is the sum of theirs, so its Fisher
+    variance is the harmonic sum: 1/sd² = 1/sd_BELA² + 1/sd_ATLAS² at every node (exact but
+    for rounding), and it is never wider than either."""
+    db532 = tmp_path / "db532.nc"
+    parts = [synthetic_surface(diffuse_integral=0.05, tau=t, wavelength="532 nm")
+             for t in TAUS]
+    sweep_of(parts, np.asarray(TAUS) * 1e-3, KEY).to_netcdf(db532, engine="h5netcdf")
+    text = f"""\
+families:
+  - {{name: syn, database: [{database}, {db532}]}}
+instruments:
+  - {{name: bela, set: {{shots: 40}}}}
+  - {{name: atlas, set: {{shots: 400}}}}
+combinations:
+  - {{name: bela+atlas, instruments: [bela, atlas]}}
+"""
+    study = tmp_path / "study.yaml"
+    study.write_text(text)
+    out = tmp_path / "out"
+    assert main(["design", str(study), "--out", str(out), "--quiet"]) == 0
+    ds = xr.open_dataset(out / "design.nc")
+    assert ds["instrument"].values.tolist() == ["bela", "atlas", "bela+atlas"]
+    np.testing.assert_allclose(ds["wavelength"].values[:2], [1064.0, 532.0])
+    sd = ds["sd"].sel(parameter=KEY).values          # (point, instrument)
+    assert np.all(np.isfinite(sd)) and ds["detected"].values.all()
+    np.testing.assert_allclose(sd[:, 2] ** -2, sd[:, 0] ** -2 + sd[:, 1] ** -2, rtol=1e-9)
+    ratio = ds["width_ratio"].sel(parameter=KEY).values
+    assert np.all(ratio[:, 2] <= ratio[:, :2].min(axis=1))
+    assert (out / "map_syn_bela_atlas.png").stat().st_size > 1000
+    ds.close()

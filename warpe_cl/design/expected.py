@@ -71,6 +71,32 @@ class Expected:
     elapsed_s: float
 
 
+@dataclass
+class Channel:
+    """One instrument's information about a family, node by node (:func:`channel`).
+
+    Attributes
+    ----------
+    full : list of arrays
+        Per node, the information matrix (nuisances marginalised) over the swept axes' and
+        the neighbour steps' directions, the database's error counted.
+    exact : list of arrays
+        The same with the database taken as exact (``full`` where its error is not counted).
+    detected : array of bool
+    strength : array
+        Per node, the expected peak over σ_n (linear mode) or signal counts (counting).
+    near : list of list of int
+        Per node, the positions of its neighbouring nodes (the steps' order in ``full``).
+    elapsed_s : float
+    """
+    full: list
+    exact: list
+    detected: np.ndarray
+    strength: np.ndarray
+    near: list
+    elapsed_s: float
+
+
 def expected(family, params, *, phases: int = 8, database_error: bool = True,
              nuisances=NUISANCES) -> Expected:
     """Expected widths and distinguishability at every node of ``family`` for one instrument.
@@ -91,16 +117,21 @@ def expected(family, params, *, phases: int = 8, database_error: bool = True,
     -------
     Expected
     """
+    return combined(family, [channel(family, params, phases=phases,
+                                     database_error=database_error, nuisances=nuisances)])
+
+
+def channel(family, params, *, phases: int = 8, database_error: bool = True,
+            nuisances=NUISANCES) -> Channel:
+    """One instrument's information matrices at every node of ``family`` (the parameters
+    are :func:`expected`'s)."""
     started = time.perf_counter()
     forward = Forward(params)
     shots = int(params["shots"])
     counting = forward.counting
     emulator = Emulator(family.space, forward) if database_error and not counting else None
     n_nodes, n_axes = len(family.nodes), len(family.axes)
-    n_par = n_axes + len(family.derived)
-    out = Expected(np.full((n_nodes, n_par), np.nan), np.full((n_nodes, n_par), np.nan),
-                   np.full((n_nodes, n_par), np.nan), np.zeros(n_nodes, bool),
-                   np.zeros(n_nodes), np.zeros(n_nodes), np.full(n_nodes, -1), 0.0)
+    out = Channel([], [], np.zeros(n_nodes, bool), np.zeros(n_nodes), [], 0.0)
     position = {node.index: i for i, node in enumerate(family.nodes)}
     waves = [forward.waveform(forward.photons(node.surface), 0.0) for node in family.nodes]
     h = PULSE_STEP * forward.sigma_p ** 2
@@ -121,7 +152,7 @@ def expected(family, params, *, phases: int = 8, database_error: bool = True,
         else:
             strength = float(mu.max()) / forward.sigma_n
             detected = strength >= DETECTION_SIGMA
-        out.peak_snr[i], out.detected[i] = strength, detected
+        out.strength[i], out.detected[i] = strength, detected
         photons = forward.photons(node.surface)
         d_mu, d_nu = [], []
         for j in range(n_axes):
@@ -149,12 +180,50 @@ def expected(family, params, *, phases: int = 8, database_error: bool = True,
                     for k in near]
         all_mu = np.concatenate([d_mu, np.array(steps_mu).reshape(-1, mu.size)])
         all_nu = np.concatenate([d_nu, np.array(steps_nu).reshape(-1, mu.size)])
+        full = information(mu, nu, all_mu, all_nu, pulse, variance)
+        out.full.append(full)
+        out.exact.append(full if emulator is None else
+                         information(mu, nu, all_mu, all_nu, pulse, None))
+        out.near.append(near)
+    out.elapsed_s = time.perf_counter() - started
+    return out
+
+
+def combined(family, channels: list) -> Expected:
+    """Expected widths and distinguishability from one or more instruments' information
+    about the same surfaces: their matrices add (the instruments' noises and nuisances are
+    independent), each counted only where that instrument detects the return.
+
+    Parameters
+    ----------
+    family : Family
+        The nodes, axes and derived quantities (of the first instrument's database, for a
+        combination across wavelengths: the same nodes in each).
+    channels : list of Channel
+        One per instrument, over the same nodes.
+
+    Returns
+    -------
+    Expected
+        ``peak_snr`` and the detection of a combination: its first instrument's, and
+        detected where any of its instruments detects.
+    """
+    started = time.perf_counter()
+    n_nodes, n_axes = len(family.nodes), len(family.axes)
+    n_par = n_axes + len(family.derived)
+    out = Expected(np.full((n_nodes, n_par), np.nan), np.full((n_nodes, n_par), np.nan),
+                   np.full((n_nodes, n_par), np.nan), np.zeros(n_nodes, bool),
+                   np.zeros(n_nodes), np.zeros(n_nodes), np.full(n_nodes, -1), 0.0)
+    widths = [family.prior_width(a) for a in family.axes] + \
+        [d.prior_width for d in family.derived]
+    for i, node in enumerate(family.nodes):
+        detected = any(c.detected[i] for c in channels)
+        out.detected[i], out.peak_snr[i] = detected, channels[0].strength[i]
+        near = channels[0].near[i]
         ratios = {}
-        for label, var in (("model", variance), ("exact", None)):
-            if label == "exact" and emulator is None:
-                ratios["exact"] = ratios["model"]
-                break
-            full = information(mu, nu, all_mu, all_nu, pulse, var)
+        for label in ("model", "exact"):
+            seen = [c for c in channels if c.detected[i]] or channels[:1]
+            full = sum((c.full[i] if label == "model" else c.exact[i]) for c in seen)
             cov = covariance(full[:n_axes, :n_axes])
             sd = np.full(n_par, np.inf)
             for j, axis in enumerate(family.axes):
@@ -169,8 +238,6 @@ def expected(family, params, *, phases: int = 8, database_error: bool = True,
                           (q.coord(node.derived_above[j][k]), node.above[j][1]))
                     for j in range(n_axes)])
                 sd[n_axes + k] = sd_along(cov, gradient)
-            widths = [family.prior_width(a) for a in family.axes] + \
-                     [d.prior_width for d in family.derived]
             ratio = np.array([min(1.0, 2.0 * Z95 * s / w) if w > 0 else np.nan
                               for s, w in zip(sd, widths)])
             if not detected:
@@ -185,7 +252,7 @@ def expected(family, params, *, phases: int = 8, database_error: bool = True,
                 else:
                     out.min_delta_chi2[i] = np.nan
         out.width_ratio[i], out.width_ratio_exact[i] = ratios["model"], ratios["exact"]
-    out.elapsed_s = time.perf_counter() - started
+    out.elapsed_s = sum(c.elapsed_s for c in channels) + time.perf_counter() - started
     return out
 
 

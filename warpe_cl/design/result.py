@@ -53,7 +53,8 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
     names = [r[0] for r in table]
     where = {n: i for i, n in enumerate(names)}
     n_pt = sum(len(f.nodes) for f in families)
-    n_in, n_par = len(study.instruments), len(names)
+    columns = study.instruments + study.combinations
+    n_in, n_par = len(columns), len(names)
     ratio = np.full((n_pt, n_in, n_par), np.nan)
     exact = np.full((n_pt, n_in, n_par), np.nan)
     sd = np.full((n_pt, n_in, n_par), np.nan)
@@ -72,7 +73,7 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
             family.append(fam.name)
             node.append(json.dumps({key: float(v) for key, v in n.point.items()}))
             value[start + k, cols] = [n.point[a.key] for a in fam.axes] + list(n.derived_here)
-        for j, cand in enumerate(study.instruments):
+        for j, cand in enumerate(columns):
             e = results[(fam.name, cand.name)]
             ratio[rows, j][:, cols] = e.width_ratio
             exact[rows, j][:, cols] = e.width_ratio_exact
@@ -125,26 +126,30 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
             "nearest_neighbour": (("point", "instrument"), nearest, {
                 "long_name": "the point whose delta chi2 is the least (-1: none)",
                 "units": "1"}),
-            "shots": ("instrument", np.array([c.params["shots"] for c in study.instruments],
+            "shots": ("instrument", np.array([_total(study, c, "shots") for c in columns],
                                              np.int64), {
-                "long_name": "shots of the observation", "units": "1"}),
-            "pulse_fwhm": ("instrument", np.array([c.params["transmitter.pulse_fwhm"]
-                                                   for c in study.instruments]), {
-                "long_name": "transmitted pulse FWHM", "units": "ns"}),
-            "sampling_interval": ("instrument", np.array([c.params["adc.sampling_interval"]
-                                                          for c in study.instruments]), {
+                "long_name": "shots of the observation (a combination: of all its "
+                             "instruments)", "units": "1"}),
+            "pulse_fwhm": ("instrument", _each(study, columns, "transmitter.pulse_fwhm"), {
+                "long_name": "transmitted pulse FWHM (NaN: a combination)", "units": "ns"}),
+            "sampling_interval": ("instrument", _each(study, columns,
+                                                      "adc.sampling_interval"), {
                 "long_name": "sampling interval (histogram bin of a photon-counting "
-                             "receiver)", "units": "ns"}),
-            "pulse_energy": ("instrument", np.array([c.params["transmitter.pulse_energy"]
-                                                     for c in study.instruments]), {
-                "long_name": "transmitted pulse energy", "units": "J"}),
+                             "receiver; NaN: a combination)", "units": "ns"}),
+            "pulse_energy": ("instrument", _each(study, columns, "transmitter.pulse_energy"), {
+                "long_name": "transmitted pulse energy (NaN: a combination)", "units": "J"}),
+            "wavelength": ("instrument", _each(study, columns, "wavelength") * 1e9, {
+                "long_name": "laser wavelength (NaN: a combination)", "units": "nm"}),
             "photon_counting": ("instrument", np.array(
-                [c.params["detector.type"] == "photon_counting" for c in study.instruments],
-                np.int8), {"long_name": "a photon-counting receiver", "units": "1", **flag}),
+                [any(p["detector.type"] == "photon_counting" for p in _params(study, c))
+                 for c in columns], np.int8), {
+                "long_name": "a photon-counting receiver (a combination: one of its "
+                             "instruments)", "units": "1", **flag}),
             "elapsed": ("instrument", np.array(
                 [sum(results[(f.name, c.name)].elapsed_s for f in families)
-                 for c in study.instruments]), {
-                "long_name": "time taken for the instrument's expected widths", "units": "s"}),
+                 for c in columns]), {
+                "long_name": "time taken for the instrument's expected widths (a "
+                             "combination: its instruments' and the sum)", "units": "s"}),
         },
         coords={
             "point": ("point", np.arange(n_pt), {"long_name": "surface (node of a family)",
@@ -152,12 +157,15 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
             "family": ("point", np.array(family), {"long_name": "surface family", "units": "1"}),
             "point_values": ("point", np.array(node), {
                 "long_name": "the point's swept values (JSON, axis units)", "units": "1"}),
-            "instrument": ("instrument", np.array([c.name for c in study.instruments]), {
-                "long_name": "candidate instrument", "units": "1"}),
-            "instrument_spec": ("instrument", np.array([c.spec for c in study.instruments]), {
-                "long_name": "the instrument it starts from", "units": "1"}),
+            "instrument": ("instrument", np.array([c.name for c in columns]), {
+                "long_name": "candidate instrument, or combination of instruments observing "
+                             "together", "units": "1"}),
+            "instrument_spec": ("instrument", np.array(
+                [getattr(c, "spec", "+".join(getattr(c, "members", []))) for c in columns]), {
+                "long_name": "the instrument it starts from (a combination: its instruments "
+                             "joined by +)", "units": "1"}),
             "instrument_overrides": ("instrument", np.array(
-                [json.dumps(c.overrides, default=str) for c in study.instruments]), {
+                [json.dumps(getattr(c, "overrides", {}), default=str) for c in columns]), {
                 "long_name": "instrument keys set by the study (JSON)", "units": "1"}),
             "parameter": ("parameter", np.array(names), {
                 "long_name": "swept key or derived quantity", "units": "1"}),
@@ -183,6 +191,26 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
             **provenance(),
         })
     return ds
+
+
+def _params(study, column) -> list:
+    """The instrument parameters of a study's column: one instrument's, or a combination's
+    instruments' in its order."""
+    if hasattr(column, "params"):
+        return [column.params]
+    named = {c.name: c for c in study.instruments}
+    return [named[m].params for m in column.members]
+
+
+def _total(study, column, key: str):
+    """The sum of ``key`` over a column's instruments."""
+    return sum(p[key] for p in _params(study, column))
+
+
+def _each(study, columns, key: str) -> np.ndarray:
+    """``key`` of each column's instrument (NaN for a combination)."""
+    return np.array([float(c.params[key]) if hasattr(c, "params") else np.nan
+                     for c in columns])
 
 
 def summary_rows(ds: xr.Dataset) -> list:

@@ -12,15 +12,18 @@ import re
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ..catalog import resolve_preset
+from ..config.instrument_fields import at_wavelength
 from ..errors import ConfigError, WarpeError
 from ..io import Outputs
 from ..sweep import run_sweep
-from .expected import expected
+from .expected import channel, combined
 from .family import Family
 from .figures import plot_map, plot_ranking
 from .result import build_dataset, summary_markdown, summary_rows
-from .study import check_wavelengths, load_study
+from .study import load_study, member_for
 
 
 def check_out(out, overwrite: bool) -> Path:
@@ -73,26 +76,38 @@ def run_study(path, out, *, overwrite: bool = False, say=print, quiet: bool = Fa
     for spec in study.families:
         if spec.preset is None:
             continue
-        overrides = [] if spec.photons is None else [f"simulation.photons={spec.photons}"]
-        spec.database.parent.mkdir(parents=True, exist_ok=True)
-        say(f"family {spec.name}: sweeping {spec.preset} into {spec.database} (resumed)")
-        summary = run_sweep(resolve_preset(spec.preset), spec.database, overrides=overrides,
-                            resume=True, quiet=quiet, say=say, device=device)
-        if summary.exit_code != 0:
-            raise WarpeError(f"family {spec.name}: the sweep of {spec.preset} did not finish "
-                             f"(see its manifest in {spec.database}); run the study again to "
-                             "resume it")
-    families = [Family(spec.name, spec.database, str(spec.database))
-                for spec in study.families]
-    check_wavelengths(families, study)
+        for database, wavelength in zip(spec.databases, spec.wavelengths):
+            overrides = [] if spec.photons is None else [f"simulation.photons={spec.photons}"]
+            if wavelength is not None:
+                overrides.append(f"wavelength={wavelength * 1e9:.9g} nm")
+            database.parent.mkdir(parents=True, exist_ok=True)
+            say(f"family {spec.name}: sweeping {spec.preset} into {database} (resumed)")
+            summary = run_sweep(resolve_preset(spec.preset), database, overrides=overrides,
+                                resume=True, quiet=quiet, say=say, device=device)
+            if summary.exit_code != 0:
+                raise WarpeError(f"family {spec.name}: the sweep of {spec.preset} did not "
+                                 f"finish (see its manifest in {database}); run the study "
+                                 "again to resume it")
+    members = {spec.name: family_members(spec, study.source) for spec in study.families}
+    families = [members[spec.name][0] for spec in study.families]
+    reads = {(name, cand.name): member_for(fams, cand, name, study.source)
+             for name, fams in members.items() for cand in study.instruments}
     results, started = {}, time.perf_counter()
     for fam in families:
+        channels = {}
         for cand in study.instruments:
-            e = expected(fam, cand.params, phases=study.options["phases"],
-                         database_error=study.options["database_error"],
-                         nuisances=study.options["nuisances"])
+            channels[cand.name] = channel(reads[(fam.name, cand.name)], cand.params,
+                                          phases=study.options["phases"],
+                                          database_error=study.options["database_error"],
+                                          nuisances=study.options["nuisances"])
+            e = combined(fam, [channels[cand.name]])
             results[(fam.name, cand.name)] = e
             say(f"{fam.name} x {cand.name}: {len(fam.nodes)} points in {e.elapsed_s:.2f} s")
+        for combo in study.combinations:
+            e = combined(fam, [channels[m] for m in combo.members])
+            results[(fam.name, combo.name)] = e
+            say(f"{fam.name} x {combo.name} ({' + '.join(combo.members)}): {len(fam.nodes)} "
+                "points")
     elapsed = time.perf_counter() - started
     ds = build_dataset(study, families, results)
     text = summary_markdown(ds)
@@ -104,13 +119,41 @@ def run_study(path, out, *, overwrite: bool = False, say=print, quiet: bool = Fa
     rows = summary_rows(ds)
     with Outputs() as outputs:
         for fam in families:
-            for cand in study.instruments:
+            for cand in study.instruments + study.combinations:
                 name = out / f"map_{_safe(fam.name)}_{_safe(cand.name)}.png"
                 plot_map(ds, fam.name, cand.name, outputs.stage(name))
                 files.append(name)
         plot_ranking(ds, rows, outputs.stage(out / "ranking.png"))
         files.append(out / "ranking.png")
     return {"dataset": ds, "files": files, "elapsed_s": elapsed, "summary": text}
+
+
+def family_members(spec, source: str) -> list:
+    """A family's databases as :class:`~.family.Family` objects, one per wavelength, checked
+    to sweep the same keys over the same nodes at different wavelengths.
+
+    Raises
+    ------
+    ConfigError
+        Databases on other nodes, or two at one wavelength (one line naming both).
+    """
+    members = [Family(spec.name, d, str(d)) for d in spec.databases]
+    first = members[0]
+    for fam in members[1:]:
+        same = [a.key for a in fam.axes] == [a.key for a in first.axes] and all(
+            a.values.size == b.values.size and np.allclose(a.values, b.values, rtol=1e-9,
+                                                           atol=0.0)
+            for a, b in zip(fam.axes, first.axes))
+        if not same:
+            raise ConfigError(f"{fam.source} does not sweep the nodes of {first.source}: the "
+                              "databases of one family must be one sweep run at each "
+                              "wavelength", key=f"families: {spec.name}", source=source)
+        if fam.wavelength is None or first.wavelength is None or \
+                at_wavelength(fam.wavelength, first.wavelength):
+            raise ConfigError(f"{fam.source} and {first.source} are at the same wavelength: "
+                              "give one database per wavelength",
+                              key=f"families: {spec.name}", source=source)
+    return members
 
 
 def _safe(name: str) -> str:
