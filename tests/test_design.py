@@ -16,7 +16,7 @@ from scipy.optimize import minimize_scalar
 
 from conftest import sweep_of, synthetic_database, synthetic_surface
 from warpe_cl.cli import main
-from warpe_cl.design.expected import expected
+from warpe_cl.design.expected import DISTINGUISHABLE, channel, combined, expected
 from warpe_cl.design.family import Family
 from warpe_cl.design.fisher import linear_information
 from warpe_cl.instrument import apply_instrument, load_instrument
@@ -240,3 +240,24 @@ combinations:
     assert np.all(ratio[:, 2] <= ratio[:, :2].min(axis=1))
     assert (out / "map_syn_bela_atlas.png").stat().st_size > 1000
     ds.close()
+
+
+def test_other_families_are_told_apart_by_the_neighbours_measure(tmp_path, family):
+    """The Δχ² from a node to another family's node is the neighbour Δχ² when the two
+    surfaces are the same (family B holds τ = 2, 4, 8, 16 ns; A's node τ = 2 has the
+    neighbour τ = 4): equal to rounding; a surface found in both families is at Δχ² 0 from
+    it, so never told apart."""
+    other = Family("shifted", xr.open_dataset(
+        synthetic_database(tmp_path / "b.nc", taus=(2.0, 4.0, 8.0, 16.0))))
+    params = load_instrument("bela", {"transmitter.pulse_fwhm": "2 ns",
+                                      "adc.sampling_interval": "1 ns"})
+    ch = channel(family, params, others=[other])
+    i = 1                                               # A's node τ = 2 ns
+    steps = np.diag(ch.full[i])[len(family.axes):]      # neighbour Δχ² (τ = 1 and 4 ns)
+    to_four = steps[ch.near[i].index(2)]
+    assert to_four > DISTINGUISHABLE
+    np.testing.assert_allclose(ch.texture[i][1], to_four, rtol=1e-9)   # B's node τ = 4 ns
+    assert ch.texture[i][0] == pytest.approx(0.0, abs=1e-9 * to_four)   # B's τ = 2 ns: A's own
+    e = combined(family, [ch])
+    assert e.min_delta_chi2_texture[i] == pytest.approx(0.0, abs=1e-9 * to_four)
+    assert e.nearest_texture[i] == 0

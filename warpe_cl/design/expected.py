@@ -36,6 +36,9 @@ DISTINGUISHABLE = 3.841458820694124
 COUNTS_DETECTED = 10.0
 #: Step of the pulse-broadening nuisance v for its derivative, in units of the pulse's σ².
 PULSE_STEP = 0.1
+#: Directions per information matrix when the Δχ² to the other families' nodes are computed
+#: (only the diagonal is kept; a batch costs its size squared times the samples).
+TEXTURE_BATCH = 32
 
 
 @dataclass
@@ -60,6 +63,10 @@ class Expected:
     nearest : array of int (nodes,)
         The index (in ``family.nodes``) of that neighbour (-1 for none).
     elapsed_s : float
+    min_delta_chi2_texture : array (nodes,)
+        The least Asimov Δχ² to a node of another family of the study (NaN: none given).
+    nearest_texture : array of int (nodes,)
+        Its index in the other families' nodes taken in order (-1 for none).
     """
     width_ratio: np.ndarray
     width_ratio_exact: np.ndarray
@@ -69,6 +76,8 @@ class Expected:
     min_delta_chi2: np.ndarray
     nearest: np.ndarray
     elapsed_s: float
+    min_delta_chi2_texture: np.ndarray = None
+    nearest_texture: np.ndarray = None
 
 
 @dataclass
@@ -88,6 +97,9 @@ class Channel:
     near : list of list of int
         Per node, the positions of its neighbouring nodes (the steps' order in ``full``).
     elapsed_s : float
+    texture : list of arrays
+        Per node, the Asimov Δχ² to every node of the other families (in their order), the
+        nuisances and the database's error marginalised; empty without other families.
     """
     full: list
     exact: list
@@ -95,6 +107,7 @@ class Channel:
     strength: np.ndarray
     near: list
     elapsed_s: float
+    texture: list = None
 
 
 def expected(family, params, *, phases: int = 8, database_error: bool = True,
@@ -122,18 +135,23 @@ def expected(family, params, *, phases: int = 8, database_error: bool = True,
 
 
 def channel(family, params, *, phases: int = 8, database_error: bool = True,
-            nuisances=NUISANCES) -> Channel:
+            nuisances=NUISANCES, others=()) -> Channel:
     """One instrument's information matrices at every node of ``family`` (the parameters
-    are :func:`expected`'s)."""
+    are :func:`expected`'s), and with ``others`` (other families, each the database at this
+    instrument's wavelength) the Asimov Δχ² from every node to every node of theirs: the
+    information along the difference of the two surfaces' expected samples, the nuisances
+    and the database's error marginalised, linear in the difference (docs/design.md §2.5)."""
     started = time.perf_counter()
     forward = Forward(params)
     shots = int(params["shots"])
     counting = forward.counting
     emulator = Emulator(family.space, forward) if database_error and not counting else None
     n_nodes, n_axes = len(family.nodes), len(family.axes)
-    out = Channel([], [], np.zeros(n_nodes, bool), np.zeros(n_nodes), [], 0.0)
+    out = Channel([], [], np.zeros(n_nodes, bool), np.zeros(n_nodes), [], 0.0, [])
     position = {node.index: i for i, node in enumerate(family.nodes)}
     waves = [forward.waveform(forward.photons(node.surface), 0.0) for node in family.nodes]
+    theirs = [_with_nu(forward.waveform(forward.photons(node.surface), 0.0))
+              for other in others for node in other.nodes]
     h = PULSE_STEP * forward.sigma_p ** 2
 
     def information(mu, nu, d_mu, d_nu, pulse, variance):
@@ -185,6 +203,12 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
         out.exact.append(full if emulator is None else
                          information(mu, nu, all_mu, all_nu, pulse, None))
         out.near.append(near)
+        if theirs:      # the diagonal only, in batches: each Δχ² needs no cross term
+            out.texture.append(np.concatenate([
+                np.diag(information(mu, nu, np.array([m - mu for m, _ in part]),
+                                    np.array([n - nu for _, n in part]), pulse, variance))
+                for part in (theirs[k:k + TEXTURE_BATCH]
+                             for k in range(0, len(theirs), TEXTURE_BATCH))]))
     out.elapsed_s = time.perf_counter() - started
     return out
 
@@ -252,8 +276,23 @@ def combined(family, channels: list) -> Expected:
                 else:
                     out.min_delta_chi2[i] = np.nan
         out.width_ratio[i], out.width_ratio_exact[i] = ratios["model"], ratios["exact"]
+    if channels[0].texture:
+        out.min_delta_chi2_texture = np.full(n_nodes, np.nan)
+        out.nearest_texture = np.full(n_nodes, -1)
+        for i in range(n_nodes):
+            seen = [c for c in channels if c.detected[i]]
+            chi2 = sum(c.texture[i] for c in seen) if seen else \
+                np.zeros_like(channels[0].texture[i])
+            k = int(np.argmin(chi2))
+            out.min_delta_chi2_texture[i], out.nearest_texture[i] = float(chi2[k]), k
     out.elapsed_s = sum(c.elapsed_s for c in channels) + time.perf_counter() - started
     return out
+
+
+def _with_nu(wave) -> tuple:
+    """(μ, ν) with ν zeros where the receiver has none (photon counting)."""
+    mu, nu = wave
+    return mu, (np.zeros_like(mu) if nu is None else nu)
 
 
 def _pulse_derivative(forward, photons, mu, nu, h):

@@ -63,6 +63,9 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
     snr = np.full((n_pt, n_in), np.nan)
     chi2 = np.full((n_pt, n_in), np.nan)
     nearest = np.full((n_pt, n_in), -1, np.int64)
+    chi2_texture = np.full((n_pt, n_in), np.nan)
+    nearest_texture = np.full((n_pt, n_in), -1, np.int64)
+    starts = np.cumsum([0] + [len(f.nodes) for f in families])
     family = []
     node = []
     start = 0
@@ -82,6 +85,13 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
             snr[rows, j] = e.peak_snr
             chi2[rows, j] = e.min_delta_chi2
             nearest[rows, j] = np.where(e.nearest >= 0, e.nearest + start, -1)
+            if e.min_delta_chi2_texture is not None:
+                # the other families' nodes in order -> their points in design.nc
+                theirs = np.concatenate([np.arange(starts[k], starts[k + 1])
+                                         for k, f in enumerate(families) if f is not fam])
+                chi2_texture[rows, j] = e.min_delta_chi2_texture
+                nearest_texture[rows, j] = np.where(e.nearest_texture >= 0,
+                                                    theirs[e.nearest_texture], -1)
         start += len(fam.nodes)
     per_par = "per parameter: see parameter_units"
     flag = {"flag_values": np.array([0, 1], np.int8), "flag_meanings": "no yes"}
@@ -126,6 +136,20 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
             "nearest_neighbour": (("point", "instrument"), nearest, {
                 "long_name": "the point whose delta chi2 is the least (-1: none)",
                 "units": "1"}),
+            "min_delta_chi2_texture": (("point", "instrument"), chi2_texture, {
+                "long_name": "least expected (Asimov) delta chi2 between the point and any "
+                             "point of another family of the study, nuisances marginalised "
+                             "(NaN: a study of one family)", "units": "1"}),
+            "texture_distinguishable": (("point", "instrument"),
+                                        np.where(np.isfinite(chi2_texture),
+                                                 chi2_texture >= DISTINGUISHABLE, False)
+                                        .astype(np.int8), {
+                "long_name": f"min_delta_chi2_texture reaches {DISTINGUISHABLE:.2f}: the "
+                             "surface is told from every surface of the other families",
+                "units": "1", **flag}),
+            "nearest_texture_point": (("point", "instrument"), nearest_texture, {
+                "long_name": "the point of another family whose delta chi2 is the least "
+                             "(-1: none)", "units": "1"}),
             "shots": ("instrument", np.array([_total(study, c, "shots") for c in columns],
                                              np.int64), {
                 "long_name": "shots of the observation (a combination: of all its "
@@ -230,8 +254,11 @@ def summary_rows(ds: xr.Dataset) -> list:
                 med = float(np.median(col)) if col.size else np.nan
                 share = float(np.mean(col < CONSTRAINED)) if col.size else np.nan
                 cells.append((str(ds["parameter_symbol"].values[p]), med, share))
+            texture = sub["min_delta_chi2_texture"].values[:, j]
             rows.append({"family": fam, "instrument": name, "cells": cells,
                          "distinguishable": float(np.mean(sub["distinguishable"].values[:, j])),
+                         "texture": float(np.mean(texture >= DISTINGUISHABLE))
+                         if np.isfinite(texture).all() else np.nan,
                          "detected": float(np.mean(sub["detected"].values[:, j])),
                          "points": sub.sizes["point"]})
     return rows
@@ -246,17 +273,22 @@ def summary_markdown(ds: xr.Dataset) -> str:
            "Median expected width ratio over the family (posterior 95 % width / prior's, in the "
            f"prior's coordinate; 1 = nothing learnt) and, in brackets, the share of points "
            f"where the parameter is constrained (width ratio < {CONSTRAINED:g}); detected and "
-           f"distinguishable (Asimov delta chi2 >= {DISTINGUISHABLE:.2f} to every neighbour): "
-           "shares of points.", ""]
+           f"distinguishable (Asimov delta chi2 >= {DISTINGUISHABLE:.2f} to every neighbour) "
+           "and, with several families, told from the other families (the same to every "
+           "point of theirs): shares of points.", ""]
     for fam in dict.fromkeys(r["family"] for r in rows):
         mine = [r for r in rows if r["family"] == fam]
         symbols = [c[0] for c in mine[0]["cells"]]
+        textures = np.isfinite(mine[0]["texture"])
         out += [f"## {fam} ({mine[0]['points']} points)", "",
-                "| instrument | " + " | ".join(symbols) + " | detected | distinguishable |",
-                "| --- | " + " | ".join("---" for _ in symbols) + " | --- | --- |"]
+                "| instrument | " + " | ".join(symbols) + " | detected | distinguishable |"
+                + (" other families |" if textures else ""),
+                "| --- | " + " | ".join("---" for _ in symbols) + " | --- | --- |"
+                + (" --- |" if textures else "")]
         for r in mine:
             cells = [f"{m:.2f} ({100 * s:.0f} %)" for _, m, s in r["cells"]]
             out.append(f"| {r['instrument']} | " + " | ".join(cells)
-                       + f" | {100 * r['detected']:.0f} % | {100 * r['distinguishable']:.0f} % |")
+                       + f" | {100 * r['detected']:.0f} % | {100 * r['distinguishable']:.0f} % |"
+                       + (f" {100 * r['texture']:.0f} % |" if textures else ""))
         out.append("")
     return "\n".join(out)

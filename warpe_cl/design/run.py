@@ -96,10 +96,12 @@ def run_study(path, out, *, overwrite: bool = False, say=print, quiet: bool = Fa
     for fam in families:
         channels = {}
         for cand in study.instruments:
+            others = [reads[(o.name, cand.name)] for o in families if o.name != fam.name]
             channels[cand.name] = channel(reads[(fam.name, cand.name)], cand.params,
                                           phases=study.options["phases"],
                                           database_error=study.options["database_error"],
-                                          nuisances=study.options["nuisances"])
+                                          nuisances=study.options["nuisances"],
+                                          others=others)
             e = combined(fam, [channels[cand.name]])
             results[(fam.name, cand.name)] = e
             say(f"{fam.name} x {cand.name}: {len(fam.nodes)} points in {e.elapsed_s:.2f} s")
