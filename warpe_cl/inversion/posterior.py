@@ -207,11 +207,13 @@ def refine(problem: Problem, budget: int = 600, rounds: int = 4,
     (nodes, final)
         The posterior at the database's nodes and on the last grid.
     """
-    nodes = problem.grid([a.nodes for a in problem.space.free_axes])
+    limits = [a.nodes for a in problem.space.free_axes]
+    nodes = problem.grid(limits)
     current = nodes
     for _ in range(rounds):
         box = _significant_box(current)
-        coords = _finer(current.coords, box, budget, unresolved(current, box, resolved))
+        coords = _finer(current.coords, box, budget, unresolved(current, box, resolved),
+                        limits)
         if coords is None:
             break
         current = problem.grid(coords)
@@ -227,6 +229,18 @@ def unresolved(post: GridPosterior, box: list, resolved: int = 6) -> list:
             for i, (c, (lo, hi)) in enumerate(zip(post.coords, box))]
 
 
+def _beyond(c: np.ndarray, lo: int, hi: int, nodes: np.ndarray) -> tuple:
+    """Where the significant points of a grid axis reach one of its ends that is not the
+    prior's, the database node beyond that end (else None), below and above: the posterior
+    may go on past the grid there. A refined grid covers only the box of the grid before it,
+    so without this a mode that the coarse grid misplaced (a narrow key evaluated off its peak
+    biases a broad one) could never be reached again."""
+    below = nodes[nodes < c[0]] if lo == 0 else nodes[:0]
+    above = nodes[nodes > c[-1]] if hi == c.size - 1 else nodes[:0]
+    return (float(below[-1]) if below.size else None,
+            float(above[0]) if above.size else None)
+
+
 def _significant_box(post: GridPosterior) -> list:
     """Per axis, the index range of points within SIGNIFICANT of the best log L."""
     keep = post.loglike > np.nanmax(post.loglike) - SIGNIFICANT
@@ -238,21 +252,32 @@ def _significant_box(post: GridPosterior) -> list:
     return box
 
 
-def _finer(coords: list, box: list, budget: int, narrow: list):
+def _finer(coords: list, box: list, budget: int, narrow: list, limits=None):
     """A finer grid over ``box``, or None when no ``narrow`` axis (:func:`unresolved`) can be
-    made finer within ``budget`` points.
+    made finer within ``budget`` points and no box reaches past its grid.
 
     Every axis spans ``box`` widened by one point each side (mass may lie between the last
-    point within SIGNIFICANT of the best and the next). A resolved axis keeps its points
-    there; a narrow one gets as many evenly spaced points as ``budget`` allows, the same
-    number on every narrow axis, if its spacing shrinks by a third or more. So an axis along
-    which the posterior is much narrower than the grid is refined even while others span the
-    prior: with the same subdivision on every axis, two broad axes filled the budget and a
-    narrow third one kept a single point, its intervals the grid's cell and not the posterior
-    (docs/inversion.md §5).
+    point within SIGNIFICANT of the best and the next), and, where the box reaches an end of
+    the grid that is not the prior's, on to the database node beyond it (``limits``: the
+    nodes per axis; :func:`_beyond`), and such an axis is gridded afresh. A resolved axis
+    keeps its points; a narrow one gets as many evenly spaced points as ``budget`` allows,
+    the same number on every narrow axis, if its spacing shrinks by a third or more. So an
+    axis along which the posterior is much narrower than the grid is refined even while
+    others span the prior: with the same subdivision on every axis, two broad axes filled the
+    budget and a narrow third one kept a single point, its intervals the grid's cell and not
+    the posterior (docs/inversion.md §5).
     """
     spans = [c[max(lo - 1, 0): min(hi + 1, c.size - 1) + 1] for c, (lo, hi) in zip(coords, box)]
-    fine = [j for j, n in enumerate(narrow) if n]
+    grown = []
+    for j, (c, (lo, hi)) in enumerate(zip(coords, box)):
+        if limits is None or c.size < 2:
+            continue
+        below, above = _beyond(c, lo, hi, np.asarray(limits[j], float))
+        if below is not None or above is not None:
+            spans[j] = np.concatenate([[below] if below is not None else [], spans[j],
+                                       [above] if above is not None else []])
+            grown.append(j)
+    fine = [j for j, n in enumerate(narrow) if n or j in grown]
     if not fine:
         return None
     kept = int(np.prod([s.size for j, s in enumerate(spans) if j not in fine]))
@@ -261,7 +286,7 @@ def _finer(coords: list, box: list, budget: int, narrow: list):
     for j in fine:
         s = spans[j]
         finer = (s[-1] - s[0]) / max(points - 1, 1)
-        if points >= 3 and finer <= float(np.min(np.diff(s))) * (2.0 / 3.0):
+        if points >= 3 and (finer <= float(np.min(np.diff(s))) * (2.0 / 3.0) or j in grown):
             out[j] = np.linspace(s[0], s[-1], points)
             refined = True
     return out if refined else None
