@@ -15,7 +15,7 @@ import xarray as xr
 from conftest import sweep_of, synthetic_database, synthetic_surface
 from warpe_cl.instrument import apply_instrument, load_instrument
 from warpe_cl.inversion.agreement import agreement
-from warpe_cl.inversion.emulator import Emulator, response_variance
+from warpe_cl.inversion.emulator import Emulator, integrate_blocks, response_variance
 from warpe_cl.inversion.forward import Forward
 from warpe_cl.surface import SurfaceResponse, response
 from warpe_cl.inversion.space import Space
@@ -130,3 +130,48 @@ def test_adequacy_with_a_key_fixed_between_nodes(bela):
                  fix={KEY: "2.8 mm"}, budget=30)
     assert "halved spacing of medium.thickness around 0.0028" in fit.attrs["database_adequacy"]
     assert float(fit["loglike_database_sd_interpolation"]) > 1.0
+
+
+def _dense_integral(w_b, g_b, s_b, base):
+    """The block integral of :func:`~warpe_cl.inversion.emulator.integrate_blocks` the
+    direct way: the projected W, the eigenvalues of S^½ W_eff S^½ and the sums over them."""
+    wb = w_b[:, None] * base
+    w_eff = np.diag(w_b) - wb @ np.linalg.lstsq(base.T @ wb, wb.T, rcond=None)[0]
+    g_eff = g_b - wb @ np.linalg.lstsq(base.T @ wb, base.T @ g_b, rcond=None)[0]
+    root = np.sqrt(s_b)
+    lam, vec = np.linalg.eigh(root[:, None] * w_eff * root[None, :])
+    lam = np.clip(lam, 0.0, None)
+    proj = vec.T @ (root * g_eff)
+    return (0.5 * np.sum(proj ** 2 / (1.0 + lam)) - 0.5 * np.sum(np.log1p(lam)),
+            np.sqrt(np.sum(lam) + 0.5 * np.sum(lam ** 2)), -0.5 * np.sum(lam))
+
+
+@pytest.mark.parametrize("blocks", [3, 12, 60])
+def test_block_integral_in_linear_time_equals_the_eigen_sums(blocks):
+    """integrate_blocks (Woodbury and the determinant lemma, O(blocks)) against the dense
+    eigen-decomposition it replaces, on random blocks (some with S = 0) and on directions
+    the blocks cannot tell apart (a singular projection)."""
+    rng = np.random.default_rng(blocks)
+    w, g, s = rng.uniform(0.1, 10.0, blocks), rng.normal(0.0, 3.0, blocks), \
+        rng.uniform(0.0, 2.0, blocks)
+    s[::4] = 0.0
+    for base in (rng.normal(size=(blocks, 2)), np.ones((blocks, 2))):
+        np.testing.assert_allclose(integrate_blocks(w, g, s, base),
+                                   _dense_integral(w, g, s, base), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("x", [1.4, 2.8])
+def test_photon_counts_through_the_database_agree_within_the_stated_error(x):
+    """As for linear-mode samples: ATLAS's receiver (moved to the database's 1064 nm), the
+    nodes at 1, 2, 4 of :func:`mixture` and the surface itself between them; log L through
+    the database, less its expected offset, within 3 stated errors of log L of the surface
+    itself at 100 and 1000 shots, and the stated error not vacuous."""
+    atlas = Forward(load_instrument("atlas", {"wavelength": "1064 nm"}))
+    space = Space(mixture_database())
+    surface_ds = mixture(x)
+    for shots in (100, 1000):
+        rec = apply_instrument(surface_ds, atlas.params, shots=shots, seed=5)
+        out = agreement(space, atlas, rec["sample_time"].values, rec["signal_counts"].values,
+                        {KEY: x * 1e-3}, response(surface_ds))
+        assert abs(out["z"]) < 3.0, out
+        assert 0.0 < out["sigma"] < 30.0, out

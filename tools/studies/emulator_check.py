@@ -3,7 +3,7 @@
 database's stated error? (docs/inversion.md §4.3)
 
     python tools/studies/emulator_check.py --database DB --preset PRESET.yaml
-        [--instrument bela|gala|FILE.yaml] [--points 8] [--photons 3e5] [--shots 100,1000]
+        [--instrument bela|gala|atlas|FILE.yaml] [--points 8] [--photons 3e5] [--shots 100,1000]
         [--seeds 2] [--seed 1] [--out rows.csv]
 
 PRESET is the preset the database was swept from (its ``sweep:`` block is dropped). The tool
@@ -68,7 +68,6 @@ def run(args) -> list:
     """Every row of the study (one per point, shot count and noise seed)."""
     from warpe_cl import load_preset, simulate
     from warpe_cl.database import load_result
-    from warpe_cl.errors import ConfigError
     from warpe_cl.instrument import apply_instrument, load_instrument
     from warpe_cl.inversion.agreement import agreement
     from warpe_cl.inversion.emulator import Emulator
@@ -78,11 +77,8 @@ def run(args) -> list:
 
     space = Space(load_result(Path(args.database)), source=args.database)
     params = load_instrument(args.instrument)
-    if params["detector.type"] == "photon_counting":
-        raise ConfigError(f"{params['name']} counts photons: the database's error is "
-                          "integrated for linear-mode receivers only (docs/inversion.md §4.3)",
-                          key="--instrument")
     forward = Forward(params)
+    signal = "signal_counts" if forward.counting else "signal_mv"
     emulator = Emulator(space, forward)         # node waveforms and leave-one-out errors once
     base = yaml.safe_load(Path(args.preset).read_text())
     base.pop("sweep", None)
@@ -97,7 +93,7 @@ def run(args) -> list:
             for s in range(args.seeds):
                 rec = apply_instrument(surface_ds, params, shots=shots, seed=7 + s)
                 out = agreement(space, forward, rec["sample_time"].values,
-                                rec["signal_mv"].values, point, surface, emulator=emulator)
+                                rec[signal].values, point, surface, emulator=emulator)
                 rows.append({"point": p, **{k: f"{v:.6g}" for k, v in point.items()},
                              "shots": shots, "seed": 7 + s,
                              **{k: f"{out[k]:.6g}" for k in ("plain", "database", "direct",
@@ -128,7 +124,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--database", required=True)
     ap.add_argument("--preset", required=True)
-    ap.add_argument("--instrument", default="bela", help="bela, gala or an instrument file")
+    ap.add_argument("--instrument", default="bela", help="bela, gala, atlas or an instrument file")
     ap.add_argument("--points", type=int, default=8)
     ap.add_argument("--photons", type=float, default=3e5)
     ap.add_argument("--shots", default="100,1000")

@@ -51,7 +51,7 @@ class Expected:
     width_ratio : array (nodes, parameters)
         Expected 95 % width over the prior's, capped at 1 (NaN: no range).
     width_ratio_exact : array (nodes, parameters)
-        The same with the database taken as exact (equal to ``width_ratio`` for counts).
+        The same with the database taken as exact.
     sd : array (nodes, parameters)
         Fisher standard deviation in the comparison coordinate (inf: not constrained).
     detected : array of bool (nodes,)
@@ -145,7 +145,7 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
     forward = Forward(params)
     shots = int(params["shots"])
     counting = forward.counting
-    emulator = Emulator(family.space, forward) if database_error and not counting else None
+    emulator = Emulator(family.space, forward) if database_error else None
     n_nodes, n_axes = len(family.nodes), len(family.axes)
     out = Channel([], [], np.zeros(n_nodes, bool), np.zeros(n_nodes), [], 0.0, [])
     position = {node.index: i for i, node in enumerate(family.nodes)}
@@ -157,7 +157,7 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
     def information(mu, nu, d_mu, d_nu, pulse, variance):
         if counting:
             return counting_information(forward, mu, d_mu, shots, pulse=pulse[0],
-                                        phases=phases, nuisances=nuisances)
+                                        phases=phases, nuisances=nuisances, variance=variance)
         return linear_information(forward, mu, nu, d_mu, d_nu, shots, pulse=pulse,
                                   variance=variance, phases=phases, nuisances=nuisances)
 

@@ -23,8 +23,10 @@ it caps what many shots can learn.
 
 **Photon counting** (ATLAS). The counts of histogram bin k summed over N shots are Poisson of
 mean N m_k, m_k = A λ_k(δ) + b Δ (docs/inversion.md §4.2); the information is
-N Σ_k ∂_i m_k ∂_j m_k / m_k, with A, δ (common to the shots) and v marginalised. As in the
-inversion, speckle, dead time and the database's own error are left out for counts.
+N Σ_k ∂_i m_k ∂_j m_k / m_k, with A, δ (common to the shots) and v marginalised; the
+database's own error, common to the shots, turns each bin's N/m_k into N/(m_k + N v_k)
+(:func:`counting_information`). As in the inversion, speckle and dead time are left out for
+counts.
 
 Samples whose expected value reaches the receiver's clipped level carry no information here
 (a censored sample carries little; this is conservative).
@@ -220,9 +222,14 @@ def _blocks(forward, mu, nu, variance):
 
 
 def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phases: int = 8,
-                         nuisances=NUISANCES) -> np.ndarray:
+                         nuisances=NUISANCES, variance=None) -> np.ndarray:
     """The information matrix of ``shots`` photon-counting shots (their summed histogram)
     about the directions ``d_rate``, with A, δ and v marginalised (module docstring).
+
+    The database's own error, when ``variance`` is given, is a common error ε_k of each
+    bin's rate (variance v_k = Δ ∫ S dt over the bin, fully correlated within it) with the
+    prior N(0, v_k); eliminating it (a Schur complement per bin: ∂(N m_k)/∂ε_k = N) turns
+    the bin's weight N/m_k into N/(m_k + N v_k): it does not average down with the shots.
 
     Parameters
     ----------
@@ -240,6 +247,9 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
         Offsets of the arrival against the bin edges averaged over one bin.
     nuisances : iterable of str
         Which of ``amplitude`` (A), ``arrival`` (δ), ``pulse`` (v) are marginalised.
+    variance : array (N,), optional
+        The database's error S(t) ((pe ns⁻¹)², :mod:`warpe_cl.inversion.emulator`); None:
+        the database is exact.
 
     Returns
     -------
@@ -249,7 +259,8 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
     t = forward.t
     step = t[1] - t[0]
     d = d_rate.shape[0]
-    rows = [rate, *d_rate]
+    error = np.zeros_like(rate) if variance is None else np.asarray(variance, float)
+    rows = [error, rate, *d_rate]
     if "pulse" in nuisances:
         rows.append(pulse)
     if "amplitude" in nuisances:
@@ -260,19 +271,20 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
     width = forward.interval
     ts = adc.sample_times(forward.params["window.start"], forward.params["window.stop"], width)
     background = forward.dc_rate * width
-    total = np.zeros((len(rows) - 1 + int("arrival" in nuisances),) * 2)
+    total = np.zeros((len(rows) - 2 + int("arrival" in nuisances),) * 2)
     for j in range(phases):
         lo = ts + (j + 0.5) * width / phases
         hi = lo + width
         lam = np.array([np.interp(hi, edges, c) - np.interp(lo, edges, c) for c in table])
-        m = lam[0] + background
-        jac = list(lam[1:])
+        shared = width * lam[0]                 # v_k = Δ ∫ S dt over the bin
+        m = lam[1] + background
+        jac = list(lam[2:])
         if "arrival" in nuisances:              # ∂λ_k/∂δ = −(r(hi) − r(lo))
             jac.append(-(np.interp(hi, t, rate) - np.interp(lo, t, rate)))
         jac = np.array(jac)
         ok = m > 1e-300
-        total += (jac[:, ok] / m[ok]) @ jac[:, ok].T
-    total *= shots / phases
+        total += (jac[:, ok] * (shots / (m[ok] + shots * shared[ok]))) @ jac[:, ok].T
+    total /= phases
     return schur(total, np.arange(d), np.arange(d, total.shape[0]))
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .counting import CountShots
 from .emulator import DirectSurface, Emulator
 from .likelihood import Shots
 from .posterior import Problem
@@ -20,9 +21,10 @@ def agreement(space, forward, time_ns, samples, point: dict, surface, v=None,
     space : Space
         The database.
     forward : Forward
-        A linear-mode instrument.
+        The instrument.
     time_ns, samples : arrays
-        The recorded shots: sample times (ns) and samples (shots × samples, mV).
+        The recorded shots: sample times (ns) and samples (shots × samples, mV), or
+        histogram bin starts (ns) and counts (shots × bins) of a photon-counting receiver.
     point : dict
         Free key -> value (axis units) where ``surface`` was simulated.
     surface : SurfaceResponse
@@ -50,8 +52,8 @@ def agreement(space, forward, time_ns, samples, point: dict, surface, v=None,
     emulator = emulator if emulator is not None else Emulator(space, forward)
     for name, where, error in (("plain", space, None), ("database", space, emulator),
                                ("direct", direct, direct)):
-        problem = Problem(where, forward, Shots(time_ns, samples, forward), v=v,
-                          emulator=error)
+        shots = (CountShots if forward.counting else Shots)(time_ns, samples, forward)
+        problem = Problem(where, forward, shots, v=v, emulator=error)
         e = problem.evaluate(u)
         out[name] = e.loglike
         if name == "database":

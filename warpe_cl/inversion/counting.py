@@ -46,6 +46,9 @@ KEEP = 12.0
 NEWTON = 8
 #: Consecutive bins are grouped until the expected count reaches this for the Pearson χ².
 CHI2_GROUP = 5.0
+#: Bins expecting fewer counts (all shots) than this are left out of the database's error
+#: (:meth:`CountShots.error_blocks`): their weight (N A Δ)² / M_k would divide by nothing.
+ERROR_MIN_COUNTS = 1e-9
 
 
 class CountShots:
@@ -120,6 +123,53 @@ class CountShots:
         self.arrival, self.amplitude = float(fine[top]), float(a[top])
         return ShotFit(np.full(self.n, a[top]), np.full(self.n, fine[top]), loglike,
                        float(a[top]), chi2, groups, 0)
+
+    def error_blocks(self, fit, mu: np.ndarray, variance: np.ndarray, block_ns: float) -> tuple:
+        """The database's common error per block of model time, for
+        :func:`~.emulator.integrate_blocks`. With e_b the error of the rate in block b (pe
+        ns⁻¹ at amplitude 1, common to its bins: the error is correlated over the kernel's
+        length, many 0.1 ns bins), bin k's summed counts move by N A Δ e_b; the Poisson log L,
+        quadratic around the fit, has per bin G_k = N A Δ (c_k − M_k)/M_k and W_k =
+        (N A Δ)²/M_k (M_k = N m_k), summed over the block's bins, and S_b the W-weighted mean
+        of S over them, as for linear-mode samples (docs/inversion.md §4.3).
+
+        Parameters
+        ----------
+        fit : ShotFit
+            The common amplitude A and arrival δ of the fit.
+        mu, variance : array
+            The rate (pe ns⁻¹) and S(t) ((pe ns⁻¹)²) on the forward grid, amplitude 1.
+        block_ns : float
+            The blocks' length, ns (at least one bin).
+
+        Returns
+        -------
+        (w, g, s, base)
+            Per block: W, G, S and the directions A and δ absorb (the rate and its time
+            derivative, per ns).
+        """
+        a, d = float(fit.overall), float(fit.arrival[0])
+        lam, s, slope = (self._lambda(x, np.array([d]))[0] / self.width
+                         for x in (mu, variance, np.gradient(mu, self.f.t)))
+        expect = self.n * (a * lam * self.width + self.b)
+        scale = self.n * a * self.width
+        # the quadratic form holds where the error of a bin's expected counts (sd scale √S)
+        # is below the counts themselves; where it is not (a bin expecting almost nothing that
+        # the database is unsure of) the mean cannot go below 0 and the Gaussian integral
+        # would charge log(1 + scale² S / M) for it: such bins are left out
+        kept = (expect > ERROR_MIN_COUNTS) & (scale ** 2 * s <= expect ** 2)
+        w = np.where(kept, scale ** 2 / np.maximum(expect, 1e-300), 0.0)
+        g = np.where(kept, scale * (self.c - expect) / np.maximum(expect, 1e-300), 0.0)
+        block = np.floor((self.t - d - self.f.t[0]) / max(block_ns, self.width)).astype(np.intp)
+        block -= block.min()
+        w_b = np.bincount(block, w)
+        used = w_b > 0
+        w_b = w_b[used]
+
+        def mean(x):
+            return np.bincount(block, w * x)[used] / w_b
+        return (w_b, np.bincount(block, g)[used], mean(s),
+                np.stack([mean(lam), mean(slope)], axis=1))
 
     def expected(self, mu: np.ndarray, amplitude: float, arrival: float) -> np.ndarray:
         """Expected counts per bin per shot at ``amplitude`` and ``arrival``."""

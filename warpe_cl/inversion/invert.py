@@ -69,7 +69,7 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
     database_error : bool
         Integrate the database's own error (its nodes' Monte Carlo errors and the
         leave-one-out interpolation error, :mod:`warpe_cl.inversion.emulator`) out of the
-        likelihood of a linear-mode receiver; False takes the database as exact.
+        likelihood; False takes the database as exact.
     truth : dict, optional
         Swept key -> its true value (``--truth``: ``"10 mm"``, a plain number without
         dimension); default: what the observed file says (its ``sweep_point`` or ``config``,
@@ -207,7 +207,7 @@ def prepare(observed, database, instrument=None, *, free=None, fix=None,
               obs.time_ns.size, len(keys), counting, obs.source)
     overall = nuisance.get("amplitude")
     overall = None if overall is None else parse_value("amplitude", overall, None, "(> 0)")
-    emulator = Emulator(space, forward) if database_error and not counting else None
+    emulator = Emulator(space, forward) if database_error else None
     problem = Problem(space, forward, shots, overall=overall, v=v_fixed, emulator=emulator)
     return Channel(obs, params, space, db, db_source, problem, used, echoed, report, truth,
                    truth_source)

@@ -236,7 +236,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         "marginalised": json.dumps([r["key"] for r in summary["rows"] if not r["reported"]]),
         "database_error": _database_error(problem.emulator),
         "database_adequacy": summary["adequacy"]["advice"] if "adequacy" in summary else
-        "not assessed (photon counts, or the database taken as exact)",
+        "not assessed (the database taken as exact)",
         "shots_total": int(used.size),
         "shots_used": n_shots,
         "evaluations": summary["evaluations"],
