@@ -397,6 +397,7 @@ def _invert_joint(args, databases, instruments, inputs) -> int:
     from . import report
     from .config.keys import parse_overrides
     from .inversion.checks import check_lines
+    import json
     from .inversion.comparison import labels
     from .inversion.joint import invert_joint
     observed = list(args.observed)
@@ -421,6 +422,9 @@ def _invert_joint(args, databases, instruments, inputs) -> int:
                         truth=truth, names=databases)
     say = _say(args)
     lines = report.joint_lines(fits, [check_lines(ds) for ds in fits])
+    held = json.loads(fits[0].attrs.get("fixed", "{}"))
+    if held:                # each --fix echoed with its unit, as it was read
+        lines.append(printable("  fixed: " + ", ".join(f"{k} = {v}" for k, v in held.items())))
     _write_labelled(fits, outs, plots, lines, say)
     return EXIT_OK
 
