@@ -140,7 +140,8 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
     are :func:`expected`'s), and with ``others`` (other families, each the database at this
     instrument's wavelength) the Asimov Δχ² from every node to every node of theirs: the
     information along the difference of the two surfaces' expected samples, the nuisances
-    and the database's error marginalised, linear in the difference (docs/design.md §2.5)."""
+    and the database's error marginalised, linear in the difference once the other surface is
+    scaled to this one's brightness (:func:`_scaled_step`; docs/design.md §2.5)."""
     started = time.perf_counter()
     forward = Forward(params)
     shots = int(params["shots"])
@@ -204,11 +205,12 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
                          information(mu, nu, all_mu, all_nu, pulse, None))
         out.near.append(near)
         if theirs:      # the diagonal only, in batches: each Δχ² needs no cross term
+            steps = [_scaled_step(mu, nu, m, n, forward) for m, n in theirs]
             out.texture.append(np.concatenate([
-                np.diag(information(mu, nu, np.array([m - mu for m, _ in part]),
-                                    np.array([n - nu for _, n in part]), pulse, variance))
-                for part in (theirs[k:k + TEXTURE_BATCH]
-                             for k in range(0, len(theirs), TEXTURE_BATCH))]))
+                np.diag(information(mu, nu, np.array([m for m, _ in part]),
+                                    np.array([n for _, n in part]), pulse, variance))
+                for part in (steps[k:k + TEXTURE_BATCH]
+                             for k in range(0, len(steps), TEXTURE_BATCH))]))
     out.elapsed_s = time.perf_counter() - started
     return out
 
@@ -287,6 +289,20 @@ def combined(family, channels: list) -> Expected:
             out.min_delta_chi2_texture[i], out.nearest_texture[i] = float(chi2[k]), k
     out.elapsed_s = sum(c.elapsed_s for c in channels) + time.perf_counter() - started
     return out
+
+
+def _scaled_step(mu, nu, other_mu, other_nu, forward) -> tuple:
+    """The step from a surface's expected samples (μ, ν) to another's scaled to the same
+    brightness: the overall amplitude is free, so the other surface is first brought to its
+    best-fitting scale s (weighted least squares, weights 1/(σ_n² + ν) or, for counts,
+    1/(μ + background)), exactly; the step (s μ' − μ, s ν' − ν) then holds the difference of
+    shape alone. Without it a surface a hundred times darker lay along μ itself, which the
+    linearised amplitude absorbed whole: every surface seemed like a dark one."""
+    floor = forward.dc_rate if forward.counting else forward.sigma_n ** 2
+    weight = 1.0 / np.maximum((mu if forward.counting else nu) + floor, 1e-300)
+    norm = float(np.sum(weight * other_mu * other_mu))
+    scale = float(np.sum(weight * other_mu * mu)) / norm if norm > 0 else 0.0
+    return scale * other_mu - mu, scale * other_nu - nu
 
 
 def _with_nu(wave) -> tuple:
