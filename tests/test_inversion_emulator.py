@@ -15,7 +15,8 @@ import xarray as xr
 from conftest import sweep_of, synthetic_database, synthetic_surface
 from warpe_cl.instrument import apply_instrument, load_instrument
 from warpe_cl.inversion.agreement import agreement
-from warpe_cl.inversion.emulator import Emulator, integrate_blocks, response_variance
+from warpe_cl.inversion.counting import CountShots
+from warpe_cl.inversion.emulator import Emulator, integrate_blocks, response_variance, shared_error
 from warpe_cl.inversion.forward import Forward
 from warpe_cl.surface import SurfaceResponse, response
 from warpe_cl.inversion.space import Space
@@ -175,3 +176,21 @@ def test_photon_counts_through_the_database_agree_within_the_stated_error(x):
                         {KEY: x * 1e-3}, response(surface_ds))
         assert abs(out["z"]) < 3.0, out
         assert 0.0 < out["sigma"] < 30.0, out
+
+
+def test_photon_counts_with_the_amplitude_fixed_keep_the_error_along_the_model():
+    """Photon counts have no per-shot amplitude: with ``--fix amplitude`` nothing absorbs a
+    database error along the model λ, so the stated error is larger than with A fitted
+    (where the error along λ is projected out), never smaller."""
+    atlas = Forward(load_instrument("atlas", {"wavelength": "1064 nm"}))
+    space = Space(mixture_database())
+    surface_ds = mixture(1.4)
+    rec = apply_instrument(surface_ds, atlas.params, shots=1000, seed=5)
+    shots = CountShots(rec["sample_time"].values, rec["signal_counts"].values, atlas)
+    point = {KEY: 1.4e-3}
+    mu, _ = atlas.waveform(atlas.photons(space.surface(point)), 0.0)
+    fit = shots.fit(mu)
+    variance = Emulator(space, atlas).variance(point)
+    free = shared_error(shots, fit, mu, None, variance, amplitude_free=True)
+    held = shared_error(shots, fit, mu, None, variance, amplitude_free=False)
+    assert held[1] > free[1] > 0.0

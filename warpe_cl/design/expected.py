@@ -155,12 +155,18 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
               for other in others for node in other.nodes]
     h = PULSE_STEP * forward.sigma_p ** 2
 
-    def information(mu, nu, d_mu, d_nu, pulse, variance):
+    def information(mu, nu, d_mu, d_nu, pulse, variance, marginalised=nuisances):
         if counting:
             return counting_information(forward, mu, d_mu, shots, pulse=pulse[0],
-                                        phases=phases, nuisances=nuisances, variance=variance)
+                                        phases=phases, nuisances=marginalised,
+                                        variance=variance)
         return linear_information(forward, mu, nu, d_mu, d_nu, shots, pulse=pulse,
-                                  variance=variance, phases=phases, nuisances=nuisances)
+                                  variance=variance, phases=phases, nuisances=marginalised)
+
+    # the steps to other families' surfaces have the amplitude profiled already, exactly
+    # (_scaled_step): marginalising it again, linearly, along μ would take up part of the
+    # step itself (all of it for a surface that does not overlap this one)
+    shape_only = tuple(n for n in nuisances if n != "amplitude")
 
     for i, node in enumerate(family.nodes):
         mu, nu = waves[i]
@@ -208,7 +214,8 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
             steps = [_scaled_step(mu, nu, m, n, forward) for m, n in theirs]
             out.texture.append(np.concatenate([
                 np.diag(information(mu, nu, np.array([m for m, _ in part]),
-                                    np.array([n for _, n in part]), pulse, variance))
+                                    np.array([n for _, n in part]), pulse, variance,
+                                    shape_only))
                 for part in (steps[k:k + TEXTURE_BATCH]
                              for k in range(0, len(steps), TEXTURE_BATCH))]))
     out.elapsed_s = time.perf_counter() - started
@@ -296,8 +303,10 @@ def _scaled_step(mu, nu, other_mu, other_nu, forward) -> tuple:
     brightness: the overall amplitude is free, so the other surface is first brought to its
     best-fitting scale s (weighted least squares, weights 1/(σ_n² + ν) or, for counts,
     1/(μ + background)), exactly; the step (s μ' − μ, s ν' − ν) then holds the difference of
-    shape alone. Without it a surface a hundred times darker lay along μ itself, which the
-    linearised amplitude absorbed whole: every surface seemed like a dark one."""
+    shape alone, and the amplitude is not marginalised again for it (the per-shot amplitudes
+    are then held at the overall one). Without it a surface a hundred times darker lay along
+    μ itself, which the linearised amplitude absorbed whole: every surface seemed like a dark
+    one."""
     floor = forward.dc_rate if forward.counting else forward.sigma_n ** 2
     weight = 1.0 / np.maximum((mu if forward.counting else nu) + floor, 1e-300)
     norm = float(np.sum(weight * other_mu * other_mu))

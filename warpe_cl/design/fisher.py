@@ -24,9 +24,9 @@ it caps what many shots can learn.
 **Photon counting** (ATLAS). The counts of histogram bin k summed over N shots are Poisson of
 mean N m_k, m_k = A λ_k(δ) + b Δ (docs/inversion.md §4.2); the information is
 N Σ_k ∂_i m_k ∂_j m_k / m_k, with A, δ (common to the shots) and v marginalised; the
-database's own error, common to the shots, turns each bin's N/m_k into N/(m_k + N v_k)
-(:func:`counting_information`). As in the inversion, speckle and dead time are left out for
-counts.
+database's own error, common to the shots, is eliminated per block of model time as long
+as the kernel, as the inversion does (:func:`counting_information`). As in the inversion,
+speckle and dead time are left out for counts.
 
 Samples whose expected value reaches the receiver's clipped level carry no information here
 (a censored sample carries little; this is conservative).
@@ -38,6 +38,7 @@ import math
 import numpy as np
 
 from ..instrument import adc
+from ..inversion.emulator import kernel_length
 
 #: Speckle modes above this count as this many (a_s = A up to 1e-3): keeps the Schur
 #: complement of the amplitude well conditioned without speckle (M = inf).
@@ -226,10 +227,14 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
     """The information matrix of ``shots`` photon-counting shots (their summed histogram)
     about the directions ``d_rate``, with A, δ and v marginalised (module docstring).
 
-    The database's own error, when ``variance`` is given, is a common error ε_k of each
-    bin's rate (variance v_k = Δ ∫ S dt over the bin, fully correlated within it) with the
-    prior N(0, v_k); eliminating it (a Schur complement per bin: ∂(N m_k)/∂ε_k = N) turns
-    the bin's weight N/m_k into N/(m_k + N v_k): it does not average down with the shots.
+    The database's own error, when ``variance`` is given, is taken as the inversion takes it
+    (:meth:`warpe_cl.inversion.counting.CountShots.error_blocks`): a common error e_b of the
+    rate in each block of model time as long as the kernel's effective length, with the
+    prior N(0, S_b) (S_b the mean of S over the block's bins, weighted as the bins weigh
+    it); it moves bin k's expected counts per shot by Δ e_b and is eliminated block by block
+    (Schur): I −= c_b c_bᵀ / (Σ_k N Δ²/m_k + 1/S_b), c_b = Σ_k N Δ ∂m_k/m_k. It does not
+    average down with the shots. (Blocks of one bin would give each bin the weight
+    N/(m_k + N Δ² S_k) instead.)
 
     Parameters
     ----------
@@ -272,18 +277,30 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
     ts = adc.sample_times(forward.params["window.start"], forward.params["window.stop"], width)
     background = forward.dc_rate * width
     total = np.zeros((len(rows) - 2 + int("arrival" in nuisances),) * 2)
+    length = max(kernel_length(forward), width)
     for j in range(phases):
         lo = ts + (j + 0.5) * width / phases
         hi = lo + width
         lam = np.array([np.interp(hi, edges, c) - np.interp(lo, edges, c) for c in table])
-        shared = width * lam[0]                 # v_k = Δ ∫ S dt over the bin
+        s_k = lam[0] / width                    # mean S over the bin ((pe ns⁻¹)²)
         m = lam[1] + background
         jac = list(lam[2:])
         if "arrival" in nuisances:              # ∂λ_k/∂δ = −(r(hi) − r(lo))
             jac.append(-(np.interp(hi, t, rate) - np.interp(lo, t, rate)))
         jac = np.array(jac)
         ok = m > 1e-300
-        total += (jac[:, ok] * (shots / (m[ok] + shots * shared[ok]))) @ jac[:, ok].T
+        m, jac, s_k, lo = m[ok], jac[:, ok], s_k[ok], lo[ok]
+        total += (jac * (shots / m)) @ jac.T
+        if variance is None or m.size == 0:
+            continue
+        block = np.floor((lo - lo[0]) / length).astype(np.intp)
+        w_e = shots * width ** 2 / m            # information of each bin about e_b
+        w_b = np.bincount(block, w_e)
+        s_b = np.bincount(block, w_e * s_k) / np.maximum(w_b, 1e-300)
+        c_b = np.array([np.bincount(block, shots * width * row / m) for row in jac])
+        keep = s_b > 0
+        c_b = c_b[:, keep]
+        total -= (c_b / (w_b[keep] + 1.0 / s_b[keep])) @ c_b.T
     total /= phases
     return schur(total, np.arange(d), np.arange(d, total.shape[0]))
 

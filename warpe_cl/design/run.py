@@ -102,11 +102,12 @@ def run_study(path, out, *, overwrite: bool = False, say=print, quiet: bool = Fa
                                           database_error=study.options["database_error"],
                                           nuisances=study.options["nuisances"],
                                           others=others)
-            e = combined(fam, [channels[cand.name]])
+            e = combined(reads[(fam.name, cand.name)], [channels[cand.name]])
             results[(fam.name, cand.name)] = e
             say(f"{fam.name} x {cand.name}: {len(fam.nodes)} points in {e.elapsed_s:.2f} s")
         for combo in study.combinations:
-            e = combined(fam, [channels[m] for m in combo.members])
+            e = combined(reads[(fam.name, combo.members[0])],
+                         [channels[m] for m in combo.members])
             results[(fam.name, combo.name)] = e
             say(f"{fam.name} x {combo.name} ({' + '.join(combo.members)}): {len(fam.nodes)} "
                 "points")
@@ -146,10 +147,11 @@ def family_members(spec, source: str) -> list:
             a.values.size == b.values.size and np.allclose(a.values, b.values, rtol=1e-9,
                                                            atol=0.0)
             for a, b in zip(fam.axes, first.axes))
-        if not same:
-            raise ConfigError(f"{fam.source} does not sweep the nodes of {first.source}: the "
-                              "databases of one family must be one sweep run at each "
-                              "wavelength", key=f"families: {spec.name}", source=source)
+        if not same or fam.parameters != first.parameters:
+            raise ConfigError(f"{fam.source} does not sweep the nodes of {first.source} (or "
+                              "varies other derived quantities): the databases of one family "
+                              "must be one sweep run at each wavelength",
+                              key=f"families: {spec.name}", source=source)
         if fam.wavelength is None or first.wavelength is None or \
                 at_wavelength(fam.wavelength, first.wavelength):
             raise ConfigError(f"{fam.source} and {first.source} are at the same wavelength: "

@@ -182,7 +182,7 @@ ADEQUATE_SD = 1.0
 MOST_RAYS, MOST_HALVINGS = 1024, 4
 
 
-def adequacy(emulator, shots, fit, point: dict, mu, nu) -> dict:
+def adequacy(emulator, shots, fit, point: dict, mu, nu, amplitude_free: bool = True) -> dict:
     """Is the database good enough for this observation? The stated error of log L at the
     best point split by source, and what would bring each under ``ADEQUATE_SD / 2``.
 
@@ -196,6 +196,8 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu) -> dict:
         The best point (free keys -> values, axis units; the fixed keys are the space's).
     mu, nu : array
         The model there (mV, mV²).
+    amplitude_free : bool
+        Whether the overall amplitude is fitted (:func:`shared_error`).
 
     Returns
     -------
@@ -211,7 +213,7 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu) -> dict:
     values = {**emulator.space.point, **point}      # fixed keys too: their cells count
 
     def sd(var):
-        return shared_error(shots, fit, mu, nu, var)[1]
+        return shared_error(shots, fit, mu, nu, var, amplitude_free)[1]
     total = sd(sum(parts.values()))
     mc = sd(parts["monte carlo"])
     axes = {k: v for k, v in parts.items() if k != "monte carlo"}
@@ -273,7 +275,8 @@ class DirectSurface:
         return self._variance
 
 
-def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray):
+def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray,
+                 amplitude_free: bool = True):
     """Δ log L, the stated error σ and the expected offset of log L of the module docstring.
 
     Parameters
@@ -288,6 +291,9 @@ def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray):
         shot at amplitude 1) and None.
     variance : array
         S(t) on the forward grid (mV², or (pe ns⁻¹)², amplitude 1).
+    amplitude_free : bool
+        Whether the overall amplitude is fitted (not ``--fix amplitude``): photon counts have
+        no per-shot amplitude, so with A fixed nothing absorbs an error along the model.
 
     Returns
     -------
@@ -295,7 +301,8 @@ def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray):
         Δ log L, σ and the offset −½ Σ λ_i (log-likelihood units).
     """
     if shots.f.counting:            # blocks as long as the kernel: its error's correlation
-        return integrate_blocks(*shots.error_blocks(fit, mu, variance, kernel_length(shots.f)))
+        w, g, s, base = shots.error_blocks(fit, mu, variance, kernel_length(shots.f))
+        return integrate_blocks(w, g, s, base if amplitude_free else base[:, 1:])
     f = shots.f
     a, d = fit.amplitude, fit.arrival
     m, dm, n, s = shots._gather(padded([mu, np.gradient(mu, f.t), nu, variance]), d)

@@ -238,7 +238,8 @@ def conclude(channel: Channel, nodes, final, started: float):
         best = summary["best"]
         point = problem.point(summary["best_u"])
         mu, nu = forward.waveform(forward.photons(space.surface(point)), best.v)
-        summary["adequacy"] = adequacy(problem.emulator, problem.shots, best.fit, point, mu, nu)
+        summary["adequacy"] = adequacy(problem.emulator, problem.shots, best.fit, point, mu, nu,
+                                       problem.overall is None)
     summary["measure"]["truth_source"] = channel.truth_source
     summary["elapsed_s"] = time.perf_counter() - started
     summary["evaluations"] = problem.count

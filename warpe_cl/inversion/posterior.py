@@ -13,7 +13,8 @@ nodes, then re-evaluated on a finer grid over the box holding the nodes within 2
 likelihood of the best (``log`` L > max − 20: the rest holds < 1e-8 of the mass), up to four
 times, until every axis has at least 6 points in the box and no point holding more than half
 of its marginal mass, or the budget is spent. Only the axes not yet resolved are subdivided
-(:func:`_finer`).
+(:func:`_finer`); a box that reaches an end of its grid that is not the prior's goes on to the
+database node beyond it (two more rounds are allowed after that).
 """
 from __future__ import annotations
 
@@ -33,6 +34,9 @@ SIGNIFICANT = 20.0
 #: (:func:`intervals`) hold a Gaussian's truth 0.71 and 0.96 of the time for 0.68 and 0.95
 #: (wider grids hold it more often: coarse is conservative, not overconfident).
 RESOLVED_SHARE = 0.5
+#: Rounds of refinement allowed beyond ``refine``'s ``rounds`` after a round that carried a
+#: box past its grid (:func:`_finer`).
+EXTRA_ROUNDS = 2
 #: The profile over v stops when a further step would raise log L by less than this.
 V_GAIN = 0.01
 
@@ -136,7 +140,8 @@ class Problem:
                 fresh[0] = False
             fit = self.shots.fit(mu, nu, self.overall)
             if shared is not None:
-                fit.emulator, fit.emulator_sd, fit.emulator_offset = shared_error(self.shots, fit, mu, nu, shared)
+                fit.emulator, fit.emulator_sd, fit.emulator_offset = shared_error(
+                    self.shots, fit, mu, nu, shared, self.overall is None)
                 fit.loglike += fit.emulator
             fits[v] = fit
             self.count += 1
@@ -210,13 +215,17 @@ def refine(problem: Problem, budget: int = 600, rounds: int = 4,
     limits = [a.nodes for a in problem.space.free_axes]
     nodes = problem.grid(limits)
     current = nodes
-    for _ in range(rounds):
+    done, grew = 0, False
+    # a round that carried a box past its grid regrids that axis over the wider span, maybe
+    # more coarsely: up to two rounds more then, so that the last grid is not the coarser one
+    while done < rounds or (grew and done < rounds + EXTRA_ROUNDS):
         box = _significant_box(current)
-        coords = _finer(current.coords, box, budget, unresolved(current, box, resolved),
-                        limits)
+        coords, grew = _finer(current.coords, box, budget,
+                              unresolved(current, box, resolved), limits)
         if coords is None:
             break
         current = problem.grid(coords)
+        done += 1
     return nodes, current
 
 
@@ -253,8 +262,9 @@ def _significant_box(post: GridPosterior) -> list:
 
 
 def _finer(coords: list, box: list, budget: int, narrow: list, limits=None):
-    """A finer grid over ``box``, or None when no ``narrow`` axis (:func:`unresolved`) can be
-    made finer within ``budget`` points and no box reaches past its grid.
+    """A finer grid over ``box`` and whether a box reached past its grid, or ``(None,
+    False)`` when no ``narrow`` axis (:func:`unresolved`) can be made finer within ``budget``
+    points and no box reaches past its grid.
 
     Every axis spans ``box`` widened by one point each side (mass may lie between the last
     point within SIGNIFICANT of the best and the next), and, where the box reaches an end of
@@ -279,7 +289,7 @@ def _finer(coords: list, box: list, budget: int, narrow: list, limits=None):
             grown.append(j)
     fine = [j for j, n in enumerate(narrow) if n or j in grown]
     if not fine:
-        return None
+        return None, False
     kept = int(np.prod([s.size for j, s in enumerate(spans) if j not in fine]))
     points = int((budget / kept) ** (1.0 / len(fine)))
     out, refined = list(spans), False
@@ -289,7 +299,7 @@ def _finer(coords: list, box: list, budget: int, narrow: list, limits=None):
         if points >= 3 and (finer <= float(np.min(np.diff(s))) * (2.0 / 3.0) or j in grown):
             out[j] = np.linspace(s[0], s[-1], points)
             refined = True
-    return out if refined else None
+    return (out, bool(grown)) if refined else (None, False)
 
 
 def marginal(post: GridPosterior, axis: int) -> tuple[np.ndarray, np.ndarray]:
