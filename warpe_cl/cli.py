@@ -299,9 +299,7 @@ def cmd_invert(args) -> int:
     """``warpe-cl invert``: recorded shots + a sweep database -> FIT.nc (docs/inversion.md);
     with several ``--database``, one FIT file per database and their ranking by log evidence
     (docs/inversion.md §5.4)."""
-    import json
     from . import report
-    from .config.keys import parse_overrides
     from .inversion.checks import check_lines
     from .inversion.invert import invert
     from .inversion.observed import load_observed
@@ -319,19 +317,14 @@ def cmd_invert(args) -> int:
         return _invert_many(args, databases, inputs)
     out = _check_outputs(args, inputs)
     scenario = _scenario(args)
-    fix = parse_overrides(args.fix or [])
-    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
+    free, fix, truth = _fit_options(args)
     t0 = time.perf_counter()
     obs = load_observed(args.observed, scenario=scenario)
-    truth = parse_overrides(args.truth or []) if args.truth else None
     ds = invert(obs, databases[0], instruments[0] if instruments else None, free=free, fix=fix,
                 truth=truth)
     say = _say(args)
-    for line in report.inversion_lines(ds) + check_lines(ds):
+    for line in report.inversion_lines(ds) + check_lines(ds) + _fixed_lines(ds):
         say(line)
-    held = json.loads(ds.attrs.get("fixed", "{}"))
-    if held:                # each --fix echoed with its unit, as it was read
-        say(printable("  fixed: " + ", ".join(f"{k} = {v}" for k, v in held.items())))
     _write_outputs(ds, out, args.plot, plot_fit, say, started=t0)
     return EXIT_OK
 
@@ -369,16 +362,13 @@ def _invert_many(args, databases, inputs) -> int:
     ``--out`` FIT.nc giving FIT_<label>.nc (and ``--plot`` likewise), every one checked before
     any work as ``--out`` is; then the ranking by log evidence."""
     from . import report
-    from .config.keys import parse_overrides
     from .inversion.checks import check_lines
     from .inversion.comparison import compare, labels, ranking, ranking_lines
     from .inversion.observed import load_observed
     outs, plots = _labelled_outputs(args, labels(databases), inputs)
-    fix = parse_overrides(args.fix or [])
-    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
+    free, fix, truth = _fit_options(args)
     t0 = time.perf_counter()
     obs = load_observed(args.observed, scenario=_scenario(args))
-    truth = parse_overrides(args.truth or []) if args.truth else None
     fits = compare(obs, databases, args.instrument[0] if args.instrument else None, free=free,
                    fix=fix, truth=truth)
     say = _say(args)
@@ -395,9 +385,7 @@ def _invert_joint(args, databases, instruments, inputs) -> int:
     database (in the order given), inverted together (docs/inversion.md §5.5); one FIT file
     per channel, ``--out`` FIT.nc giving FIT_<label>.nc."""
     from . import report
-    from .config.keys import parse_overrides
     from .inversion.checks import check_lines
-    import json
     from .inversion.comparison import labels
     from .inversion.joint import invert_joint
     observed = list(args.observed)
@@ -415,18 +403,31 @@ def _invert_joint(args, databases, instruments, inputs) -> int:
     names = labels([Path(o).stem + "_" + Path(str(d).rstrip("/\\")).name
                     for o, d in zip(observed, databases)])
     outs, plots = _labelled_outputs(args, names, inputs)
-    fix = parse_overrides(args.fix or [])
-    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
-    truth = parse_overrides(args.truth or []) if args.truth else None
+    free, fix, truth = _fit_options(args)
     fits = invert_joint(observed, databases, instruments or None, free=free, fix=fix,
                         truth=truth, names=databases)
-    say = _say(args)
-    lines = report.joint_lines(fits, [check_lines(ds) for ds in fits])
-    held = json.loads(fits[0].attrs.get("fixed", "{}"))
-    if held:                # each --fix echoed with its unit, as it was read
-        lines.append(printable("  fixed: " + ", ".join(f"{k} = {v}" for k, v in held.items())))
-    _write_labelled(fits, outs, plots, lines, say)
+    lines = report.joint_lines(fits, [check_lines(ds) for ds in fits]) + _fixed_lines(fits[0])
+    _write_labelled(fits, outs, plots, lines, _say(args))
     return EXIT_OK
+
+
+def _fit_options(args) -> tuple:
+    """``--free``, ``--fix`` and ``--truth`` of ``invert`` as :func:`warpe_cl.invert` takes
+    them: (keys or None, key -> value, key -> value or None)."""
+    from .config.keys import parse_overrides
+    free = [k.strip() for k in ",".join(args.free or []).split(",") if k.strip()] or None
+    fix = parse_overrides(args.fix or [])
+    truth = parse_overrides(args.truth or []) if args.truth else None
+    return free, fix, truth
+
+
+def _fixed_lines(ds) -> list:
+    """Each ``--fix`` echoed with its unit, as it was read (FIT.nc attribute ``fixed``): one
+    line, or none."""
+    import json
+    held = json.loads(ds.attrs.get("fixed", "{}"))
+    return [printable("  fixed: " + ", ".join(f"{k} = {v}" for k, v in held.items()))] \
+        if held else []
 
 
 def _labelled_outputs(args, names, inputs) -> tuple:
