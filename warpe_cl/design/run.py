@@ -12,8 +12,6 @@ import re
 import time
 from pathlib import Path
 
-import numpy as np
-
 from ..catalog import resolve_preset
 from ..config.instrument_fields import at_wavelength
 from ..errors import ConfigError, WarpeError
@@ -143,10 +141,8 @@ def family_members(spec, source: str) -> list:
     members = [Family(spec.name, d, str(d)) for d in spec.databases]
     first = members[0]
     for fam in members[1:]:
-        same = [a.key for a in fam.axes] == [a.key for a in first.axes] and all(
-            a.values.size == b.values.size and np.allclose(a.values, b.values, rtol=1e-9,
-                                                           atol=0.0)
-            for a, b in zip(fam.axes, first.axes))
+        same = len(fam.axes) == len(first.axes) and all(
+            a.same_nodes(b) for a, b in zip(fam.axes, first.axes))
         if not same or fam.parameters != first.parameters:
             raise ConfigError(f"{fam.source} does not sweep the nodes of {first.source} (or "
                               "varies other derived quantities): the databases of one family "

@@ -87,9 +87,7 @@ def check_axes(channels, names) -> None:
                               f"{name} {', '.join(keys_b) or 'nothing'}: a joint inversion "
                               "needs the same swept keys in every database", key="--database")
         for a, b in zip(first, axes):
-            same = a.scale == b.scale and a.values.size == b.values.size and \
-                np.allclose(a.values, b.values, rtol=1e-9, atol=0.0)
-            if not same:
+            if not a.same_nodes(b):
                 raise ConfigError(
                     f"{a.key}: {names[0]} sweeps {_values(a)} {a.units} but {name} sweeps "
                     f"{_values(b)} {b.units}: a joint inversion needs the same nodes in every "

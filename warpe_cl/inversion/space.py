@@ -103,6 +103,13 @@ class Axis:
         """The last part of the key (``grain_size``)."""
         return self.key.rsplit(".", 1)[-1]
 
+    def same_nodes(self, other) -> bool:
+        """Whether ``other`` sweeps the same key, in the same coordinate, over the same values
+        (to 1e-9): the same axis of one sweep run at another wavelength."""
+        return (self.key == other.key and self.scale == other.scale
+                and self.values.size == other.values.size
+                and bool(np.allclose(self.values, other.values, rtol=1e-9, atol=0.0)))
+
 
 def axis_scale(values: np.ndarray) -> str:
     """The coordinate of ``SCALES`` in which the grid ``values`` are closest to evenly spaced:
