@@ -150,9 +150,8 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
     n_nodes, n_axes = len(family.nodes), len(family.axes)
     out = Channel([], [], np.zeros(n_nodes, bool), np.zeros(n_nodes), [], 0.0, [])
     position = {node.index: i for i, node in enumerate(family.nodes)}
-    waves = [forward.waveform(forward.photons(node.surface), 0.0) for node in family.nodes]
-    theirs = [_with_nu(forward.waveform(forward.photons(node.surface), 0.0))
-              for other in others for node in other.nodes]
+    waves = [_expected(forward, node.surface) for node in family.nodes]
+    theirs = [_expected(forward, node.surface) for other in others for node in other.nodes]
     h = PULSE_STEP * forward.sigma_p ** 2
 
     def information(mu, nu, d_mu, d_nu, pulse, variance, marginalised=nuisances):
@@ -170,7 +169,6 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
 
     for i, node in enumerate(family.nodes):
         mu, nu = waves[i]
-        nu = np.zeros_like(mu) if nu is None else nu
         if counting:
             strength = shots * float(np.sum(mu)) * forward.step
             detected = strength >= COUNTS_DETECTED
@@ -186,8 +184,7 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
                 if moved is None:
                     sides.append(None)
                     continue
-                m, n = forward.waveform(forward.photons(moved[0]), 0.0)
-                sides.append(((m, np.zeros_like(m) if n is None else n), moved[1]))
+                sides.append((_expected(forward, moved[0]), moved[1]))
             d_mu.append(slope(mu, *[None if s is None else (s[0][0], s[1]) for s in sides]))
             d_nu.append(slope(nu, *[None if s is None else (s[0][1], s[1]) for s in sides]))
         d_mu, d_nu = np.array(d_mu), np.array(d_nu)
@@ -201,8 +198,7 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
         # marginalised, the other directions held)
         near = [position[nb] for nb in family.neighbours(node.index)]
         steps_mu = [waves[k][0] - mu for k in near]
-        steps_nu = [(np.zeros_like(mu) if waves[k][1] is None else waves[k][1]) - nu
-                    for k in near]
+        steps_nu = [waves[k][1] - nu for k in near]
         all_mu = np.concatenate([d_mu, np.array(steps_mu).reshape(-1, mu.size)])
         all_nu = np.concatenate([d_nu, np.array(steps_nu).reshape(-1, mu.size)])
         full = information(mu, nu, all_mu, all_nu, pulse, variance)
@@ -249,14 +245,19 @@ def combined(family, channels: list) -> Expected:
                    np.zeros(n_nodes), np.zeros(n_nodes), np.full(n_nodes, -1), 0.0)
     widths = [family.prior_width(a) for a in family.axes] + \
         [d.prior_width for d in family.derived]
+    textures = bool(channels[0].texture)
+    if textures:
+        out.min_delta_chi2_texture = np.full(n_nodes, np.nan)
+        out.nearest_texture = np.full(n_nodes, -1)
     for i, node in enumerate(family.nodes):
-        detected = any(c.detected[i] for c in channels)
+        seen = [c for c in channels if c.detected[i]]
+        detected = bool(seen)
         out.detected[i], out.peak_snr[i] = detected, channels[0].strength[i]
         near = channels[0].near[i]
         ratios = {}
         for label in ("model", "exact"):
-            seen = [c for c in channels if c.detected[i]] or channels[:1]
-            full = sum((c.full[i] if label == "model" else c.exact[i]) for c in seen)
+            full = sum((c.full[i] if label == "model" else c.exact[i])
+                       for c in seen or channels[:1])
             cov = covariance(full[:n_axes, :n_axes])
             sd = np.full(n_par, np.inf)
             for j, axis in enumerate(family.axes):
@@ -285,11 +286,7 @@ def combined(family, channels: list) -> Expected:
                 else:
                     out.min_delta_chi2[i] = np.nan
         out.width_ratio[i], out.width_ratio_exact[i] = ratios["model"], ratios["exact"]
-    if channels[0].texture:
-        out.min_delta_chi2_texture = np.full(n_nodes, np.nan)
-        out.nearest_texture = np.full(n_nodes, -1)
-        for i in range(n_nodes):
-            seen = [c for c in channels if c.detected[i]]
+        if textures:
             chi2 = sum(c.texture[i] for c in seen) if seen else \
                 np.zeros_like(channels[0].texture[i])
             k = int(np.argmin(chi2))
@@ -314,9 +311,10 @@ def _scaled_step(mu, nu, other_mu, other_nu, forward) -> tuple:
     return scale * other_mu - mu, scale * other_nu - nu
 
 
-def _with_nu(wave) -> tuple:
-    """(μ, ν) with ν zeros where the receiver has none (photon counting)."""
-    mu, nu = wave
+def _expected(forward, surface) -> tuple:
+    """μ and ν of a surface's expected samples at v = 0, ν zeros where the receiver has none
+    (photon counting)."""
+    mu, nu = forward.waveform(forward.photons(surface), 0.0)
     return mu, (np.zeros_like(mu) if nu is None else nu)
 
 
