@@ -387,19 +387,12 @@ def _invert_joint(args, databases, instruments, inputs) -> int:
     from . import report
     from .inversion.checks import check_lines
     from .inversion.comparison import labels
-    from .inversion.joint import invert_joint
+    from .inversion.joint import check_counts, invert_joint
     observed = list(args.observed)
     if args.scenario is not None:
         raise ConfigError("--scenario picks one scenario of one file; with --joint give one "
                           "single-scenario file per channel", key="--scenario")
-    if len(observed) != len(databases):        # before any output is checked or file read
-        raise ConfigError(f"{len(observed)} observed files but {len(databases)} --database: "
-                          "--joint needs one database per observed file, in the same order",
-                          key="--database")
-    if instruments and len(instruments) != len(observed):
-        raise ConfigError(f"{len(observed)} observed files but {len(instruments)} "
-                          "--instrument: give none (each file's own) or one per observed file, "
-                          "in the same order", key="--instrument")
+    check_counts(len(observed), len(databases), len(instruments))   # before any output check
     names = labels([Path(o).stem + "_" + Path(str(d).rstrip("/\\")).name
                     for o, d in zip(observed, databases)])
     outs, plots = _labelled_outputs(args, names, inputs)

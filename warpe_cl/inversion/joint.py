@@ -100,6 +100,28 @@ def _values(axis) -> str:
     return "[" + ", ".join(v if len(v) <= 6 else v[:3] + ["..."] + v[-2:]) + "]"
 
 
+def check_counts(observed: int, databases: int, instruments: int) -> None:
+    """Refuse a joint inversion whose channels are not one to one: two observed sets or
+    more, one database each and none or one instrument each (in the same order).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the option and the counts.
+    """
+    if observed < 2:
+        raise ConfigError(f"{observed} observed file(s): a joint inversion needs two or more "
+                          "(one per instrument or wavelength)", key="--joint")
+    if databases != observed:
+        raise ConfigError(f"{observed} observed files but {databases} --database: a joint "
+                          "inversion needs one database per observed file, in the same order",
+                          key="--database")
+    if instruments and instruments != observed:
+        raise ConfigError(f"{observed} observed files but {instruments} --instrument: give none "
+                          "(each file's own) or one per observed file, in the same order",
+                          key="--instrument")
+
+
 def invert_joint(observed, databases, instruments=None, *, free=None, fix=None,
                  budget: int = 600, names=None, truth=None, **options) -> list:
     """Several channels' shots of one surface inverted together.
@@ -139,18 +161,8 @@ def invert_joint(observed, databases, instruments=None, *, free=None, fix=None,
     """
     started = time.perf_counter()
     observed, databases = list(observed), list(databases)
-    if len(observed) < 2:
-        raise ConfigError(f"{len(observed)} observed file(s): a joint inversion needs two or "
-                          "more (one per instrument or wavelength)", key="--joint")
-    if len(databases) != len(observed):
-        raise ConfigError(f"{len(observed)} observed files but {len(databases)} --database: a "
-                          "joint inversion needs one database per observed file, in the same "
-                          "order", key="--database")
+    check_counts(len(observed), len(databases), len(instruments or []))
     instruments = list(instruments or [None] * len(observed))
-    if len(instruments) != len(observed):
-        raise ConfigError(f"{len(observed)} observed files but {len(instruments)} "
-                          "--instrument: give none (each file's own) or one per observed "
-                          "file, in the same order", key="--instrument")
     held = [k for k in PER_INSTRUMENT if k in dict(fix or {})]
     if held:
         raise ConfigError(f"--fix {held[0]}: each channel of a joint inversion has its own "
