@@ -60,6 +60,20 @@ __kernel void walk_math(__global const REAL *u, __global REAL *out)
     out[3 * i + 2] = c;
 }
 
+/* The operations every result of the walk is made of, each rounded once as IEEE 754 says:
+ * out = (a / b, sqrt(a), a * b + c), the last with no fused multiply-add (real.h FP_CONTRACT
+ * OFF). OpenCL lets a driver divide and take square roots 2.5 and 3 ulp off in single
+ * precision unless the program is built with -cl-fp32-correctly-rounded-divide-sqrt
+ * (warpe_cl/device.py build_source), and NVIDIA's does; a walk built so leaves the CPUs' bits. */
+__kernel void exact_ops(__global const REAL *a, __global const REAL *b, __global const REAL *c,
+                        __global REAL *out)
+{
+    const size_t i = get_global_id(0), n = get_global_size(0);
+    out[i] = a[i] / b[i];
+    out[n + i] = sqrt(a[i]);
+    out[2 * n + i] = a[i] * b[i] + c[i];
+}
+
 /* The walk's e^-tau (scatter.h exp_neg) on given tau, for the accuracy test. */
 __kernel void exp_neg_of(__global const REAL *tau, __global REAL *out)
 {

@@ -172,6 +172,33 @@ def test_hemispherical_table():
         assert radiative.hemispherical_internal(n) == pytest.approx(s_i, abs=6e-5)
 
 
+def test_division_sqrt_and_products_round_once(engine, selftest):
+    """a / b, sqrt(a) and a * b + c in single precision, bit for bit as NumPy rounds them
+    (IEEE 754: each operation rounded once, no fused multiply-add), over 2^18 operands spread
+    over 2^-30 .. 2^30 in magnitude, b and c of either sign. Every result of the walk is made of
+    these: NVIDIA's driver divides 2.5 ulp off unless the program is built with
+    -cl-fp32-correctly-rounded-divide-sqrt (warpe_cl/device.py EXACT_DIVIDE_SQRT), and its
+    walks of the paper's presets left the CPUs' bits by a ray (issue 43)."""
+    gen = np.random.default_rng(43)
+    n = 2 ** 18
+
+    def operands(signed):
+        x = np.ldexp(gen.uniform(0.5, 1.0, n), gen.integers(-30, 31, n)).astype(np.float32)
+        return x * np.where(gen.random(n) < 0.5, -1, 1).astype(np.float32) if signed else x
+    a, b, c = operands(False), operands(True), operands(True)
+    out = np.zeros(3 * n, dtype=np.float32)
+    mf = cl.mem_flags
+    bufs = [cl.Buffer(engine.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+            for x in (a, b, c)]
+    d_out = cl.Buffer(engine.context, mf.WRITE_ONLY, out.nbytes)
+    _run(engine, selftest["single"].exact_ops, n, *bufs, d_out)
+    cl.enqueue_copy(engine.queue, out, d_out)
+    quotient, root, product_sum = out.reshape(3, n)
+    np.testing.assert_array_equal(quotient.view(np.uint32), (a / b).view(np.uint32))
+    np.testing.assert_array_equal(root.view(np.uint32), np.sqrt(a).view(np.uint32))
+    np.testing.assert_array_equal(product_sum.view(np.uint32), (a * b + c).view(np.uint32))
+
+
 def test_walk_math_accuracy(engine, selftest):
     """The walk's elementary functions in single precision (scatter.h: correctly rounded
     operations only, the same bits on every device): the optical step -ln U (Cephes' logf)

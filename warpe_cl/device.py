@@ -259,16 +259,34 @@ def build_program(device, names: tuple, options: tuple):
     return build_source(ctx, assemble_source(program_files(names, options)), options)
 
 
+#: Single-precision division and square root correctly rounded: OpenCL allows 2.5 and 3 ulp
+#: without it, and NVIDIA's driver takes that freedom, so that its walks left the CPUs' bits
+#: (issue 43: ray counts of the paper's presets one ray off). Given to every program built on
+#: a device that offers it (CL_FP_CORRECTLY_ROUNDED_DIVIDE_SQRT); CPUs round so already.
+EXACT_DIVIDE_SQRT = "-cl-fp32-correctly-rounded-divide-sqrt"
+
+
+def exact_options(device) -> tuple:
+    """The build options that make ``device`` (a pyopencl Device) round single-precision
+    division and square root as IEEE 754 does: :data:`EXACT_DIVIDE_SQRT` where the device
+    offers it, nothing elsewhere (its results may then leave other devices' bits)."""
+    cl = _cl()
+    exact = cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT
+    return (EXACT_DIVIDE_SQRT,) if device.single_fp_config & exact else ()
+
+
 def build_source(ctx, source: str, options=()):
     """``pyopencl.Program(ctx, source).build(options)``, quiet: without pyopencl's "Non-empty
     compiler output" warning (Intel's compiler always reports its vectorisation), and with the
     OpenCL option ``-w``, no compiler warnings (PoCL's clang, on a CPU without AVX-512, warns
     that every 16-wide vector handed to a built-in "changes the ABI", a few hundred times per
     kernel, and prints "N warnings generated." on the terminal itself). ``-w`` changes no code.
+    Every program gets :func:`exact_options` of its device: division and square root
+    correctly rounded, as the walk's same bits on every device need.
     The kernels' correctness is what the qualification checks (docs/devices.md).
     ``WARPE_CL_DEBUG=1`` shows both."""
     cl = _cl()
-    options = list(options)
+    options = list(options) + [o for o in exact_options(ctx.devices[0]) if o not in options]
     debug = os.environ.get("WARPE_CL_DEBUG", "") == "1"
     if not debug:
         options.append("-w")

@@ -72,8 +72,10 @@ try:
 except ImportError:          # no POSIX locks (Windows): the cache is written unlocked
     fcntl = None
 
-#: bump when the check itself changes meaning (the hash of this file is in the key as well)
-QUALIFY_VERSION = 1
+#: bump when the check itself changes meaning, or the build of every program does (the hash of
+#: this file is in the key as well); 2: division and square root correctly rounded
+#: (device.EXACT_DIVIDE_SQRT)
+QUALIFY_VERSION = 2
 #: the lane widths a CPU falls back through (docs/walk.md §5); GPUs walk one ray per work-item
 FALLBACK_LANES = (16, 8, 4, 1)
 #: rays per scene of the known-answer walk
