@@ -357,3 +357,22 @@ __kernel void walk(const uint seed, const ulong scenario,
     write_layer_stats(layer_stats + N_LAYER_STATS * get_global_id(0), &st);   /* layers.h */
 #endif
 }
+
+/* The rows of a per-work-item statistics table (item_stats, layer_stats: `items` rows of
+ * `columns` counts) added on the device into its first `parts` rows, exactly (64-bit integer
+ * sums): row p gets rows p, p + parts, p + 2 parts, ... < items, column by column. Each
+ * work-item reads only rows of its own residue, so row p is rewritten after its one reader.
+ * The host then reads `parts` rows, not one per work-item of the walk: a GPU launch has 2^20,
+ * and reading them all took most of a short walk's time (warpe_cl/engine.py sum_rows). */
+__kernel void stats_fold(__global ulong *stats, const uint items, const uint columns,
+                         const uint parts)
+{
+    const size_t g = get_global_id(0);
+    if (g >= (size_t)parts * columns)
+        return;
+    const size_t p = g / columns, c = g % columns;
+    ulong s = 0;
+    for (size_t r = p; r < items; r += parts)
+        s += stats[r * columns + c];
+    stats[p * columns + c] = s;
+}

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import LOG_EDGES, binomial_sigma
+from warpe_cl.engine import STATS_PARTS
 from warpe_cl.params import C_M_PER_NS, FATES, Layer, WalkParams, stack_params
 
 SINGLE = {   # one medium and the bottom it sits on: each path of the single-layer kernels
@@ -163,10 +164,13 @@ def test_layered_walk_is_reproducible_across_lanes_and_budgets(engine):
                           seed=9)
     chain = lane_chain(engine)
     wide, narrow = chain[0], chain[min(2, len(chain) - 1)]    # 16 and 4 on a CPU, 1 on a GPU
-    ref = run(engine, params, 4000, lanes=wide)
+    ref = run(engine, params, 6000, lanes=wide)
     for kw in (dict(lanes=1), dict(lanes=narrow, event_budget=3),
-               dict(lanes=wide, event_budget=29)):
-        assert run(engine, params, 4000, **kw).same_as(ref), kw
+               dict(lanes=wide, event_budget=29),
+               # more work-items than engine.STATS_PARTS: the per-layer statistics (and the
+               # fates) folded on the device before they are read
+               dict(lanes=1, global_size=STATS_PARTS + 7, event_budget=3)):
+        assert run(engine, params, 6000, **kw).same_as(ref), kw
 
 
 @pytest.mark.parametrize("precision", ["double", "single"])

@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pytest
 
 from conftest import SCATTERING, lanes_of, medium, vector_widths
 from warpe_cl.api import scenario_key
 from warpe_cl.config import load_preset
+from warpe_cl.engine import STATS_PARTS, kernel_key, sum_rows
 from warpe_cl.qualify import compare_records
 from warpe_cl.reference import simulate_reference
 
@@ -19,9 +21,25 @@ def test_counts_do_not_depend_on_launch_geometry(engine, precision):
     reference = engine.run(p, n, precision=precision)
     for kw in (dict(batch=7_777), dict(batch=60_000, global_size=33),
                dict(global_size=1000, local_size=8), dict(global_size=64, local_size=64),
-               dict(batch=1_000_003)):
+               dict(batch=1_000_003),
+               # more work-items than STATS_PARTS: their statistics folded on the device
+               dict(global_size=3 * STATS_PARTS + 5, lanes=1, qualified=True)):
         other = engine.run(p, n, precision=precision, **kw)
         assert other.same_as(reference), kw
+
+
+@pytest.mark.parametrize("items, parts", [(1000, 7), (997, 4096), (4097, 4096), (1, 1)])
+def test_statistics_folded_on_the_device_add_exactly(engine, items, parts):
+    """engine.sum_rows (cl/walk.cl stats_fold): the column sums of a launch's per-work-item
+    statistics, folded into ``parts`` rows on the device where there are more rows, equal
+    NumPy's exact sums; rows past ``items`` (stale rows of earlier launches) never count."""
+    key = kernel_key("slab", "single", False, 1)
+    engine.kernel(*key)
+    rows = np.random.default_rng(7).integers(0, 2 ** 52, (items + 3, 9), dtype=np.uint64)
+    table = cl.Buffer(engine.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
+                      hostbuf=rows)
+    sums = sum_rows(engine.queue, engine._stats_folds[key], table, items, 9, parts=parts)
+    np.testing.assert_array_equal(sums, rows[:items].astype(np.int64).sum(axis=0))
 
 
 @pytest.mark.parametrize("precision", ["single", "double"])

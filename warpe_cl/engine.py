@@ -39,6 +39,10 @@ MAX_LAUNCH = 2 ** 31 - 1
 FIRST_EVENT_BUDGET = 4096
 MAX_EVENT_BUDGET = 2 ** 32 - 1
 LANE_WIDTHS = (1, 2, 4, 8, 16)
+#: Rows a per-work-item statistics table is folded into on the device before it is read back
+#: (:func:`sum_rows`): a GPU launch has 2^20 work-items, whose 75 MB of rows took most of a
+#: short walk's time when read whole; a CPU launch (16 work-items a core) is read as it is.
+STATS_PARTS = 4096
 
 
 def photon_pool(lanes: int) -> int:
@@ -325,6 +329,7 @@ class Engine:
         self.last_walk_s = None
         self._kernels = {}
         self._folds = {}      # the nadir_fold kernel of each nadir build (same keys)
+        self._stats_folds = {}   # the stats_fold kernel of each build (same keys)
         self._nadir_sums = None   # (shape, sums, visits) of the last nadir walk, kept
         self._warmed = set()
         self.choose_lanes = choose_lanes
@@ -398,6 +403,7 @@ class Engine:
         process."""
         import pyopencl as cl
         self._kernels[key] = cl.Kernel(program, "walk")
+        self._stats_folds[key] = cl.Kernel(program, "stats_fold")
         if key[-1]:                                     # nadir: its fold kernel too
             self._folds[key] = cl.Kernel(program, "nadir_fold")
         return self._kernels[key]
@@ -406,6 +412,7 @@ class Engine:
         """Undo :meth:`use_program` for ``key``: the next :meth:`kernel` of that structure
         builds this engine's own program again."""
         self._kernels.pop(key, None)
+        self._stats_folds.pop(key, None)
         self._folds.pop(key, None)
 
     def _nadir_buffers(self, shape: tuple) -> tuple:
@@ -686,16 +693,14 @@ class Engine:
             words = np.empty((*walk.shapes[name], FIXED_WORDS), dtype=np.uint64)
             cl.enqueue_copy(queue, words, buffers[name])
             setattr(part, name, _exact_sums(words))
-        stats = np.empty((walk.gsize, len(ITEM_STATS)), dtype=np.uint64)
-        cl.enqueue_copy(queue, stats, buffers["item_stats"])
+        fold = self._stats_folds[walk.key]
+        stats = dict(zip(ITEM_STATS, sum_rows(queue, fold, buffers["item_stats"], launch_items,
+                                              len(ITEM_STATS))))
         if walk.layered:
-            per_layer = np.empty((walk.gsize, len(LAYER_STATS)), dtype=np.uint64)
-            cl.enqueue_copy(queue, per_layer, buffers["layer_stats"])
+            part.layer_stats[...] = sum_rows(queue, fold, buffers["layer_stats"], launch_items,
+                                             len(LAYER_STATS))
         queue.finish()
-        if walk.layered:
-            part.layer_stats[...] = per_layer[:launch_items].astype(np.int64).sum(axis=0)
         elapsed = time.perf_counter() - t0
-        stats = dict(zip(ITEM_STATS, stats[:launch_items].astype(np.int64).sum(axis=0)))
         part.fates[...] = [stats[f"fate_{f}"] for f in FATES]
         part.scattering_events = int(stats["scattering_events"])
         part.mixed_history = int(stats["mixed_history"])
@@ -779,6 +784,40 @@ def _exact_sums(words: np.ndarray) -> np.ndarray:
     """Fixed-point words (low first, :data:`~warpe_cl.params.FIXED_WORDS` of them) as exact
     Python ints (object array)."""
     return sum(words[..., i].astype(object) << (64 * i) for i in range(FIXED_WORDS))
+
+
+def sum_rows(queue, fold, table, items: int, columns: int, parts: int = STATS_PARTS):
+    """The column sums of the first ``items`` rows of a per-work-item statistics table
+    (``item_stats``, ``layer_stats``: uint64 counts, ``columns`` a row), exact: folded into
+    ``parts`` rows on the device first (cl/walk.cl ``stats_fold``) where there are more, so
+    that a GPU launch reads back a few thousand rows instead of 2^20.
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+    fold : pyopencl.Kernel
+        ``stats_fold`` of the walk's program.
+    table : pyopencl.Buffer
+        The table; its first rows are overwritten where it is folded.
+    items, columns : int
+        Rows that count (the launch's work-items) and counts per row.
+    parts : int
+        Rows the device folds into.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``columns`` int64 sums.
+    """
+    import pyopencl as cl
+    rows = min(items, parts)
+    if items > rows:
+        fold(queue, (rows * columns,), None, table, np.uint32(items), np.uint32(columns),
+             np.uint32(rows))
+    host = np.empty((rows, columns), dtype=np.uint64)
+    if rows:
+        cl.enqueue_copy(queue, host, table)           # the first rows: host.nbytes
+    return host.astype(np.int64).sum(axis=0)
 
 
 def fold_nadir_slices(queue, fold, sums, visits, shape: tuple) -> tuple:
