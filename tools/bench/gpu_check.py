@@ -3,6 +3,7 @@
 (about 5 minutes on an H100/H200):
 
     python tools/bench/gpu_check.py [--device SPEC] [--out DIR] [--quick] [--dry-run]
+                                    [--limit S]
 
 Each step runs as its own process, its output in DIR/<step>.log, one after the other:
 
@@ -15,11 +16,14 @@ Each step runs as its own process, its output in DIR/<step>.log, one after the o
    takes (tests/conftest.py), slow tests left out.
 3. ``bench``    ``tools/bench/bench.py`` on every scene (B1-B3, T1) in both modes, 3 rounds,
    JSON in DIR/bench.json: events/s per scene and mode, and T1 / B1 (goal >= 0.8).
-4. ``mcx``      MCX side by side on B1 (``bench.py --compare mcxcl``) where ``pmcx`` (MCX for
+4. ``fill``     B1 and T1 again in both modes with :data:`FILL`'s photons, JSON in
+   DIR/fill.json: the same figures with every work-item kept busy (``filled`` in the
+   summary), which tells a launch bound by its longest ray from a slow walk.
+5. ``mcx``      MCX side by side on B1 (``bench.py --compare mcxcl``) where ``pmcx`` (MCX for
    CUDA) or ``pmcxcl`` can be imported by this Python: ``pmcx`` stands in for ``pmcxcl``
    through a one-line module in a venv of DIR that sees this Python's packages (as in issue
    43); skipped, and said so, where neither is there. Goal: ours >= 2x MCX in events/s.
-5. ``paper``    ``tools/reproduce_paper.py`` at 1e6 rays per scenario, timed end to end
+6. ``paper``    ``tools/reproduce_paper.py`` at 1e6 rays per scenario, timed end to end
    (goal: under 5 s on one GPU, files and figures included), its files in DIR/paper/.
 
 DIR/summary.txt and DIR/summary.json hold each step's command, exit code and wall time and
@@ -28,6 +32,7 @@ one round, a few tests), so that the script itself can be tried on a CPU in abou
 minutes: ``python tools/bench/gpu_check.py --device 0:0 --quick``. ``--dry-run`` prints the
 steps and runs nothing. Without ``--device``, the first GPU OpenCL lists; with none, the
 script stops (exit 2) and says to give ``--device`` (a CPU stands in with ``--quick``).
+``--limit S`` stops any step after S seconds (a lent machine's short lease).
 Bad input: one line, exit 2. A failed step is reported and the next one runs; the exit code
 is 1 where a step failed.
 """
@@ -54,6 +59,10 @@ TEST_FILES = ("tests/test_parity.py", "tests/test_reproducibility.py", "tests/te
 QUICK_TESTS = "lane_width or lane_widths or typeof or event_budget"
 #: the issue's goals: T1 / B1 events/s, ours / MCX events/s on B1, the paper's wall time (s)
 GOALS = {"t1_over_b1": 0.8, "ours_over_mcx": 2.0, "paper_s": 5.0}
+#: the ``fill`` step: B1 and T1 with photons enough to fill a GPU's 2^20 work-items ten and
+#: two times over (bench.py's defaults, 1e6 and 1e5, give each work-item one photon or none,
+#: so that a launch lasts as long as its longest ray)
+FILL = {"photons": 1e7, "tail_photons": 2e6}
 
 
 @dataclass
@@ -78,7 +87,12 @@ def parse_args(argv=None):
     p.add_argument("--dry-run", action="store_true", help="print the steps, run nothing")
     p.add_argument("--photons", type=float, default=None,
                    help="rays per scenario of the paper step (default 1e6; --quick 2e3)")
+    p.add_argument("--limit", type=float, default=None,
+                   help="stop any step after this many seconds (default: each step's own, "
+                        "5-15 minutes); for a lent machine's short lease")
     args = p.parse_args(argv)
+    if args.limit is not None and not args.limit > 0:
+        refuse(f"--limit {args.limit:g}: seconds, a positive number")
     if args.device is not None and not re.fullmatch(r"\d+:\d+", args.device.strip()):
         refuse(f"--device {args.device!r}: give P:D as `warpe-cl devices` lists it")
     if args.photons is not None and not (args.photons >= 1 and args.photons < 1e10):
@@ -102,7 +116,7 @@ def mcx_available(find_spec=importlib.util.find_spec) -> str | None:
 
 
 def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | None = None,
-         python: str = sys.executable) -> list:
+         python: str = sys.executable, pythonpath: str | None = None) -> list:
     """The steps of the check, in order.
 
     Parameters
@@ -119,12 +133,19 @@ def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | 
         Rays per scenario of the paper step (default 1e6, quick 2e3).
     python : str
         The interpreter of every step.
+    pythonpath : str, optional
+        The caller's ``PYTHONPATH`` (default: this process's), kept after the repository.
 
     Returns
     -------
     list of Step
     """
-    env = {"WARPE_CL_DEVICE": device, "PYTHONPATH": str(REPO)}
+    # the repository first, then whatever the caller's PYTHONPATH holds (on a lent GPU, the
+    # wheels installed with --target: pyopencl, h5netcdf, pmcx)
+    if pythonpath is None:
+        pythonpath = os.environ.get("PYTHONPATH", "")
+    env = {"WARPE_CL_DEVICE": device,
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), pythonpath]))}
     bench = [python, str(BENCH / "bench.py"), "--device", device, "--modes", "analog,weighted"]
     if quick:
         bench += ["--photons", "2e4", "--tail-photons", "500", "--rounds", "1"]
@@ -143,27 +164,53 @@ def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | 
                "--json", str(out / "mcx.json")]
     mcx_cmd += (["--photons", "2e4", "--mcxcl-photons", "2e4", "--mcxcl-rounds", "1",
                  "--mcxcl-check-photons", "0"] if quick else ["--mcxcl-rounds", "3"])
+    fill = [python, str(BENCH / "bench.py"), "--device", device, "--modes", "analog,weighted",
+            "--scenes", "B1,T1", "--json", str(out / "fill.json")]
+    fill += (["--photons", "4e4", "--tail-photons", "1e3", "--rounds", "1"] if quick else
+             ["--photons", f"{FILL['photons']:g}", "--tail-photons",
+              f"{FILL['tail_photons']:g}", "--rounds", "3"])
     return [
         Step("devices", [python, "-m", "warpe_cl", "devices", "--requalify", "--device", device],
              env, 300),
         Step("tests", tests, env, 900),
         Step("bench", bench + ["--json", str(out / "bench.json")], env, 900),
+        Step("fill", fill, env, 600),
         Step("mcx", mcx_cmd, env, 600,
              skip=None if mcx else "neither pmcx nor pmcxcl can be imported by this Python"),
         Step("paper", paper, env, 900),
     ]
 
 
+def caller_paths(pythonpath: str | None = None, site_dirs=None) -> list:
+    """The folders where this Python finds its packages beyond the standard library: the
+    entries of ``PYTHONPATH`` (default: this process's) and its site-packages (default:
+    :func:`site.getsitepackages`), in that order, each once."""
+    import site
+    if pythonpath is None:
+        pythonpath = os.environ.get("PYTHONPATH", "")
+    if site_dirs is None:
+        site_dirs = site.getsitepackages()
+    out = []
+    for folder in [*pythonpath.split(os.pathsep), *site_dirs]:
+        if folder and folder not in out:
+            out.append(folder)
+    return out
+
+
 def mcx_venv(folder: Path, mcx: str, python: str = sys.executable) -> None:
     """A venv at ``folder`` that sees this Python's packages, where ``import pmcxcl`` gives
     pmcxcl, or ``pmcx`` under pmcxcl's name (the same ``run`` API; issue 43 ran MCX for CUDA
-    so), with the version string bench.py's check asks for."""
+    so), with the version string bench.py's check asks for. bench.py runs MCX in that venv
+    without ``PYTHONPATH`` (tools/studies/mcxcl_compare.py ``mcx_env``), and a venv made from
+    a venv sees the base Python's packages, not the first venv's: a ``.pth`` file names
+    :func:`caller_paths`, where the wheels carried to a lent GPU and numpy are."""
     if not (folder / "bin" / "python").exists():
         subprocess.run([python, "-m", "venv", "--system-site-packages", str(folder)], check=True)
+    site = subprocess.run([str(folder / "bin" / "python"), "-c",
+                           "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    Path(site, "gpu_check_caller.pth").write_text("\n".join(caller_paths()) + "\n")
     if mcx == "pmcx":
-        site = subprocess.run([str(folder / "bin" / "python"), "-c",
-                               "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                              capture_output=True, text=True, check=True).stdout.strip()
         sys.path.insert(0, str(REPO / "tools" / "studies"))
         from mcxcl_compare import PMCXCL_VERSION
         Path(site, "pmcxcl.py").write_text(
@@ -290,12 +337,17 @@ def main(argv=None) -> int:
         try:
             mcx_venv(out / "mcx-venv", mcx)
         except (OSError, subprocess.CalledProcessError) as err:
-            steps[3].skip = f"could not make the venv for {mcx}: {err}"
+            next(s for s in steps if s.name == "mcx").skip = \
+                f"could not make the venv for {mcx}: {err}"
+    if args.limit:
+        for s in steps:
+            s.timeout_s = min(s.timeout_s, args.limit)
     records = [run_step(s, out) for s in steps]
     figures = {}
-    for name in ("bench.json", "mcx.json"):
+    for name, prefix in (("bench.json", ""), ("fill.json", "filled "), ("mcx.json", "")):
         if (out / name).is_file():
-            figures.update(bench_figures(json.loads((out / name).read_text())))
+            figures.update({prefix + k: v for k, v in
+                            bench_figures(json.loads((out / name).read_text())).items()})
     tests = next(r for r in records if r["name"] == "tests")
     if "log" in tests:
         counts = pytest_counts(Path(tests["log"]).read_text())

@@ -9,6 +9,7 @@ tested in tests/test_engine_programs.py."""
 from __future__ import annotations
 
 import json
+import os
 import sys
 from types import SimpleNamespace
 
@@ -184,9 +185,11 @@ def test_gpu_check_plan_has_every_step_on_the_device(tmp_path):
     """The five steps in order, each pointed at the device (the tests through
     $WARPE_CL_DEVICE, the tools through --device); MCX skipped, and said so, without pmcx."""
     steps = gpu_check.plan("2:0", tmp_path, quick=False, mcx=None, python="py")
-    assert [s.name for s in steps] == ["devices", "tests", "bench", "mcx", "paper"]
+    assert [s.name for s in steps] == ["devices", "tests", "bench", "fill", "mcx", "paper"]
     assert all(s.env["WARPE_CL_DEVICE"] == "2:0" for s in steps)
-    devices, tests, bench_, mcx, paper = steps
+    devices, tests, bench_, fill, mcx, paper = steps
+    assert fill.command[fill.command.index("--photons") + 1] == "1e+07"
+    assert fill.command[fill.command.index("--scenes") + 1] == "B1,T1"
     assert devices.command[-3:] == ["--requalify", "--device", "2:0"]
     assert set(gpu_check.TEST_FILES) <= set(tests.command) and "-k" not in tests.command
     assert "analog,weighted" in bench_.command and "--scenes" not in bench_.command
@@ -195,7 +198,19 @@ def test_gpu_check_plan_has_every_step_on_the_device(tmp_path):
     assert paper.command[paper.command.index("--photons") + 1] == "1e+06"
     assert "--only" not in paper.command and str(tmp_path / "paper" / "data") in paper.command
     quick = gpu_check.plan("0:0", tmp_path, quick=True, mcx="pmcx", python="py")
-    assert "-k" in quick[1].command and quick[3].skip is None and "--only" in quick[4].command
+    assert "-k" in quick[1].command and quick[4].skip is None and "--only" in quick[5].command
+
+
+def test_gpu_check_keeps_the_callers_pythonpath(tmp_path):
+    """The wheels carried to a lent GPU are installed with --target and found through
+    PYTHONPATH: every step sees them after the repository (the steps replaced PYTHONPATH with
+    the repository, so pyopencl could not be imported)."""
+    steps = gpu_check.plan("0:0", tmp_path, quick=True, mcx=None, python="py",
+                           pythonpath=os.pathsep.join(["/tmp/site", "/opt/venv"]))
+    assert all(s.env["PYTHONPATH"].split(os.pathsep) ==
+               [str(gpu_check.REPO), "/tmp/site", "/opt/venv"] for s in steps)
+    bare = gpu_check.plan("0:0", tmp_path, quick=True, mcx=None, python="py", pythonpath="")
+    assert bare[0].env["PYTHONPATH"] == str(gpu_check.REPO)
 
 
 def test_gpu_check_reads_pytest_and_bench():
@@ -218,8 +233,17 @@ def test_gpu_check_reads_pytest_and_bench():
     assert "| mcx | skipped | 0.0 | no pmcx |" in lines and "| paper < 5.0 s | 29.5 | NO |" in lines
 
 
+def test_gpu_check_mcx_venv_sees_the_callers_packages():
+    """MCX's venv is told where this Python's packages are: PYTHONPATH's folders (the wheels
+    carried to a lent GPU, pmcx among them) and its site-packages; bench.py drops PYTHONPATH
+    for MCX's runs, so that pmcx could not be imported there."""
+    paths = gpu_check.caller_paths(os.pathsep.join(["/tmp/site", "", "/opt/x"]),
+                                   ["/opt/venv/site-packages", "/tmp/site"])
+    assert paths == ["/tmp/site", "/opt/x", "/opt/venv/site-packages"]
+
+
 def test_gpu_check_refuses_bad_input(capsys):
-    for argv in (["--device", "gpu0"], ["--photons", "0"]):
+    for argv in (["--device", "gpu0"], ["--photons", "0"], ["--limit", "0"]):
         with pytest.raises(SystemExit) as err:
             gpu_check.parse_args(argv)
         assert err.value.code == 2
