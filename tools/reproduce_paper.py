@@ -10,8 +10,11 @@ prints), and prints the time each took: its simulation, and its files and figure
 overrides every preset's ray count per scenario (the presets' own counts are used otherwise).
 
 The files and figures (single-threaded Python: h5netcdf, matplotlib, the BELA instrument chain)
-are made in a second process while the next preset walks, so that they use the core the walk
-leaves; ``--serial`` makes each in this process before the next walk starts (the same files).
+are made in worker processes while the next presets walk, so that they use the cores the walk
+leaves: one fewer than the machine's cores (at least one, at most one per preset after the
+first), so that on a GPU machine the files of every preset are written side by side, and on a
+2-core machine one worker takes them in turn. ``--workers N`` sets their number; ``--serial``
+makes each in this process before the next walk starts (the same files).
 
 It also writes ``metrics.csv`` next to the figures: the waveform metrics of every result
 (``warpe_cl.metrics``: mean delay and RMS width in ns, each with its standard error), one row
@@ -31,6 +34,7 @@ from __future__ import annotations
 import argparse
 import csv
 import multiprocessing
+import os
 import sys
 import tempfile
 import time
@@ -229,6 +233,15 @@ def finish(name: str, ds, out: Path, data: Path) -> tuple:
     return rows, printed.getvalue(), time.perf_counter() - t0
 
 
+def file_workers(presets: int, asked: int | None = None, cores: int | None = None) -> int:
+    """Processes that write the presets' files and figures: ``asked``, or the machine's cores
+    less the one that drives the walks (at least 1), never more than the presets after the
+    first (the first preset's files cannot start before its walk ends)."""
+    if asked is None:
+        asked = max(1, (cores or os.cpu_count() or 2) - 1)
+    return max(1, min(asked, presets - 1))
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--photons", type=float, default=None, help="rays per scenario")
@@ -243,7 +256,14 @@ def main(argv=None) -> int:
     p.add_argument("--serial", action="store_true",
                    help="write each preset's files and figures before the next walk starts, "
                         "in this process (default: in a second process, while the next walks)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes that write the files and figures (default: the machine's "
+                        "cores less one, at least 1)")
     args = p.parse_args(argv)
+    if args.workers is not None and args.workers < 1:
+        print(f"reproduce_paper: --workers {args.workers}: a number of processes, 1 or more",
+              file=sys.stderr)
+        return 2
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -269,11 +289,12 @@ def main(argv=None) -> int:
                   f"and figures {post_s:5.1f} s" + "".join(f"\n    warning: {w}" for w in caught),
                   flush=True)
 
-    # the files and figures of one preset (single-threaded Python: matplotlib, h5netcdf, the
-    # BELA chain) are made in a second process while the next preset walks on the device
+    # the files and figures of each preset (single-threaded Python: matplotlib, h5netcdf, the
+    # BELA chain) are made in worker processes while the next presets walk on the device
     pool = None
     if not args.serial and len(presets) > 1:
-        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        pool = ProcessPoolExecutor(file_workers(len(presets), args.workers),
+                                   mp_context=multiprocessing.get_context("spawn"))
     try:
         # a scenario two presets share is walked once: bela_cases' granular case is
         # gran_co2_thickness' 1000 mm curve (the same scenario key and photons, the same bits)
