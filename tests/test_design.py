@@ -17,7 +17,9 @@ from scipy.optimize import minimize_scalar
 from conftest import sweep_of, synthetic_database, synthetic_surface
 from warpe_cl.cli import main
 from warpe_cl.design.expected import DISTINGUISHABLE, channel, combined, expected
+from warpe_cl.catalog import presets_dir
 from warpe_cl.design.family import Family
+from warpe_cl.design.study import load_study
 from warpe_cl.design.fisher import linear_information
 from warpe_cl.instrument import apply_instrument, load_instrument
 from warpe_cl.inversion.forward import Forward
@@ -276,3 +278,39 @@ def test_other_families_are_told_apart_by_shape_not_brightness(tmp_path, family)
     e = combined(family, [ch])
     assert e.min_delta_chi2_texture[i] == pytest.approx(0.0, abs=1e-9 * to_bright[1])
     assert e.nearest_texture[i] in (0, 3)
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in (presets_dir() / "design").glob("*.yaml")))
+def test_bundled_study_files_are_valid(name, tmp_path):
+    """Every study file of presets/design/ reads and validates (families, wavelengths,
+    instruments and their overrides, combinations) without sweeping anything: a typo there
+    would surface only after minutes of sweeps."""
+    study = load_study(presets_dir() / "design" / f"{name}.yaml", out=tmp_path)
+    assert study.families and study.instruments
+    for fam in study.families:
+        assert len(fam.databases) == len(fam.wavelengths)
+
+
+def test_design_answers_writes_the_studies_tables_with_their_tree(tmp_path, database, capsys):
+    """tools/design_answers.py --reuse: answers.md holds each study's command, the tree that
+    made it and its summary tables (those of `warpe-cl design`, which docs/design.md §5
+    quotes); a study not in presets/design/ exits 2 with one line."""
+    import sys
+    from conftest import TOOLS
+    sys.path.insert(0, str(TOOLS))
+    import design_answers
+    out = tmp_path / "answers"
+    out.mkdir()
+    assert main(["design", str(_study(tmp_path, database, GOOD)), "--out",
+                 str(out / "paper"), "--quiet"]) == 0
+    capsys.readouterr()
+    assert design_answers.main(["--out", str(out), "--study", "paper", "--reuse"]) == 0
+    text = (out / "answers.md").read_text()
+    tables = (out / "paper" / "summary.txt").read_text().split("\n## ", 1)[1]
+    assert "Made by `python tools/design_answers.py` on tree " in text
+    assert f"warpe-cl design presets/design/paper.yaml --out {out / 'paper'}" in text
+    assert "### " + tables.strip() in text
+    with pytest.raises(SystemExit) as err:
+        design_answers.parse_args(["--out", str(out), "--study", "nope"])
+    assert err.value.code == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
