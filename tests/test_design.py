@@ -17,8 +17,10 @@ from scipy.optimize import minimize_scalar
 from conftest import sweep_of, synthetic_database, synthetic_surface
 from warpe_cl.cli import main
 from warpe_cl.design.expected import DISTINGUISHABLE, channel, combined, expected
-from warpe_cl.catalog import presets_dir
+from warpe_cl.catalog import presets_dir, resolve_preset
+from warpe_cl.config import load_preset
 from warpe_cl.design.family import Family
+from warpe_cl.design.run import sweep_overrides
 from warpe_cl.design.study import load_study
 from warpe_cl.design.fisher import linear_information
 from warpe_cl.instrument import apply_instrument, load_instrument
@@ -294,7 +296,8 @@ def test_bundled_study_files_are_valid(name, tmp_path):
 def test_design_answers_writes_the_studies_tables_with_their_tree(tmp_path, database, capsys):
     """tools/design_answers.py --reuse: answers.md holds each study's command, the tree that
     made it and its summary tables (those of `warpe-cl design`, which docs/design.md §5
-    quotes); a study not in presets/design/ exits 2 with one line."""
+    quotes); a study not in presets/design/, or --out naming a file, exits 2 with one
+    line."""
     import sys
     from conftest import TOOLS
     sys.path.insert(0, str(TOOLS))
@@ -310,7 +313,23 @@ def test_design_answers_writes_the_studies_tables_with_their_tree(tmp_path, data
     assert "Made by `python tools/design_answers.py` on tree " in text
     assert f"warpe-cl design presets/design/paper.yaml --out {out / 'paper'}" in text
     assert "### " + tables.strip() in text
-    with pytest.raises(SystemExit) as err:
-        design_answers.parse_args(["--out", str(out), "--study", "nope"])
-    assert err.value.code == 2
-    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    for argv in (["--out", str(out), "--study", "nope"], ["--out", str(out / "answers.md")]):
+        with pytest.raises(SystemExit) as err:
+            design_answers.parse_args(argv)
+        assert err.value.code == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_a_family_with_its_own_instrument_is_swept_at_another_wavelength():
+    """A family preset with an instrument block (layers/lag_over_ice: BELA, 1064 nm) swept at
+    532 nm moves its instrument there too; the sweep refused it ("bela works at 1064 nm but
+    the surface is computed at 532 nm") after the other families' sweeps had run. At its own
+    wavelength, and for a preset without an instrument, nothing but the wavelength is set."""
+    lag, gran = resolve_preset("layers/lag_over_ice"), resolve_preset("study/gran_co2")
+    moved = sweep_overrides(lag, 3e4, 532e-9)
+    assert moved == ["simulation.photons=30000.0", "wavelength=532 nm",
+                     "instrument.wavelength=532 nm"]
+    config = load_preset(lag, overrides=dict(o.split("=", 1) for o in moved))
+    assert config.get("wavelength") == pytest.approx(532e-9)
+    assert sweep_overrides(lag, None, 1064e-9) == ["wavelength=1064 nm"]
+    assert sweep_overrides(gran, None, 532e-9) == ["wavelength=532 nm"]

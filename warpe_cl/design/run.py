@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from ..catalog import resolve_preset
+from ..config import load_preset
 from ..config.instrument_fields import at_wavelength
 from ..errors import ConfigError, WarpeError
 from ..io import Outputs
@@ -74,13 +75,12 @@ def run_study(path, out, *, overwrite: bool = False, say=print, quiet: bool = Fa
     for spec in study.families:
         if spec.preset is None:
             continue
+        preset = resolve_preset(spec.preset)
         for database, wavelength in zip(spec.databases, spec.wavelengths):
-            overrides = [] if spec.photons is None else [f"simulation.photons={spec.photons}"]
-            if wavelength is not None:
-                overrides.append(f"wavelength={wavelength * 1e9:.9g} nm")
             database.parent.mkdir(parents=True, exist_ok=True)
             say(f"family {spec.name}: sweeping {spec.preset} into {database} (resumed)")
-            summary = run_sweep(resolve_preset(spec.preset), database, overrides=overrides,
+            summary = run_sweep(preset, database,
+                                overrides=sweep_overrides(preset, spec.photons, wavelength),
                                 resume=True, quiet=quiet, say=say, device=device)
             if summary.exit_code != 0:
                 raise WarpeError(f"family {spec.name}: the sweep of {spec.preset} did not "
@@ -127,6 +127,23 @@ def run_study(path, out, *, overwrite: bool = False, say=print, quiet: bool = Fa
         plot_ranking(ds, rows, outputs.stage(out / "ranking.png"))
         files.append(out / "ranking.png")
     return {"dataset": ds, "files": files, "elapsed_s": elapsed, "summary": text}
+
+
+def sweep_overrides(preset, photons, wavelength) -> list:
+    """The ``--set`` values of a family's sweep: its rays per scenario (None: the preset's)
+    and, where the study gives one, its wavelength (m). A preset's own instrument (its
+    ``instrument:`` block, which ``run`` uses and a database does not need) goes to that
+    wavelength with it where it differs from the preset's: the chain refuses a surface at
+    another wavelength than its instrument's (presets/layers/lag_over_ice.yaml at 532 nm)."""
+    overrides = [] if photons is None else [f"simulation.photons={photons}"]
+    if wavelength is not None:
+        text = f"{wavelength * 1e9:.9g} nm"
+        overrides.append(f"wavelength={text}")
+        own = load_preset(preset)
+        lam = own.get("wavelength")
+        if own.get("instrument")["name"] and (lam is None or not at_wavelength(wavelength, lam)):
+            overrides.append(f"instrument.wavelength={text}")
+    return overrides
 
 
 def family_members(spec, source: str) -> list:
