@@ -12,8 +12,8 @@ import pytest
 
 from warpe_cl import params as P
 from warpe_cl.device import assemble_source, every_program_file, kernel_dir, source_hash
-from warpe_cl.engine import (WALK_ARGS, WALK_FILES, build_options, layout_options, walk_args,
-                             walk_source_hash)
+from warpe_cl.engine import (WALK_ARGS, WALK_FILES, build_options, layout_options,
+                             shared_options, walk_args, walk_source_hash)
 
 
 def _code(text: str) -> str:
@@ -139,18 +139,19 @@ def test_counts_have_the_tally_shapes(weighted):
 
 
 def test_kernel_hash_does_not_depend_on_where_the_sources_are(tmp_path):
-    """kernel_sha256 hashes the files' contents and the layout macros: two copies of cl/ in
-    different folders have the same hash (their assembled text differs by its #line paths);
-    a changed file or option changes it."""
+    """kernel_sha256 hashes the files' contents, the layout macros and the exact-division
+    option: two copies of cl/ in different folders have the same hash (their assembled text
+    differs by its #line paths); a changed file or option changes it."""
     a, b = tmp_path / "one" / "cl", tmp_path / "elsewhere" / "deeper" / "cl"
     shutil.copytree(kernel_dir(), a)
     shutil.copytree(kernel_dir(), b)
     assert assemble_source(WALK_FILES, a) != assemble_source(WALK_FILES, b)
-    options = layout_options()
+    options = shared_options()
     assert source_hash(WALK_FILES, options, a) == source_hash(WALK_FILES, options, b)
     assert source_hash(WALK_FILES, options, a) == walk_source_hash()
     assert source_hash(WALK_FILES, options + ("-DWARPE_DOUBLE",), a) != walk_source_hash()
     assert source_hash(WALK_FILES, (), a) != walk_source_hash()
+    assert source_hash(WALK_FILES, layout_options(), a) != walk_source_hash()   # exact division
     (b / "walk.cl").write_text((b / "walk.cl").read_text() + "\n")
     assert source_hash(WALK_FILES, options, b) != walk_source_hash()
 

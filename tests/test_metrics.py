@@ -325,17 +325,19 @@ def test_peak_of_a_late_return_on_log_bins():
 
 
 def test_reproduce_paper_writes_files_in_as_many_workers_as_cores_allow(capsys):
-    """tools/reproduce_paper.py: the files and figures go to the machine's cores less the one
-    that drives the walks (a 16-core GPU machine wrote twelve presets' files in one process,
-    14 s against 6 s of walks, issue 43), one on 2 cores, never more than the presets after
-    the first; --workers 0 is refused with one line and exit 2."""
+    """tools/reproduce_paper.py: where the walks run on a GPU, the files and figures go to the
+    machine's cores less the one that drives them (a 16-core GPU machine wrote twelve presets'
+    files in one process, 14 s against 6 s of walks, issue 43); one worker where a CPU device
+    takes every core; never more than the presets after the first; --workers 0 is refused
+    with one line and exit 2."""
     import sys
     from conftest import TOOLS
     sys.path.insert(0, str(TOOLS))
     import reproduce_paper as rp
-    assert rp.file_workers(12, cores=16) == 11 and rp.file_workers(12, cores=2) == 1
-    assert rp.file_workers(3, cores=16) == 2 and rp.file_workers(12, asked=4, cores=2) == 4
-    assert rp.file_workers(2, cores=1) == 1
+    assert rp.file_workers(12, cores=16, gpu=True) == 11
+    assert rp.file_workers(12, cores=2, gpu=True) == 1
+    assert rp.file_workers(12, cores=16) == 1 and rp.file_workers(3, cores=16, gpu=True) == 2
+    assert rp.file_workers(12, asked=4, cores=2) == 4 and rp.file_workers(2, cores=1) == 1
     assert rp.main(["--workers", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--workers 0" in err[0]

@@ -15,9 +15,9 @@ DIR/answers.md then holds, for each study, the command, the tree (``git describe
 and the summary tables of ``warpe_cl.design.result.summary_markdown``: one table per family,
 the median width ratio of every key and derived quantity over the family with the share of
 its surfaces constrained, and the shares detected, told from their neighbours and from the
-other families. docs/design.md §5 quotes those tables as they are. About 40 minutes on 2
-cores from nothing (the paper's five families at two wavelengths: 670 sweeps, most of it),
-seconds with ``--reuse``. Bad input: one line, exit 2.
+other families. docs/design.md §5 quotes those tables as they are. The sweeps and widths
+take their time once (docs/design.md §5 gives it); ``--reuse`` writes the tables again in
+seconds. Bad input: one line, exit 2.
 """
 from __future__ import annotations
 
@@ -46,6 +46,10 @@ def parse_args(argv=None):
     p.add_argument("--reuse", action="store_true",
                    help="take DIR/NAME/design.nc as it is where it exists")
     args = p.parse_args(argv)
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        print(f"design_answers: --out {args.out}: a file; give a folder (made if missing)",
+              file=sys.stderr)
+        raise SystemExit(2)
     known = sorted(f.stem for f in (presets_dir() / "design").glob("*.yaml"))
     for name in args.study:
         if name not in known:

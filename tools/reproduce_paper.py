@@ -11,9 +11,10 @@ overrides every preset's ray count per scenario (the presets' own counts are use
 
 The files and figures (single-threaded Python: h5netcdf, matplotlib, the BELA instrument chain)
 are made in worker processes while the next presets walk, so that they use the cores the walk
-leaves: one fewer than the machine's cores (at least one, at most one per preset after the
-first), so that on a GPU machine the files of every preset are written side by side, and on a
-2-core machine one worker takes them in turn. ``--workers N`` sets their number; ``--serial``
+leaves: where the walks run on a GPU, one fewer than the machine's cores (at most one per
+preset after the first), so that the files of every preset are written side by side; where
+they run on a CPU device, which takes every core, one worker takes them in turn.
+``--workers N`` sets their number; ``--serial``
 makes each in this process before the next walk starts (the same files).
 
 It also writes ``metrics.csv`` next to the figures: the waveform metrics of every result
@@ -44,7 +45,7 @@ from pathlib import Path
 
 import warpe_cl
 from warpe_cl import io
-from warpe_cl.api import reusing_walks
+from warpe_cl.api import get_engine, reusing_walks
 from warpe_cl.catalog import presets_dir
 from warpe_cl.plot import plot_angular, plot_waveform
 
@@ -233,12 +234,14 @@ def finish(name: str, ds, out: Path, data: Path) -> tuple:
     return rows, printed.getvalue(), time.perf_counter() - t0
 
 
-def file_workers(presets: int, asked: int | None = None, cores: int | None = None) -> int:
-    """Processes that write the presets' files and figures: ``asked``, or the machine's cores
-    less the one that drives the walks (at least 1), never more than the presets after the
-    first (the first preset's files cannot start before its walk ends)."""
+def file_workers(presets: int, asked: int | None = None, cores: int | None = None,
+                 gpu: bool = False) -> int:
+    """Processes that write the presets' files and figures: ``asked``; or, where the walks run
+    on a GPU, the machine's cores less the one that drives them (at least 1); or one, where
+    the walks take every core of a CPU device. Never more than the presets after the first
+    (the first preset's files cannot start before its walk ends)."""
     if asked is None:
-        asked = max(1, (cores or os.cpu_count() or 2) - 1)
+        asked = max(1, (cores or os.cpu_count() or 2) - 1) if gpu else 1
     return max(1, min(asked, presets - 1))
 
 
@@ -258,7 +261,7 @@ def main(argv=None) -> int:
                         "in this process (default: in a second process, while the next walks)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes that write the files and figures (default: the machine's "
-                        "cores less one, at least 1)")
+                        "cores less one where the walks run on a GPU, else 1)")
     args = p.parse_args(argv)
     if args.workers is not None and args.workers < 1:
         print(f"reproduce_paper: --workers {args.workers}: a number of processes, 1 or more",
@@ -293,7 +296,9 @@ def main(argv=None) -> int:
     # BELA chain) are made in worker processes while the next presets walk on the device
     pool = None
     if not args.serial and len(presets) > 1:
-        pool = ProcessPoolExecutor(file_workers(len(presets), args.workers),
+        engine = get_engine(args.device)           # the walks' device (kept for them)
+        gpu = getattr(getattr(engine, "info", None), "kind", "") == "gpu"
+        pool = ProcessPoolExecutor(file_workers(len(presets), args.workers, gpu=gpu),
                                    mp_context=multiprocessing.get_context("spawn"))
     try:
         # a scenario two presets share is walked once: bela_cases' granular case is

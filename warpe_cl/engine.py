@@ -40,7 +40,7 @@ FIRST_EVENT_BUDGET = 4096
 MAX_EVENT_BUDGET = 2 ** 32 - 1
 LANE_WIDTHS = (1, 2, 4, 8, 16)
 #: Rows a per-work-item statistics table is folded into on the device before it is read back
-#: (:func:`sum_rows`): a GPU launch has 2^20 work-items, whose 75 MB of rows took most of a
+#: (:func:`sum_rows`): a GPU launch has 2^20 work-items, whose 64 MiB of rows took most of a
 #: short walk's time when read whole; a CPU launch (16 work-items a core) is read as it is.
 STATS_PARTS = 4096
 
@@ -115,11 +115,18 @@ def kernel_key(texture: str, precision: str, records: bool, lanes: int,
 @lru_cache(maxsize=1)
 def walk_source_hash() -> str:
     """``kernel_sha256`` of the output files: SHA-256 of the walk kernel's files (their names
-    and contents, :func:`warpe_cl.device.source_hash`) and of the layouts the host compiles
-    into every build of it (:func:`layout_options`). The same for every texture, precision,
-    mode and lane width (the files record the first three; the lane width never changes a
-    result) and wherever the sources are installed; it changes when the kernel does."""
-    return devmod.source_hash(WALK_FILES, layout_options())
+    and contents, :func:`warpe_cl.device.source_hash`) and of the options every build of it
+    shares (:func:`shared_options`). The same for every texture, precision, mode and lane
+    width (the files record the first three; the lane width never changes a result) and
+    wherever the sources are installed; it changes when the kernel does."""
+    return devmod.source_hash(WALK_FILES, shared_options())
+
+
+def shared_options() -> tuple:
+    """The options of every build of the walk that bear on its results: the layouts the host
+    compiles in (:func:`layout_options`) and the exact division and square root of every
+    device that offers them (:data:`warpe_cl.device.EXACT_DIVIDE_SQRT`)."""
+    return layout_options() + (devmod.EXACT_DIVIDE_SQRT,)
 
 
 @dataclass(frozen=True)
@@ -403,7 +410,10 @@ class Engine:
         process."""
         import pyopencl as cl
         self._kernels[key] = cl.Kernel(program, "walk")
-        self._stats_folds[key] = cl.Kernel(program, "stats_fold")
+        # a program of an older tree (bench_ab.py --kernel-only) may have no stats_fold: its
+        # statistics are then read whole (sum_rows without a fold)
+        names = program.get_info(cl.program_info.KERNEL_NAMES).split(";")
+        self._stats_folds[key] = cl.Kernel(program, "stats_fold") if "stats_fold" in names else None
         if key[-1]:                                     # nadir: its fold kernel too
             self._folds[key] = cl.Kernel(program, "nadir_fold")
         return self._kernels[key]
@@ -795,8 +805,8 @@ def sum_rows(queue, fold, table, items: int, columns: int, parts: int = STATS_PA
     Parameters
     ----------
     queue : pyopencl.CommandQueue
-    fold : pyopencl.Kernel
-        ``stats_fold`` of the walk's program.
+    fold : pyopencl.Kernel or None
+        ``stats_fold`` of the walk's program; None reads every row.
     table : pyopencl.Buffer
         The table; its first rows are overwritten where it is folded.
     items, columns : int
@@ -810,7 +820,7 @@ def sum_rows(queue, fold, table, items: int, columns: int, parts: int = STATS_PA
         ``columns`` int64 sums.
     """
     import pyopencl as cl
-    rows = min(items, parts)
+    rows = min(items, parts) if fold is not None else items
     if items > rows:
         fold(queue, (rows * columns,), None, table, np.uint32(items), np.uint32(columns),
              np.uint32(rows))

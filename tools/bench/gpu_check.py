@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """The GPU benchmark and check of issue 43 in one command, for a maintainer with a lent GPU
-(about 5 minutes on an H100/H200):
+(about 4 minutes on an H200):
 
     python tools/bench/gpu_check.py [--device SPEC] [--out DIR] [--quick] [--dry-run]
                                     [--limit S]

@@ -182,7 +182,7 @@ import gpu_check  # noqa: E402
 
 
 def test_gpu_check_plan_has_every_step_on_the_device(tmp_path):
-    """The five steps in order, each pointed at the device (the tests through
+    """The six steps in order, each pointed at the device (the tests through
     $WARPE_CL_DEVICE, the tools through --device); MCX skipped, and said so, without pmcx."""
     steps = gpu_check.plan("2:0", tmp_path, quick=False, mcx=None, python="py")
     assert [s.name for s in steps] == ["devices", "tests", "bench", "fill", "mcx", "paper"]
