@@ -294,7 +294,7 @@ def test_bundled_study_files_are_valid(name, tmp_path):
 
 
 def test_design_answers_writes_the_studies_tables_with_their_tree(tmp_path, database, capsys):
-    """tools/design_answers.py --reuse: answers.md holds each study's command, the tree that
+    """tools/design_answers.py --reuse: answers.txt holds each study's command, the tree that
     made it and its summary tables (those of `warpe-cl design`, which docs/design.md §5
     quotes); a study not in presets/design/, or --out naming a file, exits 2 with one
     line."""
@@ -308,12 +308,12 @@ def test_design_answers_writes_the_studies_tables_with_their_tree(tmp_path, data
                  str(out / "paper"), "--quiet"]) == 0
     capsys.readouterr()
     assert design_answers.main(["--out", str(out), "--study", "paper", "--reuse"]) == 0
-    text = (out / "answers.md").read_text()
+    text = (out / "answers.txt").read_text()
     tables = (out / "paper" / "summary.txt").read_text().split("\n## ", 1)[1]
     assert "Made by `python tools/design_answers.py` on tree " in text
     assert f"warpe-cl design presets/design/paper.yaml --out {out / 'paper'}" in text
     assert "### " + tables.strip() in text
-    for argv in (["--out", str(out), "--study", "nope"], ["--out", str(out / "answers.md")]):
+    for argv in (["--out", str(out), "--study", "nope"], ["--out", str(out / "answers.txt")]):
         with pytest.raises(SystemExit) as err:
             design_answers.parse_args(argv)
         assert err.value.code == 2

@@ -11,7 +11,7 @@ walked again) and computes the expected widths; its design.nc, summary.txt and f
 detectability maps and the ranking) stay in DIR/NAME/. ``--reuse`` takes a study's
 DIR/NAME/design.nc as it is where one exists (the tables of an earlier run, written again).
 
-DIR/answers.md then holds, for each study, the command, the tree (``git describe --dirty``)
+DIR/answers.txt then holds, for each study, the command, the tree (``git describe --dirty``)
 and the summary tables of ``warpe_cl.design.result.summary_markdown``: one table per family,
 the median width ratio of every key and derived quantity over the family with the share of
 its surfaces constrained, and the shares detected, told from their neighbours and from the
@@ -40,7 +40,7 @@ STUDIES = ("wavelengths", "paper")
 
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", required=True, help="folder of the studies and answers.md")
+    p.add_argument("--out", required=True, help="folder of the studies and answers.txt")
     p.add_argument("--study", nargs="+", default=list(STUDIES),
                    help="study names of presets/design/ (default: wavelengths paper)")
     p.add_argument("--reuse", action="store_true",
@@ -75,7 +75,7 @@ def run_study(name: str, out: Path, reuse: bool) -> tuple:
 
 
 def answers_markdown(studies: list, tree: str) -> str:
-    """answers.md: per study, its command and tree, then its summary tables (their title
+    """answers.txt: per study, its command and tree, then its summary tables (their title
     line dropped: the study's heading replaces it)."""
     out = ["# The design studies of docs/design.md §5", "",
            f"Made by `python tools/design_answers.py` on tree {tree}.", ""]
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         ds, command, seconds = run_study(name, out, args.reuse)
         print(f"design_answers: {name}: {seconds:.0f} s", flush=True)
         done.append((name, ds, command))
-    path = out / "answers.md"
+    path = out / "answers.txt"
     path.write_text(answers_markdown(done, tree_name()) + "\n")
     print(f"design_answers: {path}")
     return 0
