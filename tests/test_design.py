@@ -310,7 +310,8 @@ def test_design_answers_writes_the_studies_tables_with_their_tree(tmp_path, data
     assert design_answers.main(["--out", str(out), "--study", "paper", "--reuse"]) == 0
     text = (out / "answers.txt").read_text()
     tables = (out / "paper" / "summary.txt").read_text().split("\n## ", 1)[1]
-    assert "Made by `python tools/design_answers.py` on tree " in text
+    assert "Written by `python tools/design_answers.py` on tree " in text
+    assert "reused (--reuse), not computed by this run" in text
     assert f"warpe-cl design presets/design/paper.yaml --out {out / 'paper'}" in text
     assert "### " + tables.strip() in text
     for argv in (["--out", str(out), "--study", "nope"], ["--out", str(out / "answers.txt")]):

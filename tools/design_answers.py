@@ -11,8 +11,9 @@ walked again) and computes the expected widths; its design.nc, summary.txt and f
 detectability maps and the ranking) stay in DIR/NAME/. ``--reuse`` takes a study's
 DIR/NAME/design.nc as it is where one exists (the tables of an earlier run, written again).
 
-DIR/answers.txt then holds, for each study, the command, the tree (``git describe --dirty``)
-and the summary tables of ``warpe_cl.design.result.summary_markdown``: one table per family,
+DIR/answers.txt then holds the tree it was written on (``git describe --dirty``) and, for
+each study, the command, when its design.nc was made (and whether it was reused), and the
+summary tables of ``warpe_cl.design.result.summary_markdown``: one table per family,
 the median width ratio of every key and derived quantity over the family with the share of
 its surfaces constrained, and the shares detected, told from their neighbours and from the
 other families. docs/design.md §5 quotes those tables as they are. The sweeps and widths
@@ -61,27 +62,32 @@ def parse_args(argv=None):
 
 def run_study(name: str, out: Path, reuse: bool) -> tuple:
     """The design study ``name`` into ``out/name``: run (or, with ``reuse``, read); returns
-    (its dataset, the command that made it, seconds)."""
+    (its dataset, the command that made it, whether it was reused, seconds)."""
     study = presets_dir() / "design" / f"{name}.yaml"
     folder = out / name
     command = f"warpe-cl design presets/design/{name}.yaml --out {folder}"
     t0 = time.perf_counter()
-    if not (reuse and (folder / "design.nc").is_file()):
+    reused = reuse and (folder / "design.nc").is_file()
+    if not reused:
         code = warpe_cl_main(["design", str(study), "--out", str(folder), "--overwrite"])
         if code != 0:
             raise SystemExit(code)
     with xr.open_dataset(folder / "design.nc", engine="h5netcdf") as ds:
-        return ds.load(), command, time.perf_counter() - t0
+        return ds.load(), command, reused, time.perf_counter() - t0
 
 
 def answers_markdown(studies: list, tree: str) -> str:
-    """answers.txt: per study, its command and tree, then its summary tables (their title
-    line dropped: the study's heading replaces it)."""
+    """answers.txt: per study, its command and when its design.nc was made (and whether this
+    run reused it), then its summary tables (their title line dropped: the study's heading
+    replaces it)."""
     out = ["# The design studies of docs/design.md §5", "",
-           f"Made by `python tools/design_answers.py` on tree {tree}.", ""]
-    for name, ds, command in studies:
+           f"Written by `python tools/design_answers.py` on tree {tree}.", ""]
+    for name, ds, command, reused in studies:
         body = summary_markdown(ds).split("\n", 1)[1].lstrip("\n")
-        out += [f"## Study {name}", "", f"    {command}", "",
+        made = ds.attrs.get("created_utc", "at an unknown time")
+        note = (f"design.nc of {made}, reused (--reuse), not computed by this run" if reused
+                else f"computed by this run, design.nc of {made}")
+        out += [f"## Study {name}", "", f"    {command}", "", f"({note}.)", "",
                 body.replace("\n## ", "\n### ").rstrip(), ""]
     return "\n".join(out)
 
@@ -92,9 +98,9 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     done = []
     for name in args.study:
-        ds, command, seconds = run_study(name, out, args.reuse)
+        ds, command, reused, seconds = run_study(name, out, args.reuse)
         print(f"design_answers: {name}: {seconds:.0f} s", flush=True)
-        done.append((name, ds, command))
+        done.append((name, ds, command, reused))
     path = out / "answers.txt"
     path.write_text(answers_markdown(done, tree_name()) + "\n")
     print(f"design_answers: {path}")
