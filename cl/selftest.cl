@@ -64,7 +64,8 @@ __kernel void walk_math(__global const REAL *u, __global REAL *out)
  * out = (a / b, sqrt(a), a * b + c), the last with no fused multiply-add (real.h FP_CONTRACT
  * OFF). OpenCL lets a driver divide and take square roots 2.5 and 3 ulp off in single
  * precision unless the program is built with -cl-fp32-correctly-rounded-divide-sqrt
- * (warpe_cl/device.py build_source), and NVIDIA's does; a walk built so leaves the CPUs' bits. */
+ * (warpe_cl/device.py build_source), and NVIDIA's does: a walk built without it leaves the
+ * CPUs' bits. */
 __kernel void exact_ops(__global const REAL *a, __global const REAL *b, __global const REAL *c,
                         __global REAL *out)
 {

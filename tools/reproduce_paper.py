@@ -14,8 +14,8 @@ are made in worker processes while the next presets walk, so that they use the c
 leaves: where the walks run on a GPU, one fewer than the machine's cores (at most one per
 preset after the first), so that the files of every preset are written side by side; where
 they run on a CPU device, which takes every core, one worker takes them in turn.
-``--workers N`` sets their number; ``--serial``
-makes each in this process before the next walk starts (the same files).
+``--workers N`` sets their number; ``--serial`` makes each in this process before the next
+walk starts (the same files).
 
 It also writes ``metrics.csv`` next to the figures: the waveform metrics of every result
 (``warpe_cl.metrics``: mean delay and RMS width in ns, each with its standard error), one row
