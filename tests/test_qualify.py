@@ -198,6 +198,8 @@ def test_devices_shows_the_verdicts(engine):
 class _TalkativeProgram:
     """A pyopencl Program whose build succeeds and warns, as Intel's compiler always does."""
 
+    options = None
+
     def __init__(self, ctx, source):
         pass
 
@@ -205,6 +207,7 @@ class _TalkativeProgram:
         import warnings
 
         import pyopencl
+        _TalkativeProgram.options = list(options)
         warnings.warn("Non-empty compiler output encountered.", pyopencl.CompilerWarning)
         warnings.warn("something else", UserWarning)
         return "built"
@@ -213,11 +216,17 @@ class _TalkativeProgram:
 @pytest.mark.parametrize("debug", ["", "1"])
 def test_the_compilers_chatter_is_quiet_unless_debugging(monkeypatch, debug):
     """build_program, where every kernel is built (API, CLI, tools), drops pyopencl's
-    "Non-empty compiler output" warning and no other; WARPE_CL_DEBUG=1 keeps it."""
+    "Non-empty compiler output" warning and no other; WARPE_CL_DEBUG=1 keeps it. A device
+    that offers correctly rounded division and square root gets the option that asks for
+    them (device.EXACT_DIVIDE_SQRT), and -w unless debugging."""
     import warnings
-    fake = types.SimpleNamespace(Program=_TalkativeProgram)
+    exact = 1 << 7                      # CL_FP_CORRECTLY_ROUNDED_DIVIDE_SQRT
+    fake = types.SimpleNamespace(
+        Program=_TalkativeProgram,
+        device_fp_config=types.SimpleNamespace(CORRECTLY_ROUNDED_DIVIDE_SQRT=exact))
+    ctx = types.SimpleNamespace(devices=[types.SimpleNamespace(single_fp_config=exact | 1)])
     monkeypatch.setattr(devmod, "_cl", lambda: fake)
-    monkeypatch.setattr(devmod, "context_and_queue", lambda device: ("ctx", "queue"))
+    monkeypatch.setattr(devmod, "context_and_queue", lambda device: (ctx, "queue"))
     monkeypatch.setenv("WARPE_CL_DEBUG", debug)
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
@@ -225,6 +234,11 @@ def test_the_compilers_chatter_is_quiet_unless_debugging(monkeypatch, debug):
     messages = [str(w.message) for w in seen]
     assert ("Non-empty compiler output encountered." in messages) == (debug == "1")
     assert "something else" in messages
+    assert devmod.EXACT_DIVIDE_SQRT in _TalkativeProgram.options
+    assert ("-w" in _TalkativeProgram.options) == (debug != "1")
+    ctx.devices[0].single_fp_config = 1          # a device without it: not asked for
+    devmod.build_program.__wrapped__("device", ("real.h",), ())
+    assert devmod.EXACT_DIVIDE_SQRT not in _TalkativeProgram.options
 
 
 @pytest.mark.filterwarnings("ignore:Non-empty compiler output")
