@@ -23,7 +23,7 @@ from warpe_cl.design.family import Family
 from warpe_cl.design.run import sweep_overrides
 from warpe_cl.design.study import load_study
 from warpe_cl.design.fisher import linear_information
-from warpe_cl.instrument import apply_instrument, load_instrument
+from warpe_cl.instrument import apply_instrument, load_instrument, radiometry
 from warpe_cl.inversion.forward import Forward
 from warpe_cl.inversion.space import Space
 
@@ -291,6 +291,20 @@ def test_bundled_study_files_are_valid(name, tmp_path):
     assert study.families and study.instruments
     for fam in study.families:
         assert len(fam.databases) == len(fam.wavelengths)
+
+
+def test_atlas_at_belas_photons_holds_belas_photons_at_the_aperture(tmp_path):
+    """presets/design/paper.yaml's atlas_bela_photons takes as many ATLAS shots as hold the
+    photons at the aperture of BELA's shots (photons per unit reflectance times shots,
+    docs/design.md §5.2): rounded to a whole shot, so within half a shot's photons."""
+    study = load_study(presets_dir() / "design" / "paper.yaml", out=tmp_path)
+    cand = {c.name: c for c in study.instruments}
+    bela, atlas = cand["bela"].params, cand["atlas_bela_photons"].params
+    assert atlas["wavelength"] == pytest.approx(532e-9)
+    per_shot = radiometry.photons_per_reflectance(atlas)
+    budget = bela["shots"] * radiometry.photons_per_reflectance(bela)
+    assert abs(atlas["shots"] * per_shot - budget) <= 0.5 * per_shot
+    assert cand["atlas"].params["shots"] < atlas["shots"]
 
 
 def test_design_answers_writes_the_studies_tables_with_their_tree(tmp_path, database, capsys):
