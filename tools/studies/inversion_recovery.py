@@ -30,7 +30,12 @@ instrument YAML file, repeatable) also chooses the instruments to invert, with
 - bias: the median error of the posterior median, in decades (dex) for log-spaced keys and in
   the value otherwise, with the half-width of the 16-84 % range of the errors as their spread;
 - coverage: the fraction of injections whose 68 % (95 %) interval holds the truth, with its
-  binomial standard error sqrt(p (1 - p) / n);
+  binomial standard error sqrt(p (1 - p) / n), for all injections, those the data inform or
+  not, and those whose database was adequate for the shots or not (FIT.nc
+  ``loglike_database_sd`` at most 1, docs/inversion.md §4.3; the column
+  ``loglike_database_sd`` of ``recovery_LABEL.csv``), and of the 95 % statement the summary
+  prints: a one-sided bound where a prior edge is open, the prior where both are
+  (docs/inversion.md §6.3; columns ``KEY.bound`` and ``KEY.bound95``);
 - identifiability: the median width of the 68 % interval as a fraction of the prior range,
   and the share of injections whose 95 % interval covers more than 90 % of the prior range
   (the data do not constrain the key), overall and by the optical depth of the injected layer
@@ -113,8 +118,15 @@ def interpolation_error(space, forward, truth: dict, direct) -> dict:
 
 #: Per swept key, the FIT.nc variables on ``parameter`` copied to ``recovery_LABEL.csv``.
 FIT_STATS = ("best", "median", "low68", "high68", "low95", "high95", "prior_low", "prior_high")
-#: Scalars of FIT.nc copied, its attributes copied, and the interpolation error's columns.
-FIT_SCALARS = ("chi2_per_dof", "p_value", "censored_samples", "amplitude", "pulse_fwhm")
+#: Per swept key, how FIT.nc states its 95 % statement at an open prior edge
+#: (docs/inversion.md §6.3): ``bound`` 0 an interval, 1 a lower bound ``bound95``, 2 an upper
+#: bound ``bound95``, 3 both edges open (the prior's range); NaN where a fit has none.
+BOUND_STATS = ("bound", "bound95")
+#: Scalars of FIT.nc copied (NaN where a fit has none: ``loglike_database_sd``, the stated
+#: error of log L from the database, is absent when the database was taken as exact), its
+#: attributes copied, and the interpolation error's columns.
+FIT_SCALARS = ("chi2_per_dof", "p_value", "censored_samples", "amplitude", "pulse_fwhm",
+               "loglike_database_sd")
 FIT_ATTRS = {"shots_used": int, "evaluations": int, "elapsed_s": float}
 INTERP_COLUMNS = ("dchi2_interp", "dchi2_nearest", "l2_interp", "l2_nearest")
 
@@ -130,11 +142,11 @@ def recovery_row(row: dict, keys: list, fit, surface_ds, interp: dict) -> dict:
             out[f"{key}.{stat}"] = float(fit[stat].values[j])
         out[f"{key}.scale"] = (str(fit["scale"].values[j]) if "scale" in fit else
                                "log" if bool(fit["log_scale"].values[j]) else "linear")
-        out[f"{key}.width_ratio"] = (float(fit["width_ratio"].values[j])
-                                     if "width_ratio" in fit else math.nan)
+        for name in ("width_ratio", *BOUND_STATS):
+            out[f"{key}.{name}"] = float(fit[name].values[j]) if name in fit else math.nan
         out[f"{key}.rank"] = rank_of_truth(fit, key, float(row[key]), out[f"{key}.scale"])
     for name in FIT_SCALARS:
-        out[name] = float(fit[name].values)
+        out[name] = float(fit[name].values) if name in fit else math.nan
     for name, kind in FIT_ATTRS.items():
         out[name] = kind(fit.attrs[name])
     out.update(interp)
@@ -164,7 +176,8 @@ def recovery_columns(keys: list) -> list:
     """The columns of ``recovery_LABEL.csv``."""
     cols = ["index", "tau0"]
     for key in keys:
-        cols += [f"{key}.{s}" for s in ("truth", *FIT_STATS, "scale", "width_ratio", "rank")]
+        cols += [f"{key}.{s}" for s in ("truth", *FIT_STATS, "scale", "width_ratio",
+                                        *BOUND_STATS, "rank")]
     return cols + [*FIT_SCALARS, *FIT_ATTRS, *INTERP_COLUMNS]
 
 
@@ -398,14 +411,33 @@ def coverage_cell(hold: np.ndarray, nominal: float) -> str:
     return f"{p:.2f} ± {sigma:.2f} (n {hold.size}){flag}"
 
 
+def printed_95(get) -> np.ndarray:
+    """Whether the 95 % statement the summary prints holds the truth, per injection: the
+    lower (upper) bound where the upper (lower) prior edge is open, the whole prior where
+    both are, else the equal-tailed interval (docs/inversion.md §6.3). A calibrated posterior
+    holds the truth in a one-sided 95 % bound 95 % of the time, in the prior always. Rows
+    without ``bound`` (older recovery files) are judged by their interval."""
+    truth, bound, edge = get("truth"), get("bound"), get("bound95")
+    low = np.select([bound == 1, bound == 2, bound == 3], [edge, get("prior_low"),
+                    get("prior_low")], get("low95"))
+    high = np.select([bound == 1, bound == 2, bound == 3], [get("prior_high"), edge,
+                     get("prior_high")], get("high95"))
+    return (low <= truth) & (truth <= high)
+
+
 def calibration_tables(recoveries: dict) -> list:
-    """Coverage stratified by how informative the data are, and the rank histograms of
-    simulation-based calibration, as Markdown lines."""
+    """Coverage stratified by how informative the data are and by whether the database was
+    adequate for the shots (the stated error of log L from the database at most
+    ``ADEQUATE_SD``, docs/inversion.md §4.3), and the rank histograms of simulation-based
+    calibration, as Markdown lines."""
     from scipy.special import chdtrc
+    from warpe_cl.inversion.emulator import ADEQUATE_SD
     lines = ["", f"Coverage by how informative the data are (informed: width ratio < "
-             f"{INFORMED:g}); binomial error at the nominal rate, `!` beyond 2σ.", "",
-             "| instrument | key | stratum | 68 % coverage | 95 % coverage |",
-             "|---|---|---|---|---|"]
+             f"{INFORMED:g}) and by whether the database was adequate for the shots (its "
+             f"stated error of log L at most {ADEQUATE_SD:g}); binomial error at the nominal "
+             f"rate, `!` beyond 2σ.", "",
+             "| instrument | key | stratum | 68 % coverage | 95 % coverage | 95 % as printed |",
+             "|---|---|---|---|---|---|"]
     ranks = ["", f"Rank of the truth in its posterior (marginal CDF at the truth), "
              f"{RANK_BINS} bins of 0.2; uniform when calibrated: χ² on {RANK_BINS - 1} dof.", "",
              "| instrument | key | counts per bin | χ² | p |", "|---|---|---|---|---|"]
@@ -413,12 +445,16 @@ def calibration_tables(recoveries: dict) -> list:
         for key in keys:
             get = lambda s: np.array([r.get(f"{key}.{s}", math.nan) for r in rows])  # noqa: E731
             truth, ratio = get("truth"), get("width_ratio")
+            sd = np.array([r.get("loglike_database_sd", math.nan) for r in rows])
             for name, m in (("all", np.ones(truth.size, bool)),
-                            ("informed", ratio < INFORMED), ("not informed", ratio >= INFORMED)):
+                            ("informed", ratio < INFORMED), ("not informed", ratio >= INFORMED),
+                            ("database adequate", sd <= ADEQUATE_SD),
+                            ("database not adequate", sd > ADEQUATE_SD)):
                 cells = [coverage_cell(((get(f"low{lv}") <= truth) & (truth <= get(f"high{lv}")))[m],
                                        int(lv) / 100) for lv in ("68", "95")]
-                lines.append(f"| {label.upper()} | {_short(key)} | {name} | {cells[0]} | "
-                             f"{cells[1]} |")
+                cells.append(coverage_cell(printed_95(get)[m], 0.95))
+                lines.append(f"| {label.upper()} | {_short(key)} | {name} | "
+                             + " | ".join(cells) + " |")
             rank = get("rank")
             rank = rank[np.isfinite(rank)]
             if rank.size:

@@ -139,3 +139,41 @@ def test_calibration_tables_flag_undercoverage_and_uneven_ranks():
     text = "\n".join(recovery.calibration_tables({"bela": (["medium.thickness"], base)}))
     assert "0.00 ± 0.05 (n 20) !" in text
     assert "| 0 0 0 0 20 | 80.0 | 0.000 |" in text
+
+
+def test_calibration_tables_split_by_the_databases_adequacy():
+    """Twenty injections, the first eight inverted against a database adequate for their shots
+    (stated error of log L 0.5 <= 1) whose intervals hold the truth, the other twelve
+    against one that is not (sd 6) whose intervals miss: the strata count 8 and 12 and
+    their coverages are 1 and 0; a row without the column (an older recovery file) falls in
+    neither."""
+    base = rows([1.0] * 21, [0.5] * 8 + [3.0] * 13, [2.0] * 8 + [4.0] * 13, [1.0] * 21)
+    for i, r in enumerate(base[:20]):
+        r["medium.thickness.width_ratio"] = 0.3
+        r["loglike_database_sd"] = 0.5 if i < 8 else 6.0
+    base[20]["medium.thickness.width_ratio"] = 0.3
+    text = "\n".join(recovery.calibration_tables({"bela": (["medium.thickness"], base)}))
+    assert "| BELA | thickness | database adequate | 1.00 ± 0.16 (n 8) | 1.00 ± 0.08 (n 8) |" \
+        in text
+    assert "| BELA | thickness | database not adequate | 0.00 ± 0.13 (n 12) ! | " \
+        "0.00 ± 0.06 (n 12) ! |" in text
+    assert "| BELA | thickness | all | 0.38 ± 0.10 (n 21) ! |" in text
+
+
+def test_the_printed_95_statement_takes_the_bound_at_an_open_edge():
+    """Four truths near the prior's edges whose equal-tailed 95 % intervals all miss: a
+    lower bound (open upper edge) below the truth, an upper bound above it, both edges
+    open, and a plain interval. The printed statements hold the first three, not the
+    fourth; rows without ``bound`` are judged by their interval."""
+    base = rows([0.89, 0.11, 0.89, 0.5], [0.3] * 4, [0.4] * 4, [0.35] * 4, scale="linear")
+    for r, (bound, edge) in zip(base, [(1, 0.3), (2, 0.6), (3, math.nan), (0, math.nan)]):
+        r[f"{KEY}.bound"], r[f"{KEY}.bound95"] = bound, edge
+    get = lambda s: np.array([r.get(f"{KEY}.{s}", math.nan) for r in base])  # noqa: E731
+    assert recovery.printed_95(get).tolist() == [True, True, True, False]
+    for r in base:
+        del r[f"{KEY}.bound"], r[f"{KEY}.bound95"]
+    assert recovery.printed_95(get).tolist() == [False] * 4
+    base[0][f"{KEY}.bound"], base[0][f"{KEY}.bound95"] = 1, 0.3
+    text = "\n".join(recovery.calibration_tables({"bela": ([KEY], base)}))
+    assert "| BELA | thickness | all | 0.00 ± 0.23 (n 4) ! | 0.00 ± 0.11 (n 4) ! | " \
+        "0.25 ± 0.11 (n 4) ! |" in text
