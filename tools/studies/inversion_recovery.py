@@ -428,8 +428,9 @@ def printed_95(get) -> np.ndarray:
 def calibration_tables(recoveries: dict) -> list:
     """Coverage stratified by how informative the data are and by whether the database was
     adequate for the shots (the stated error of log L from the database at most
-    ``ADEQUATE_SD``, docs/inversion.md §4.3), and the rank histograms of simulation-based
-    calibration, as Markdown lines."""
+    ``ADEQUATE_SD``, docs/inversion.md §4.3), with the coverage of the 95 % statement as
+    printed (:func:`printed_95`), and the rank histograms of simulation-based calibration, as
+    Markdown lines."""
     from scipy.special import chdtrc
     from warpe_cl.inversion.emulator import ADEQUATE_SD
     lines = ["", f"Coverage by how informative the data are (informed: width ratio < "
