@@ -119,8 +119,9 @@ def interpolation_error(space, forward, truth: dict, direct) -> dict:
 #: Per swept key, the FIT.nc variables on ``parameter`` copied to ``recovery_LABEL.csv``.
 FIT_STATS = ("best", "median", "low68", "high68", "low95", "high95", "prior_low", "prior_high")
 #: Per swept key, how FIT.nc states its 95 % statement at an open prior edge
-#: (docs/inversion.md §6.3): ``bound`` 0 an interval, 1 a lower bound ``bound95``, 2 an upper
-#: bound ``bound95``, 3 both edges open (the prior's range); NaN where a fit has none.
+#: (docs/inversion.md §6.3): ``bound`` the index of its kind in
+#: ``warpe_cl.inversion.derived.BOUND_KINDS`` (an interval, a lower bound ``bound95``, an upper
+#: bound ``bound95``, both edges open: the prior's range); NaN where a fit has none.
 BOUND_STATS = ("bound", "bound95")
 #: Scalars of FIT.nc copied (NaN where a fit has none: ``loglike_database_sd``, the stated
 #: error of log L from the database, is absent when the database was taken as exact), its
@@ -417,11 +418,12 @@ def printed_95(get) -> np.ndarray:
     both are, else the equal-tailed interval (docs/inversion.md §6.3). A calibrated posterior
     holds the truth in a one-sided 95 % bound 95 % of the time, in the prior always. Rows
     without ``bound`` (older recovery files) are judged by their interval."""
+    from warpe_cl.inversion.derived import BOUND_KINDS
     truth, bound, edge = get("truth"), get("bound"), get("bound95")
-    low = np.select([bound == 1, bound == 2, bound == 3], [edge, get("prior_low"),
-                    get("prior_low")], get("low95"))
-    high = np.select([bound == 1, bound == 2, bound == 3], [get("prior_high"), edge,
-                     get("prior_high")], get("high95"))
+    lower, upper, both = (bound == BOUND_KINDS.index(k)
+                          for k in ("lower_bound", "upper_bound", "both_edges"))
+    low = np.select([lower, upper | both], [edge, get("prior_low")], get("low95"))
+    high = np.select([upper, lower | both], [edge, get("prior_high")], get("high95"))
     return (low <= truth) & (truth <= high)
 
 
@@ -443,10 +445,10 @@ def calibration_tables(recoveries: dict) -> list:
              f"{RANK_BINS} bins of 0.2; uniform when calibrated: χ² on {RANK_BINS - 1} dof.", "",
              "| instrument | key | counts per bin | χ² | p |", "|---|---|---|---|---|"]
     for label, (keys, rows) in recoveries.items():
+        sd = np.array([r.get("loglike_database_sd", math.nan) for r in rows])
         for key in keys:
             get = lambda s: np.array([r.get(f"{key}.{s}", math.nan) for r in rows])  # noqa: E731
             truth, ratio = get("truth"), get("width_ratio")
-            sd = np.array([r.get("loglike_database_sd", math.nan) for r in rows])
             for name, m in (("all", np.ones(truth.size, bool)),
                             ("informed", ratio < INFORMED), ("not informed", ratio >= INFORMED),
                             ("database adequate", sd <= ADEQUATE_SD),
