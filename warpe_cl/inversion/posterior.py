@@ -12,9 +12,9 @@ deterministic, and gives the marginal on the grid values directly. It is first e
 nodes, then re-evaluated on a finer grid over the box holding the nodes within 20 in log
 likelihood of the best (``log`` L > max − 20: the rest holds < 1e-8 of the mass), up to four
 times, until every axis has at least 6 points in the box and no point holding more than half
-of its marginal mass, or the budget is spent. Only the axes not yet resolved are subdivided
-(:func:`_finer`); a box that reaches an end of its grid that is not the prior's goes on to the
-database node beyond it (two more rounds are allowed after that).
+of its marginal mass, or the budget is spent. Only the axes not yet resolved are subdivided,
+at most fourfold a round (:func:`_finer`); a box that reaches an end of its grid that is not
+the prior's goes on to the database node beyond it (two more rounds are allowed after that).
 """
 from __future__ import annotations
 
@@ -39,6 +39,11 @@ RESOLVED_SHARE = 0.5
 EXTRA_ROUNDS = 2
 #: The profile over v stops when a further step would raise log L by less than this.
 V_GAIN = 0.01
+#: A narrow axis gets, per round, at most this many times its span's intervals (:func:`_finer`)
+SUBDIVISION = 4
+#: ... and at least this many points: the 600-point budget's share of each of two narrow axes,
+#: so that one free key is not sampled at 600 points where a few dozen resolve it.
+MIN_POINTS = 24
 
 
 @dataclass
@@ -271,7 +276,9 @@ def _finer(coords: list, box: list, budget: int, narrow: list, limits=None):
     the grid that is not the prior's, on to the database node beyond it (``limits``: the
     nodes per axis; :func:`_beyond`), and such an axis is gridded afresh. A resolved axis
     keeps its points; a narrow one gets as many evenly spaced points as ``budget`` allows,
-    the same number on every narrow axis, if its spacing shrinks by a third or more. So an
+    the same number on every narrow axis, but no more than :data:`SUBDIVISION` times its
+    span's intervals (at least :data:`MIN_POINTS`), if its spacing shrinks by a third or more:
+    the next round refines it again if that is not enough. So an
     axis along which the posterior is much narrower than the grid is refined even while
     others span the prior: with the same subdivision on every axis, two broad axes filled the
     budget and a narrow third one kept a single point, its intervals the grid's cell and not
@@ -291,10 +298,11 @@ def _finer(coords: list, box: list, budget: int, narrow: list, limits=None):
     if not fine:
         return None, False
     kept = int(np.prod([s.size for j, s in enumerate(spans) if j not in fine]))
-    points = int((budget / kept) ** (1.0 / len(fine)))
+    share = int((budget / kept) ** (1.0 / len(fine)))
     out, refined = list(spans), False
     for j in fine:
         s = spans[j]
+        points = min(share, max(MIN_POINTS, SUBDIVISION * (s.size - 1) + 1))
         finer = (s[-1] - s[0]) / max(points - 1, 1)
         if points >= 3 and (finer <= float(np.min(np.diff(s))) * (2.0 / 3.0) or j in grown):
             out[j] = np.linspace(s[0], s[-1], points)
