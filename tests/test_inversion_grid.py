@@ -25,7 +25,7 @@ class Analytic:
         self.space = SimpleNamespace(free_axes=[SimpleNamespace(nodes=n) for n in nodes])
         self.points = 0
 
-    def grid(self, coords):
+    def grid(self, coords, jobs=1):
         mesh = np.meshgrid(*coords, indexing="ij")
         z = sum(((m - c) / s) ** 2 for m, c, s in zip(mesh, self.centre, self.sigma))
         self.points += z.size
@@ -86,7 +86,7 @@ class Ridge:
             SimpleNamespace(nodes=np.linspace(0.0, 1.5, 7)),
             SimpleNamespace(nodes=np.array([0.05, 0.15, 0.3, 0.45]))])
 
-    def grid(self, coords):
+    def grid(self, coords, jobs=1):
         u, w = np.meshgrid(*coords, indexing="ij")
         z = ((u - self.u0) / 0.002) ** 2 + ((w - self.w0 - 8.0 * (u - self.u0)) / 0.05) ** 2
         return GridPosterior(list(coords), -0.5 * z)

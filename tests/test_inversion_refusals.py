@@ -103,6 +103,8 @@ def test_fix_follows_the_unit_rule_of_run_set(done, capsys, fix, words):
     (["--fix", "medium.thickness=5"], "bare number"),
     (["--fix", "medium.thickness=5 mm", "--fix", "medium.radiative.tau0=0.5"],
      "every swept key is fixed"),
+    (["--jobs", "0"], "--jobs: '0' is not a number of worker processes (an integer >= 1)"),
+    (["--jobs", "two"], "--jobs: 'two' is not a number of worker processes"),
 ])
 def test_options_are_checked_before_the_scenario_files_are_read(done, capsys, monkeypatch,
                                                                  extra, words):

@@ -318,10 +318,11 @@ def cmd_invert(args) -> int:
     out = _check_outputs(args, inputs)
     scenario = _scenario(args)
     free, fix, truth = _fit_options(args)
+    jobs = _jobs(args)
     t0 = time.perf_counter()
     obs = load_observed(args.observed, scenario=scenario)
     ds = invert(obs, databases[0], instruments[0] if instruments else None, free=free, fix=fix,
-                truth=truth)
+                truth=truth, jobs=jobs)
     say = _say(args)
     for line in report.inversion_lines(ds) + check_lines(ds) + _fixed_lines(ds):
         say(line)
@@ -357,6 +358,22 @@ def _scenario(args):
                           key="--scenario") from None
 
 
+def _jobs(args) -> int:
+    """``--jobs`` of ``invert`` as a number of worker processes (default: the CPUs this
+    process may use)."""
+    from .cpus import allocated_cpus
+    if args.jobs is None:
+        return allocated_cpus()
+    try:
+        jobs = int(args.jobs)
+    except ValueError:
+        jobs = 0
+    if jobs < 1:
+        raise ConfigError(f"{args.jobs!r} is not a number of worker processes (an integer "
+                          ">= 1)", key="--jobs")
+    return jobs
+
+
 def _invert_many(args, databases, inputs) -> int:
     """``warpe-cl invert OBS --database A --database B ...``: one FIT file per database,
     ``--out`` FIT.nc giving FIT_<label>.nc (and ``--plot`` likewise), every one checked before
@@ -367,10 +384,11 @@ def _invert_many(args, databases, inputs) -> int:
     from .inversion.observed import load_observed
     outs, plots = _labelled_outputs(args, labels(databases), inputs)
     free, fix, truth = _fit_options(args)
+    jobs = _jobs(args)
     t0 = time.perf_counter()
     obs = load_observed(args.observed, scenario=_scenario(args))
     fits = compare(obs, databases, args.instrument[0] if args.instrument else None, free=free,
-                   fix=fix, truth=truth)
+                   fix=fix, truth=truth, jobs=jobs)
     say = _say(args)
     lines = [line for ds in fits for line in report.inversion_lines(ds) + check_lines(ds)]
     lines += [printable(line) for line in ranking_lines(ranking(fits))]
@@ -398,7 +416,7 @@ def _invert_joint(args, databases, instruments, inputs) -> int:
     outs, plots = _labelled_outputs(args, names, inputs)
     free, fix, truth = _fit_options(args)
     fits = invert_joint(observed, databases, instruments or None, free=free, fix=fix,
-                        truth=truth, names=databases)
+                        truth=truth, names=databases, jobs=_jobs(args))
     lines = report.joint_lines(fits, [check_lines(ds) for ds in fits]) + _fixed_lines(fits[0])
     _write_labelled(fits, outs, plots, lines, _say(args))
     return EXIT_OK
@@ -798,6 +816,9 @@ def make_parser() -> argparse.ArgumentParser:
                           'figure, never used by the fit, e.g. --truth medium.thickness="10 mm" '
                           "(default: the observed file's own configuration; repeatable)")
     inv.add_argument("--scenario", help="the scenario of an instrument file holding a sweep")
+    inv.add_argument("--jobs", metavar="N",
+                     help="worker processes the grid's points are spread over (Linux; default: "
+                          "the CPUs this process may use); the result is the same with any N")
     inv.add_argument("--quiet", action="store_true", help="print nothing but errors")
     inv.set_defaults(func=cmd_invert)
 

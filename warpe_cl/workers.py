@@ -27,6 +27,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from .api import get_engine
+from .cpus import allocated_cpus
 from .device import candidates, list_devices, resolve_spec
 from .errors import ConfigError, DeviceError, one_line
 from .io import utc_now
@@ -39,17 +40,6 @@ OPENCL_RESOURCE = "opencl"    # Dask worker resource: one per OpenCL device
 
 
 # --------------------------------------------------------------------------- worker hygiene
-
-def allocated_cpus() -> int:
-    """CPUs this process may use: ``$SLURM_CPUS_PER_TASK``, else the CPU affinity mask."""
-    slurm = os.environ.get("SLURM_CPUS_PER_TASK", "")
-    if slurm.isdigit() and int(slurm) > 0:
-        return int(slurm)
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
-
 
 def worker_environment(threads: int | None = None) -> dict:
     """Set the OpenCL environment of a worker before OpenCL is first loaded in it.

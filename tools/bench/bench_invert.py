@@ -6,6 +6,7 @@ BELA shots at 12.5 ns against a 1,000-scenario database in under 10 s on 2 cores
     python tools/bench/bench_invert.py --work DIR [--grid 10 | --grid 8,5,5] [--photons 1e4]
                                        [--rounds 5] [--shots 100] [--instrument bela]
                                        [--open-rounds 5] [--cli-rounds 5] [--profile FILE]
+                                       [--jobs N]
 
 In ``DIR`` it builds, once (kept for the next run):
 
@@ -22,11 +23,11 @@ It then measures, printing the median and range of each:
    files (``store=False``, as a folder without a store is read), ``--open-rounds`` rounds
    interleaved (store, files, store, files ...), each in a fresh Python process: the imports
    (``warpe_cl.database``, xarray, h5py), the first open in the process and a second one;
-2. ``warpe-cl invert obs.nc --database db`` end to end (a fresh process: Python's start,
-   imports, the open, the inversion, the output file), ``--cli-rounds`` times;
+2. ``warpe-cl invert obs.nc --database db --jobs N`` end to end (a fresh process: Python's
+   start, imports, the open, the inversion, the output file), ``--cli-rounds`` times;
 3. ``warpe_cl.invert(obs.nc, db)`` ``--rounds`` times in this process on the database loaded
-   once (as a user inverting many waveforms would): wall time, model evaluations and
-   evaluations per second, with the machine's load; ``--profile FILE`` writes a cProfile of
+   once (as a user inverting many waveforms would), with ``jobs=1`` and ``jobs=--jobs``
+   interleaved: wall time, model evaluations and evaluations per second; ``--profile FILE`` writes a cProfile of
    one more such inversion and prints its 25 costliest functions.
 """
 from __future__ import annotations
@@ -47,6 +48,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import loadavg  # noqa: E402
+from warpe_cl.cpus import allocated_cpus  # noqa: E402
 
 #: The inversion study's granular CO2 family (the repository is three folders up).
 PRESET = Path(__file__).resolve().parents[2] / "presets" / "study" / "gran_co2.yaml"
@@ -159,12 +161,14 @@ def measure_open(folders: dict, rounds: int) -> dict:
     return out
 
 
-def measure_cli(obs: Path, folders: dict, rounds: int, work: Path) -> dict:
-    """label -> wall times (s) of ``warpe-cl invert`` end to end, rounds interleaved."""
+def measure_cli(obs: Path, folders: dict, rounds: int, work: Path, jobs: int) -> dict:
+    """label -> wall times (s) of ``warpe-cl invert --jobs JOBS`` end to end, rounds
+    interleaved."""
     out = {label: [] for label in folders}
     for label in interleaved(list(folders), rounds):
         cmd = [sys.executable, "-m", "warpe_cl", "invert", str(obs), "--database",
-               str(folders[label]), "--out", str(work / "fit.nc"), "--overwrite", "--quiet"]
+               str(folders[label]), "--out", str(work / "fit.nc"), "--overwrite", "--quiet",
+               "--jobs", str(jobs)]
         start = time.perf_counter()
         subprocess.run(cmd, check=True)
         out[label].append(time.perf_counter() - start)
@@ -182,16 +186,19 @@ def in_process(args, db_path: Path, obs: Path) -> None:
     print(f"database: {db.sizes['scenario']} scenarios ({args.grid}), loaded in {load_s:.2f} s "
           f"(store: {db.attrs.get('sweep_store') or 'none'}); observation: {args.shots} "
           f"{args.instrument} shots")
-    times, evaluations = [], []
-    for _ in range(args.rounds):
-        start = time.perf_counter()
-        fit = invert(obs, db, database_source=str(db_path))
-        times.append(time.perf_counter() - start)
-        evaluations.append(int(fit.attrs["evaluations"]))
-    if times:
-        med = statistics.median(times)
-        print(f"invert in process: {spread_text(times)}, {statistics.median(evaluations)} "
-              f"model evaluations, {statistics.median(evaluations) / med:.0f} evaluations/s")
+    counts = sorted({1, args.jobs})
+    times = {n: [] for n in counts}
+    for _ in range(args.rounds):            # jobs=1 and jobs=N interleaved
+        for n in counts:
+            start = time.perf_counter()
+            fit = invert(obs, db, database_source=str(db_path), jobs=n)
+            times[n].append(time.perf_counter() - start)
+            evaluations = int(fit.attrs["evaluations"])
+    for n in counts if args.rounds else []:
+        med = statistics.median(times[n])
+        print(f"invert in process, jobs={n}: {spread_text(times[n])}, {evaluations} model "
+              f"evaluations, {evaluations / med:.0f} evaluations/s")
+    if args.rounds:
         r = fit.sel(parameter=list(TRUTH))
         for key in TRUTH:
             q = r.sel(parameter=key)
@@ -220,6 +227,10 @@ def main(argv=None) -> int:
     p.add_argument("--open-rounds", type=int, default=5, help="interleaved opens (5)")
     p.add_argument("--cli-rounds", type=int, default=5, help="timed `warpe-cl invert` (5)")
     p.add_argument("--profile", help="write a cProfile of one inversion to this file")
+    p.add_argument("--jobs", type=int, default=allocated_cpus(),
+                   help="worker processes of `warpe-cl invert --jobs` and of the in-process "
+                        "inversions timed beside jobs=1 (default: the CPUs this process may "
+                        "use)")
     args = p.parse_args(argv)
     work = Path(args.work)
     db_path, files_path, obs = build(work, args.grid, int(args.photons), args.shots,
@@ -238,10 +249,10 @@ def main(argv=None) -> int:
                   f"{spread_text([r['second_s'] for r in rows])}; imports "
                   f"{spread_text([r['import_s'] for r in rows])}")
     if args.cli_rounds:
-        cli = measure_cli(obs, folders, args.cli_rounds, work)
+        cli = measure_cli(obs, folders, args.cli_rounds, work, args.jobs)
         for label, times in cli.items():
-            print(f"warpe-cl invert ({args.shots} {args.instrument} shots, database read from "
-                  f"{label}), end to end: {spread_text(times)}")
+            print(f"warpe-cl invert --jobs {args.jobs} ({args.shots} {args.instrument} shots, "
+                  f"database read from {label}), end to end: {spread_text(times)}")
 
     if args.rounds or args.profile:
         in_process(args, db_path, obs)

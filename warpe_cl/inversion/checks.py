@@ -185,12 +185,10 @@ def amplitude_curvature(problem, u, best) -> float:
     """
     mu, nu = _model(problem, u, best.v)
     shots = problem.shots
-    clipped = bool(np.asarray(shots.censored).any())
     x0 = math.log(max(float(best.fit.overall), 1e-300))
 
     def ll(x):
-        if clipped:
-            shots.start(mu)            # as Problem.evaluate: each point afresh
+        shots.start(mu)            # as Problem.evaluate: each point afresh
         return shots.fit(mu, nu, math.exp(x)).loglike
 
     f0 = ll(x0)

@@ -285,7 +285,8 @@ def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray,
         The recorded shots: linear-mode samples, or photon-counting histograms.
     fit : ShotFit
         The fitted nuisances at this model: per-shot amplitudes a_s and arrivals δ_s (ns), or
-        the common A and δ of photon counts.
+        the common A and δ of photon counts; its ``table`` (μ, μ′, ν), when set, is read
+        instead of being made again from ``mu`` and ``nu``.
     mu, nu : array
         The model's μ (mV) and ν (mV²) on the forward grid, or the count rate (pe ns⁻¹ per
         shot at amplitude 1) and None.
@@ -305,7 +306,9 @@ def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray,
         return integrate_blocks(w, g, s, base if amplitude_free else base[:, 1:])
     f = shots.f
     a, d = fit.amplitude, fit.arrival
-    m, dm, n, s = shots._gather(padded([mu, np.gradient(mu, f.t), nu, variance]), d)
+    table = fit.table if fit.table is not None else padded([mu, np.gradient(mu, f.t), nu])
+    m, dm, n = shots._gather(table, d)
+    s = shots._gather(padded([variance]), d)[0]
     var = f.sigma_n ** 2 + a[:, None] * n
     keep = ~shots.censored
     r = shots.y - a[:, None] * m

@@ -38,6 +38,8 @@ from ..instrument.radiometry import ELEMENTARY_CHARGE
 
 #: Default prior range of the pulse FWHM relative to the instrument's (Gaussian pulse).
 PULSE_RANGE = (0.5, 1.5)
+#: Default largest extra Gaussian broadening (footprint, slope, roughness), ns.
+BROADENING_MAX_NS = 10.0
 
 
 def fft_convolve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -46,13 +48,39 @@ def fft_convolve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ``scipy.fft`` at the same fast length; a length-1 operand a product, as there), without
     importing ``scipy.signal`` (0.7-1.0 s of every ``warpe-cl invert`` on 2 cores) or its
     checks of every call."""
-    if a.size == 1 or b.size == 1:
-        return a * b
-    n = a.size + b.size - 1
-    m = sp_fft.next_fast_len(n, True)
-    return sp_fft.irfft(sp_fft.rfft(a, m) * sp_fft.rfft(b, m), m)[:n]
-#: Default largest extra Gaussian broadening (footprint, slope, roughness), ns.
-BROADENING_MAX_NS = 10.0
+    return Spectrum(a).convolve(Spectrum(b))
+
+
+class Spectrum:
+    """A 1-D signal and its real FFTs at the lengths asked, each taken once: a signal
+    convolved with several kernels (one point's photons with the pulse at several widths, a
+    waveform with the receiver's h and h²) reuses them. :meth:`convolve` gives the bits of
+    :func:`fft_convolve`.
+
+    Parameters
+    ----------
+    signal : array (N,)
+    """
+
+    def __init__(self, signal):
+        self.signal = np.asarray(signal, float)
+        self._spectra = {}
+
+    def at(self, length: int) -> np.ndarray:
+        """``scipy.fft.rfft(signal, length)``, kept."""
+        if length not in self._spectra:
+            self._spectra[length] = sp_fft.rfft(self.signal, length)
+        return self._spectra[length]
+
+    def convolve(self, other: "Spectrum") -> np.ndarray:
+        """The full convolution with ``other``'s signal (``signal.size + other.size - 1``)."""
+        a, b = self.signal, other.signal
+        if a.size == 1 or b.size == 1:
+            return a * b
+        n = a.size + b.size - 1
+        m = sp_fft.next_fast_len(n, True)
+        return sp_fft.irfft(self.at(m) * other.at(m), m)[:n]
+
 
 
 class Forward:
@@ -103,6 +131,7 @@ class Forward:
         else:
             self.h, self.h_origin = electronics.filter_kernel(
                 p["electronics.filter"], p["electronics.bandwidth"], self.step)
+        self._h, self._h2 = Spectrum(self.h), Spectrum(self.h ** 2)     # their FFTs, kept
         widest = math.sqrt(self.sigma_p ** 2 + self.geo.sigma_g ** 2 + max(hi, 0.0))
         margin = self.step * self.h.size + 8.0 * widest + 2.0 * self.interval + 5.0
         self.grid = make_grid(p["window.start"], p["window.stop"], self.step, margin)
@@ -142,21 +171,26 @@ class Forward:
                                              self.step)
         return np.convolve(p_k, g_k), p_o + g_o
 
-    def waveform(self, photons: np.ndarray, v: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    def waveform(self, photons, v: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """μ (mV) and ν (mV²) of the module docstring on the fine grid (``self.t``); for a
         photon-counting detector, the signal photoelectrons per ns (amplitude 1) with the
-        timing jitter, and None."""
+        timing jitter, and None. ``photons``: an array (:meth:`photons`), or its
+        :class:`Spectrum` when the same photons are taken at several ``v``."""
+        if not isinstance(photons, Spectrum):
+            photons = Spectrum(photons)
         k, k_o = self.kernel(v)
-        pe = np.clip(self._convolve(photons, k, k_o), 0.0, None) * self.eta
+        pe = np.clip(self._convolve(photons, Spectrum(k), k_o), 0.0, None) * self.eta
+        pe = Spectrum(pe)
         if self.counting:
-            return np.clip(self._convolve(pe, self.h, self.h_origin), 0.0, None) / self.step, None
-        mu = self.mv_per_pe * self._convolve(pe, self.h, self.h_origin)
-        nu = self.mv2_per_pe * self._convolve(pe, self.h ** 2, self.h_origin)
+            rate = np.clip(self._convolve(pe, self._h, self.h_origin), 0.0, None)
+            return rate / self.step, None
+        mu = self.mv_per_pe * self._convolve(pe, self._h, self.h_origin)
+        nu = self.mv2_per_pe * self._convolve(pe, self._h2, self.h_origin)
         return mu, np.clip(nu, 0.0, None)
 
     @staticmethod
-    def _convolve(signal, kernel, origin):
-        return fft_convolve(signal, kernel)[origin: origin + signal.size]
+    def _convolve(signal: Spectrum, kernel: Spectrum, origin: int) -> np.ndarray:
+        return signal.convolve(kernel)[origin: origin + signal.signal.size]
 
     def fwhm_of(self, v: float) -> float:
         """The pulse FWHM (ns) that ``v`` means for a Gaussian pulse at the nominal footprint."""

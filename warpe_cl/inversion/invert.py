@@ -35,7 +35,7 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
            pulse_range=PULSE_RANGE, broadening_max: float = BROADENING_MAX_NS,
            database_error: bool = True,
            observed_source: str | None = None, database_source: str | None = None,
-           truth: dict | None = None):
+           truth: dict | None = None, jobs: int = 1):
     """The surface parameters compatible with recorded shots.
 
     Parameters
@@ -74,6 +74,9 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
         Swept key -> its true value (``--truth``: ``"10 mm"``, a plain number without
         dimension); default: what the observed file says (its ``sweep_point`` or ``config``,
         :func:`warpe_cl.inversion.derived.truth_values`). Shown, never used by the fit.
+    jobs : int
+        Worker processes the grid's points are spread over (Linux; elsewhere this process):
+        the result is the same bits with any number (:meth:`~.posterior.Problem.grid`).
 
     Returns
     -------
@@ -88,7 +91,7 @@ def invert(observed, database, instrument=None, *, free=None, fix=None, budget: 
                       pulse_range=pulse_range, broadening_max=broadening_max,
                       database_error=database_error, observed_source=observed_source,
                       database_source=database_source, truth=truth)
-    nodes, final = refine(channel.problem, budget=budget)
+    nodes, final = refine(channel.problem, budget=budget, jobs=jobs)
     return conclude(channel, nodes, final, started)
 
 

@@ -51,6 +51,15 @@ class JointProblem:
         """Model evaluations of every channel together."""
         return sum(p.count for p in self.parts)
 
+    def counts(self) -> list:
+        """Model evaluations so far, per channel."""
+        return [p.count for p in self.parts]
+
+    def add_counts(self, extra) -> None:
+        """Add ``extra`` (per channel) to the channels' model evaluations."""
+        for p, n in zip(self.parts, extra):
+            p.count += int(n)
+
     def point(self, u: np.ndarray) -> dict:
         """The free keys' values at coordinates ``u``."""
         return self.parts[0].point(u)
@@ -123,7 +132,7 @@ def check_counts(observed: int, databases: int, instruments: int) -> None:
 
 
 def invert_joint(observed, databases, instruments=None, *, free=None, fix=None,
-                 budget: int = 600, names=None, truth=None, **options) -> list:
+                 budget: int = 600, names=None, truth=None, jobs: int = 1, **options) -> list:
     """Several channels' shots of one surface inverted together.
 
     Parameters
@@ -137,7 +146,7 @@ def invert_joint(observed, databases, instruments=None, *, free=None, fix=None,
     instruments : list, optional
         One instrument per channel (name, YAML file or InstrumentParams; None: the one its
         observed file names); default: each file's own.
-    free, fix, truth, budget, **options
+    free, fix, truth, budget, jobs, **options
         As :func:`~.invert.invert`, the same for every channel; ``fix`` may hold the swept
         keys and ``amplitude`` (every channel's A), not a pulse width or broadening.
     names : list of str, optional
@@ -175,7 +184,7 @@ def invert_joint(observed, databases, instruments=None, *, free=None, fix=None,
                 for o, d, ins, name in zip(observed, databases, instruments, names)]
     check_axes(channels, names)
     joint = JointProblem([c.problem for c in channels])
-    nodes, final = refine(joint, budget=budget)
+    nodes, final = refine(joint, budget=budget, jobs=jobs)
     fits = [conclude(c, channel_view(nodes, i), channel_view(final, i), started)
             for i, c in enumerate(channels)]
     amplitude = [None if c.problem.overall is not None else

@@ -47,6 +47,11 @@ ARRIVAL_RANGE = 12.0
 ARRIVAL_NEWTON = 3
 #: Speckle modes above this count as this many: without speckle (M = inf) every a_s is A.
 MODES_CAP = 1e10
+#: The first arrivals are scanned around every peak of the model at least this share of its
+#: highest (:func:`peak_times`).
+PEAK_SHARE = 0.5
+#: ... at once over as many offsets as keep its arrays (offsets × shots × samples) this small.
+SCAN_ELEMENTS = 200_000
 
 
 @dataclass
@@ -63,6 +68,7 @@ class ShotFit:
     emulator: float = 0.0   # Δ log L of the database's own error (emulator.shared_error)
     emulator_sd: float = 0.0    # the stated error of log L it causes
     emulator_offset: float = 0.0    # and the offset it causes on average
+    table: np.ndarray | None = None     # the model fitted: padded([μ, μ′, ν]) (fine grid)
 
 
 class Shots:
@@ -91,35 +97,57 @@ class Shots:
 
     def start(self, mu: np.ndarray) -> None:
         """First per-shot arrival and amplitude against model ``mu`` (on the fine grid): a scan
-        of δ over ±1.5 sampling intervals around the peak sample (the first clipped one), the
-        amplitude at each δ by least squares on the unclipped samples, raised if need be to
-        the least that brings the model to the ceiling at every clipped one."""
-        t_peak = float(self.f.t[np.argmax(mu)])
+        of δ over ±1.5 sampling intervals around the alignment of the peak sample (the first
+        clipped one) with the model's peak, the amplitude at each δ by least squares on the
+        unclipped samples, raised if need be to the least that brings the model to the
+        ceiling at every clipped one. A model with several peaks of like height (a slab's
+        surface return and its first echo) is scanned around each (:func:`peak_times`): the
+        recorded peak sample may be either, by sampling phase."""
         k = np.argmax(np.where(self.censored, np.inf, self.y), axis=1)
-        centre = self.t[k] - t_peak
         c = self.f.ceiling - self.f.baseline
         offsets = np.linspace(-1.5, 1.5, 61) * self.f.interval
-        best = np.full(len(self.y), np.inf)
-        arrival = centre.copy()
-        amp = np.ones(len(self.y))
+        n = len(self.y)
+        best = np.full(n, np.inf)
+        arrival = self.t[k] - float(self.f.t[np.argmax(mu)])
+        amp = np.ones(n)
         free = np.where(self.censored, 0.0, self.y)
-        for off in offsets:
-            delta = centre + off
-            m = self._interp(mu, delta)
-            mu_free = np.where(self.censored, 0.0, m)
-            norm = np.einsum("sk,sk->s", mu_free, mu_free)
-            a = np.einsum("sk,sk->s", free, mu_free) / np.where(norm > 0, norm, 1.0)
-            reach = np.where(self.censored & (m > 0), c / np.where(m > 0, m, 1.0), 0.0).max(1)
-            reach = np.where((self.censored & (m <= 0)).any(1), np.inf, reach)
-            a = np.maximum(np.maximum(a, reach), 1e-6)
-            r = self.y - np.where(np.isfinite(a), a, 0.0)[:, None] * m
-            r = np.where(self.censored, np.maximum(r, 0.0), r)     # clipped: only below c counts
-            chi = np.where(np.isfinite(a), np.einsum("sk,sk->s", r, r), np.inf)
-            better = chi < best
-            best = np.where(better, chi, best)
-            arrival = np.where(better, delta, arrival)
-            amp = np.where(better, a, amp)
+        table = padded([mu])
+        block = max(1, SCAN_ELEMENTS // self.y.size)        # offsets scanned at once
+        clipped = bool(self.censored.any())
+        squares = (self.y * self.y).sum(-1)
+        shots = np.arange(n)
+        # δ = t[k_s] − t_peak + offset depends on the shot only through its peak sample k_s:
+        # the model is read once per peak sample in use (a few) and offset
+        peaks, which = np.unique(k, return_inverse=True)
+        for t_peak in peak_times(self.f.t, mu, self.f.interval):
+            centre = self.t[peaks] - t_peak
+            for first in range(0, offsets.size, block):
+                at = centre[None, :] + offsets[first: first + block, None]   # offsets × peaks
+                m_at = self._gather(table, at.ravel())[0].reshape(at.shape + (-1,))
+                delta, m = at[:, which], m_at[:, which]             # offsets × S (× K)
+                a, chi = (self._scan_clipped(m, free, c) if clipped
+                          else _scan_free(m, self.y, squares, (m_at * m_at).sum(-1)[:, which]))
+                j = np.argmin(chi, axis=0)          # the first of equals, as a scan in turn
+                better = chi[j, shots] < best
+                best = np.where(better, chi[j, shots], best)
+                arrival = np.where(better, delta[j, shots], arrival)
+                amp = np.where(better, a[j, shots], amp)
         self.arrival, self.amplitude = arrival, np.where(np.isfinite(amp), amp, 1.0)
+
+    def _scan_clipped(self, m, free, c) -> tuple:
+        """:meth:`start`'s amplitudes and squared residuals at the model samples ``m``
+        (offsets × shots × samples) when some samples are clipped: least squares on the
+        unclipped ones, raised to reach the ceiling at the clipped ones, which count only
+        below it."""
+        mu_free = np.where(self.censored, 0.0, m)
+        norm = (mu_free * mu_free).sum(-1)
+        a = (free * mu_free).sum(-1) / np.where(norm > 0, norm, 1.0)
+        reach = np.where(self.censored & (m > 0), c / np.where(m > 0, m, 1.0), 0.0).max(-1)
+        reach = np.where((self.censored & (m <= 0)).any(-1), np.inf, reach)
+        a = np.maximum(np.maximum(a, reach), 1e-6)
+        r = self.y - np.where(np.isfinite(a), a, 0.0)[..., None] * m
+        r = np.where(self.censored, np.maximum(r, 0.0), r)
+        return a, np.where(np.isfinite(a), (r * r).sum(-1), np.inf)
 
     def _interp(self, values: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """``values`` (fine grid) at t_k − δ_s, shape (S, K); 0 outside the grid."""
@@ -131,11 +159,11 @@ class Shots:
         uniform grid, done once for all rows; beyond the grid the zero padding gives 0."""
         grid = self.f.t
         x = (self.t[None, :] - np.asarray(delta)[:, None] - grid[0]) / (grid[1] - grid[0]) + 1.0
-        np.clip(x, 0.0, grid.size + 1.0, out=x)
+        np.minimum(np.maximum(x, 0.0, out=x), grid.size + 1.0, out=x)    # np.clip's bits
         i = x.astype(np.intp)
         frac = x - i
         lo = np.take(table, i, axis=1)
-        return lo + frac * (np.take(table, i + 1, axis=1) - lo)
+        return lo + frac * (np.take(table[:, 1:], i, axis=1) - lo)
 
     def fit(self, mu: np.ndarray, nu: np.ndarray, overall: float | None = None,
             iterations: int = MAX_ITERATIONS) -> ShotFit:
@@ -180,21 +208,24 @@ class Shots:
             ok = det > 0
             da = np.where(ok, (h[2] * g[0] - h[1] * g[1]) / np.where(ok, det, 1.0), 0.0)
             dd = np.where(ok, (h[0] * g[1] - h[1] * g[0]) / np.where(ok, det, 1.0), 0.0)
-            da = np.clip(da, -0.5 * a, 0.5 * a + 1e-3)
-            dd = np.clip(dd, -limit, limit)
+            da = np.minimum(np.maximum(da, -0.5 * a), 0.5 * a + 1e-3)     # np.clip's bits
+            dd = np.minimum(np.maximum(dd, -limit), limit)
             # a step is kept for a shot only where it raises its objective; else a quarter,
-            # a sixteenth
-            pending = np.ones(a.size, bool)
+            # a sixteenth (the shorter steps for the shots still pending only)
+            pending = np.arange(a.size)
             for shrink in (1.0, 0.25, 0.0625):
-                trial_a = np.where(pending, np.maximum(a + shrink * da, 1e-9), a)
-                trial_d = np.where(pending, d + shrink * dd, d)
-                t_lik = self._normal(trial_a, trial_d, table, sig2, c)
-                better = pending & (with_prior(trial_a, t_lik)[2] > obj)
-                a, d = np.where(better, trial_a, a), np.where(better, trial_d, d)
-                lik = [np.where(better, x, y) for x, y in zip(t_lik, lik)]
+                trial_a = np.maximum(a[pending] + shrink * da[pending], 1e-9)
+                trial_d = d[pending] + shrink * dd[pending]
+                t_lik = self._normal(trial_a, trial_d, table, sig2, c,
+                                     None if pending.size == a.size else pending)
+                better = with_prior(trial_a, t_lik)[2] > obj[pending]
+                kept = pending[better]
+                a[kept], d[kept] = trial_a[better], trial_d[better]
+                for whole, part in zip(lik, t_lik):
+                    whole[kept] = part[better]
                 h, g, obj = with_prior(a, lik)
-                pending &= ~better
-                if not pending.any():
+                pending = pending[~better]
+                if not pending.size:
                     break
             moved = float(np.max(obj - before))
             if overall is None:
@@ -214,7 +245,7 @@ class Shots:
                                                        modes / big_a ** 2, sig2, c)
         total = float(np.sum(per_shot))
         return ShotFit(a, d, total, big_a, float(np.sum(lik[6])), self.uncensored,
-                       self.x.size - self.uncensored)
+                       self.x.size - self.uncensored, table=table)
 
     def _arrival_integral(self, table, a, d, rows, big_a, prec, sig2, c) -> np.ndarray:
         """log ∫∫ exp(ℓ_s(a, δ)) N(a; A, A²/M) da dδ for the shots ``rows`` that have
@@ -260,14 +291,17 @@ class Shots:
         logv = obj + 0.5 * (LOG_2PI - np.log(h))
         return logv.reshape(n_rows, n_d), a.reshape(n_rows, n_d)
 
-    def _normal(self, a, d, table, sig2, c) -> list:
+    def _normal(self, a, d, table, sig2, c, rows=None) -> list:
         """Per shot: the Gauss–Newton Hessian of −ℓ_s in (a, δ) (H_aa, H_aδ, H_δδ), the
         gradient of ℓ_s (g_a, g_δ), ℓ_s itself and Σ r²/Var over its uncensored samples. A
         censored sample contributes log Φ(z), z = (m − c)/√Var, whose derivative in the model
         m is λ(z)/√Var and whose curvature is λ(z)(z + λ(z))/Var, λ = φ/Φ (the Tobit terms),
-        so that the steps follow the same ℓ_s that is reported."""
+        so that the steps follow the same ℓ_s that is reported. ``rows``: the shots ``a`` and
+        ``d`` belong to (default: all); each shot's terms are the same bits either way."""
         m, dm, n = self._gather(table, d)
-        grad_m, weight, ell_k, chi2 = _terms(self.y, self.censored_at, a, m, n, sig2, c)
+        y, at = ((self.y, self.censored_at) if rows is None
+                 else (self.y[rows], np.flatnonzero(self.censored[rows])))
+        grad_m, weight, ell_k, chi2 = _terms(y, at, a, m, n, sig2, c)
         j_d = -a[:, None] * dm
         wm = weight * m
         wj = weight * j_d
@@ -281,6 +315,32 @@ def overall_amplitude(a: np.ndarray, modes: float) -> float:
     for M → inf."""
     s1, s2 = float(np.sum(a)), float(np.sum(a * a))
     return 2.0 * s2 / (s1 + math.sqrt(s1 * s1 + 4.0 * a.size * s2 / modes))
+
+
+def _scan_free(m: np.ndarray, y: np.ndarray, squares: np.ndarray, mm: np.ndarray) -> tuple:
+    """:meth:`Shots.start`'s amplitudes and squared residuals at the model samples ``m``
+    (offsets × shots × samples) when no sample is clipped, from two sums per shot:
+    a = Σ y m / Σ m², Σ (y − a m)² = Σ y² − 2 a Σ y m + a² Σ m² (``squares``: Σ y²; ``mm``:
+    Σ m², offsets × shots)."""
+    ym = (y * m).sum(-1)
+    a = np.maximum(ym / np.where(mm > 0, mm, 1.0), 1e-6)
+    return a, squares - 2.0 * a * ym + a * a * mm
+
+
+def peak_times(t: np.ndarray, mu: np.ndarray, interval: float) -> list:
+    """Times (ns) of the peaks of model ``mu`` (on times ``t``) that a recorded peak sample may
+    be: the highest first, then, highest first, every local maximum of at least
+    :data:`PEAK_SHARE` of it that lies more than ``interval`` (the sampling interval) from
+    one already taken (Monte Carlo ripples on one peak are not peaks of their own)."""
+    top = int(np.argmax(mu))
+    inner = mu[1:-1]
+    local = np.flatnonzero((inner >= PEAK_SHARE * mu[top]) & (inner >= mu[:-2])
+                           & (inner > mu[2:])) + 1
+    taken = [top]
+    for i in local[np.argsort(-mu[local], kind="stable")]:
+        if all(abs(t[i] - t[j]) > interval for j in taken):
+            taken.append(int(i))
+    return [float(t[i]) for i in taken]
 
 
 def kept_span(points: np.ndarray, logv: np.ndarray, below: float) -> tuple:

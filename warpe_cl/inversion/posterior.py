@@ -20,11 +20,13 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .emulator import shared_error
+from .forked import forked_map
+from .forward import Spectrum
 
 #: Points with log L below the best minus this hold a negligible share of the posterior.
 SIGNIFICANT = 20.0
@@ -44,6 +46,8 @@ SUBDIVISION = 4
 #: ... and at least this many points: the 600-point budget's share of each of two narrow axes,
 #: so that one free key is not sampled at 600 points where a few dozen resolve it.
 MIN_POINTS = 24
+#: A grid's points go to the worker processes in chunks of this many (:meth:`Problem.grid`).
+CHUNK = 32
 
 
 @dataclass
@@ -117,7 +121,6 @@ class Problem:
         self.space, self.forward, self.shots = space, forward, shots
         self.overall, self.v_fixed = overall, v
         self.emulator = emulator
-        self.v_last = 0.0
         self.count = 0
 
     def point(self, u: np.ndarray) -> dict:
@@ -128,15 +131,16 @@ class Problem:
         """log L at free coordinates ``u``, v profiled (:meth:`_profile_v`), with the
         database's own error integrated out when there is an emulator."""
         point = self.point(u)
-        photons = self.forward.photons(self.space.surface(point))
+        photons = Spectrum(self.forward.photons(self.space.surface(point)))
         shared = None if self.emulator is None else self.emulator.variance(point)
         fits = {}
-        # clipped shots: each point afresh, its arrivals and amplitudes from the scan and its
-        # pulse width from the nominal one, so that its log L does not depend on the points
-        # evaluated before it (their amplitude is nearly free, and a warm start carried
-        # rounding from point to point); unclipped shots: from the last point's fit
-        clipped = bool(self.shots.censored.any())
-        fresh = [clipped]
+        # each point afresh: the arrivals and amplitudes from the scan of Shots.start, the
+        # pulse width from the nominal one, so that a point's log L does not depend on the
+        # points evaluated before it. Started from the last point's fit, a shot could stay on
+        # a poor local optimum of its arrival for the next dozen points (ln L 20 too low
+        # after a grid's thick end), and a clipped shot's nearly free amplitude carried
+        # rounding from point to point; the pulse widths at one point start from its own fit
+        fresh = [True]
 
         def neg(v):
             mu, nu = self.forward.waveform(photons, v)
@@ -148,7 +152,7 @@ class Problem:
                 fit.emulator, fit.emulator_sd, fit.emulator_offset = shared_error(
                     self.shots, fit, mu, nu, shared, self.overall is None)
                 fit.loglike += fit.emulator
-            fits[v] = fit
+            fits[v] = replace(fit, table=None)      # the model's table is not kept (72 kB)
             self.count += 1
             return -fit.loglike
 
@@ -156,20 +160,20 @@ class Problem:
             v = float(self.v_fixed)
             neg(v)
         else:
-            v = self._profile_v(neg, 0.0 if clipped else self.v_last)
+            v = self._profile_v(neg)
         return Evaluation(fits[v].loglike, v, fits[v])
 
-    def _profile_v(self, neg, start: float) -> float:
+    def _profile_v(self, neg) -> float:
         """The v (ns²) minimising ``neg`` in ``forward.v_bounds``: successive parabolas
-        through the three best points, started at ``start`` (the last point's v: neighbouring
-        points of the grid have nearly the same one), steps capped at 4 h and kept inside the
-        bounds; stops when the parabola promises less than ``V_GAIN`` in log L, or a step is below
-        1e-3 σ_p² (a 0.05 % change of the pulse width)."""
+        through the three best points, started at v = 0 (the nominal pulse and footprint),
+        steps capped at 4 h and kept inside the bounds; stops when the parabola promises less
+        than ``V_GAIN`` in log L, or a step is below 1e-3 σ_p² (a 0.05 % change of the pulse
+        width)."""
         lo, hi = self.forward.v_bounds
         scale = self.forward.sigma_p ** 2
         h = 0.1 * scale
         tol = 1e-3 * scale
-        v0 = min(max(start, lo + h), hi - h)
+        v0 = min(max(0.0, lo + h), hi - h)
         seen = {v: neg(v) for v in (v0 - h, v0, v0 + h)}
         for _ in range(12):
             (x0, f0), (x1, f1), (x2, f2) = sorted(sorted(seen.items(), key=lambda p: p[1])[:3])
@@ -192,25 +196,48 @@ class Problem:
                 break
             seen[v] = neg(v)
             h = max(abs(v - best), tol)
-        self.v_last = min(seen, key=seen.get)
-        return self.v_last
+        return min(seen, key=seen.get)
 
-    def grid(self, coords: list) -> GridPosterior:
-        """Evaluate every point of the rectangular grid ``coords`` (per free axis)."""
+    def counts(self) -> list:
+        """Model evaluations so far (one number; a joint problem's per channel)."""
+        return [self.count]
+
+    def add_counts(self, extra) -> None:
+        """Add ``extra`` (as :meth:`counts`) to the model evaluations."""
+        self.count += int(extra[0])
+
+    def grid(self, coords: list, jobs: int = 1) -> GridPosterior:
+        """Evaluate every point of the rectangular grid ``coords`` (per free axis), in chunks
+        of :data:`CHUNK` points in grid order, spread over ``jobs`` worker processes
+        (:func:`.forked.forked_map`). Every point is evaluated afresh (:meth:`evaluate`): its
+        log L is the same bits with any ``jobs``."""
         shape = tuple(c.size for c in coords)
+        indices = list(itertools.product(*(range(n) for n in shape)))
+
+        def chunk(part):
+            before = self.counts()
+            done = [self.evaluate(np.array([c[i] for c, i in zip(coords, index)]))
+                    for index in part]
+            counted = [n - b for n, b in zip(self.counts(), before)]
+            self.add_counts([-n for n in counted])      # added below, wherever it ran
+            return done, counted
+
+        chunks = [indices[i: i + CHUNK] for i in range(0, len(indices), CHUNK)]
+        results = forked_map(chunk, chunks, jobs)
         loglike = np.full(shape, -np.inf)
         evaluations = {}
-        for index in itertools.product(*(range(n) for n in shape)):
-            u = np.array([c[i] for c, i in zip(coords, index)])
-            e = self.evaluate(u)
-            loglike[index] = e.loglike if math.isfinite(e.loglike) else -np.inf
-            evaluations[index] = e
+        for part, (done, counted) in zip(chunks, results):
+            self.add_counts(counted)
+            for index, e in zip(part, done):
+                loglike[index] = e.loglike if math.isfinite(e.loglike) else -np.inf
+                evaluations[index] = e
         return GridPosterior(list(coords), loglike, evaluations)
 
 
-def refine(problem: Problem, budget: int = 600, rounds: int = 4,
-           resolved: int = 6) -> tuple[GridPosterior, GridPosterior]:
-    """Nodes first, then finer grids where the mass is (module docstring).
+def refine(problem: Problem, budget: int = 600, rounds: int = 4, resolved: int = 6,
+           jobs: int = 1) -> tuple[GridPosterior, GridPosterior]:
+    """Nodes first, then finer grids where the mass is (module docstring), each grid's points
+    spread over ``jobs`` worker processes (:meth:`Problem.grid`).
 
     Returns
     -------
@@ -218,7 +245,7 @@ def refine(problem: Problem, budget: int = 600, rounds: int = 4,
         The posterior at the database's nodes and on the last grid.
     """
     limits = [a.nodes for a in problem.space.free_axes]
-    nodes = problem.grid(limits)
+    nodes = problem.grid(limits, jobs)
     current = nodes
     done, grew = 0, False
     # a round that carried a box past its grid regrids that axis over the wider span, maybe
@@ -229,7 +256,7 @@ def refine(problem: Problem, budget: int = 600, rounds: int = 4,
                               unresolved(current, box, resolved), limits)
         if coords is None:
             break
-        current = problem.grid(coords)
+        current = problem.grid(coords, jobs)
         done += 1
     return nodes, current
 
