@@ -8,15 +8,17 @@ R_d ∝ exp(−t/τ)/τ), against the one-key database of tests/test_inversion.p
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
 import sys
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 import pytest
 
 from test_inversion import database, observation
 from warpe_cl.inversion import posterior
-from warpe_cl.inversion.forked import forked_map
+from warpe_cl.inversion.forked import forked_map, workers
 from warpe_cl.inversion.invert import prepare
 from warpe_cl.inversion.observed import Observed
 from warpe_cl.inversion.posterior import refine
@@ -96,3 +98,32 @@ def test_ripples_on_one_peak_are_not_peaks_of_their_own():
     two = one + 0.6 * np.exp(-0.5 * ((t - 60.0) / 3.0) ** 2)
     low = one + 0.4 * np.exp(-0.5 * ((t - 60.0) / 3.0) ** 2)
     assert len(peak_times(t, two, 5.0)) == 2 and len(peak_times(t, low, 5.0)) == 1
+    # a 90 ns plateau with 2 % noise, smoothed over 2 ns: without the dip, ripples were peaks
+    noise = np.random.default_rng(1).normal(0.0, 0.02, t.size)
+    plateau = np.where((t > 5.0) & (t < 95.0), 1.0, 0.0) + noise
+    assert len(peak_times(t, np.convolve(plateau, np.ones(20) / 20, "same"), 2.0)) == 1
+
+
+def test_a_worker_that_dies_ends_the_map_instead_of_hanging():
+    parent = os.getpid()
+
+    def dies_in_a_worker(x):
+        if os.getpid() != parent:
+            os._exit(3)             # as a worker killed for memory
+        return x
+    if workers(2, 3):
+        with pytest.raises(BrokenProcessPool):
+            forked_map(dies_in_a_worker, range(3), jobs=2)
+    else:                           # no fork here: the pieces run in this process
+        assert forked_map(dies_in_a_worker, range(3), jobs=2) == [0, 1, 2]
+
+
+def _inside_a_pool_worker(_):
+    return forked_map(lambda x: x + 1, range(3), jobs=2)
+
+
+def test_a_pool_worker_runs_its_pieces_itself():
+    """A multiprocessing.Pool worker is daemonic and may not start processes (the studies run
+    their inversions in one): its map runs in the worker."""
+    with multiprocessing.Pool(1) as pool:
+        assert pool.map(_inside_a_pool_worker, [0]) == [[1, 2, 3]]

@@ -188,16 +188,19 @@ def in_process(args, db_path: Path, obs: Path) -> None:
           f"{args.instrument} shots")
     counts = sorted({1, args.jobs})
     times = {n: [] for n in counts}
+    evaluations = {n: set() for n in counts}
     for _ in range(args.rounds):            # jobs=1 and jobs=N interleaved
         for n in counts:
             start = time.perf_counter()
             fit = invert(obs, db, database_source=str(db_path), jobs=n)
             times[n].append(time.perf_counter() - start)
-            evaluations = int(fit.attrs["evaluations"])
+            evaluations[n].add(int(fit.attrs["evaluations"]))
     for n in counts if args.rounds else []:
         med = statistics.median(times[n])
-        print(f"invert in process, jobs={n}: {spread_text(times[n])}, {evaluations} model "
-              f"evaluations, {evaluations / med:.0f} evaluations/s")
+        count = max(evaluations[n])
+        print(f"invert in process, jobs={n}: {spread_text(times[n])}, "
+              f"{'/'.join(map(str, sorted(evaluations[n])))} model evaluations, "
+              f"{count / med:.0f} evaluations/s")
     if args.rounds:
         r = fit.sel(parameter=list(TRUTH))
         for key in TRUTH:

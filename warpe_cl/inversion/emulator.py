@@ -285,8 +285,8 @@ def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray,
         The recorded shots: linear-mode samples, or photon-counting histograms.
     fit : ShotFit
         The fitted nuisances at this model: per-shot amplitudes a_s and arrivals δ_s (ns), or
-        the common A and δ of photon counts; its ``table`` (μ, μ′, ν), when set, is read
-        instead of being made again from ``mu`` and ``nu``.
+        the common A and δ of photon counts; its ``table`` (μ, μ′, ν), when set and made
+        from these ``mu`` and ``nu``, is read instead of being made again.
     mu, nu : array
         The model's μ (mV) and ν (mV²) on the forward grid, or the count rate (pe ns⁻¹ per
         shot at amplitude 1) and None.
@@ -306,7 +306,10 @@ def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray,
         return integrate_blocks(w, g, s, base if amplitude_free else base[:, 1:])
     f = shots.f
     a, d = fit.amplitude, fit.arrival
-    table = fit.table if fit.table is not None else padded([mu, np.gradient(mu, f.t), nu])
+    table = fit.table
+    if table is None or not (np.array_equal(table[0, 1:-2], mu)
+                             and np.array_equal(table[2, 1:-2], nu)):
+        table = padded([mu, np.gradient(mu, f.t), nu])
     m, dm, n = shots._gather(table, d)
     s = shots._gather(padded([variance]), d)[0]
     var = f.sigma_n ** 2 + a[:, None] * n

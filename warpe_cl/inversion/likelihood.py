@@ -50,6 +50,11 @@ MODES_CAP = 1e10
 #: The first arrivals are scanned around every peak of the model at least this share of its
 #: highest (:func:`peak_times`).
 PEAK_SHARE = 0.5
+#: ... and apart from the others: the model dips below this share of the lower one between
+#: them (:func:`peak_times`), ...
+PEAK_DIP = 0.8
+#: ... and no more than this many.
+MOST_PEAKS = 4
 #: ... at once over as many offsets as keep its arrays (offsets × shots × samples) this small.
 SCAN_ELEMENTS = 200_000
 
@@ -331,14 +336,23 @@ def peak_times(t: np.ndarray, mu: np.ndarray, interval: float) -> list:
     """Times (ns) of the peaks of model ``mu`` (on times ``t``) that a recorded peak sample may
     be: the highest first, then, highest first, every local maximum of at least
     :data:`PEAK_SHARE` of it that lies more than ``interval`` (the sampling interval) from
-    one already taken (Monte Carlo ripples on one peak are not peaks of their own)."""
+    each one already taken, with the model falling below :data:`PEAK_DIP` of the lower of
+    the two between them (Monte Carlo ripples on one peak or on a plateau are not peaks of
+    their own); :data:`MOST_PEAKS` at most."""
     top = int(np.argmax(mu))
     inner = mu[1:-1]
     local = np.flatnonzero((inner >= PEAK_SHARE * mu[top]) & (inner >= mu[:-2])
                            & (inner > mu[2:])) + 1
     taken = [top]
+
+    def apart(i, j):
+        lo, hi = min(i, j), max(i, j)
+        return abs(t[i] - t[j]) > interval and \
+            mu[lo: hi + 1].min() < PEAK_DIP * min(mu[i], mu[j])
     for i in local[np.argsort(-mu[local], kind="stable")]:
-        if all(abs(t[i] - t[j]) > interval for j in taken):
+        if len(taken) == MOST_PEAKS:
+            break
+        if all(apart(int(i), j) for j in taken):
             taken.append(int(i))
     return [float(t[i]) for i in taken]
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .emulator import shared_error
-from .forked import forked_map
+from .forked import forked_map, workers
 from .forward import Spectrum
 
 #: Points with log L below the best minus this hold a negligible share of the posterior.
@@ -214,20 +214,21 @@ class Problem:
         shape = tuple(c.size for c in coords)
         indices = list(itertools.product(*(range(n) for n in shape)))
 
+        chunks = [indices[i: i + CHUNK] for i in range(0, len(indices), CHUNK)]
+        elsewhere = workers(jobs, len(chunks)) > 0
+
         def chunk(part):
             before = self.counts()
             done = [self.evaluate(np.array([c[i] for c, i in zip(coords, index)]))
                     for index in part]
-            counted = [n - b for n, b in zip(self.counts(), before)]
-            self.add_counts([-n for n in counted])      # added below, wherever it ran
-            return done, counted
+            return done, [n - b for n, b in zip(self.counts(), before)]
 
-        chunks = [indices[i: i + CHUNK] for i in range(0, len(indices), CHUNK)]
         results = forked_map(chunk, chunks, jobs)
         loglike = np.full(shape, -np.inf)
         evaluations = {}
         for part, (done, counted) in zip(chunks, results):
-            self.add_counts(counted)
+            if elsewhere:                   # counted in the workers: add them here
+                self.add_counts(counted)
             for index, e in zip(part, done):
                 loglike[index] = e.loglike if math.isfinite(e.loglike) else -np.inf
                 evaluations[index] = e
