@@ -42,20 +42,14 @@ PULSE_RANGE = (0.5, 1.5)
 BROADENING_MAX_NS = 10.0
 
 
-def fft_convolve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The full discrete convolution of two 1-D arrays, ``a.size + b.size - 1`` long: the
-    same bits as ``scipy.signal.fftconvolve(a, b, mode="full")`` (the same real FFTs of
-    ``scipy.fft`` at the same fast length; a length-1 operand a product, as there), without
-    importing ``scipy.signal`` (0.7-1.0 s of every ``warpe-cl invert`` on 2 cores) or its
-    checks of every call."""
-    return Spectrum(a).convolve(Spectrum(b))
-
-
 class Spectrum:
     """A 1-D signal and its real FFTs at the lengths asked, each taken once: a signal
     convolved with several kernels (one point's photons with the pulse at several widths, a
     waveform with the receiver's h and h²) reuses them. :meth:`convolve` gives the bits of
-    :func:`fft_convolve`.
+    ``scipy.signal.fftconvolve(a, b, mode="full")`` (the same real FFTs of ``scipy.fft`` at the
+    same fast length; a length-1 operand a product, as there), without importing
+    ``scipy.signal`` (0.7-1.0 s of every ``warpe-cl invert`` on 2 cores) or its checks of
+    every call.
 
     Parameters
     ----------
