@@ -56,7 +56,7 @@ import numpy as np
 
 from ..instrument import radiometry
 from ..instrument.grid import deposit, rebin_density
-from .likelihood import padded
+from .likelihood import model_table, padded
 
 
 def kernel_of(forward) -> tuple[np.ndarray, int]:
@@ -309,7 +309,7 @@ def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray,
     table = fit.table
     if table is None or not (np.array_equal(table[0, 1:-2], mu)
                              and np.array_equal(table[2, 1:-2], nu)):
-        table = padded([mu, np.gradient(mu, f.t), nu])
+        table = model_table(mu, nu, f.t)
     m, dm, n = shots._gather(table, d)
     s = shots._gather(padded([variance]), d)[0]
     var = f.sigma_n ** 2 + a[:, None] * n

@@ -73,7 +73,7 @@ class ShotFit:
     emulator: float = 0.0   # Δ log L of the database's own error (emulator.shared_error)
     emulator_sd: float = 0.0    # the stated error of log L it causes
     emulator_offset: float = 0.0    # and the offset it causes on average
-    table: np.ndarray | None = None     # the model fitted: padded([μ, μ′, ν]) (fine grid)
+    table: np.ndarray | None = None     # the model fitted: model_table(μ, ν)
 
 
 class Shots:
@@ -189,7 +189,7 @@ class Shots:
         one pulse width to the next (docs/inversion.md §4)."""
         if self.arrival is None:
             self.start(mu)
-        table = padded([mu, np.gradient(mu, self.f.t), nu])
+        table = model_table(mu, nu, self.f.t)
         a, d = self.amplitude.copy(), self.arrival.copy()
         sig2 = self.f.sigma_n ** 2
         c = self.f.ceiling - self.f.baseline
@@ -374,6 +374,12 @@ def log_trapezoid(logv: np.ndarray, step) -> np.ndarray:
     w[[0, -1]] = 0.5
     top = logv.max(axis=-1)
     return top + np.log(np.sum(w * np.exp(logv - top[..., None]), axis=-1) * step)
+
+
+def model_table(mu: np.ndarray, nu: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The :func:`padded` table [μ, μ′, ν] of a model on the fine grid ``t`` (ns): what
+    :meth:`Shots.fit` reads at the shots' arrivals, and the database error after it."""
+    return padded([mu, np.gradient(mu, t), nu])
 
 
 def padded(arrays: list) -> np.ndarray:
