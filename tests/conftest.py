@@ -232,10 +232,10 @@ def medium(**kw) -> WalkParams:
 
 
 def synthetic_surface(diffuse_integral=0.0, tau=5.0, f_spec=0.0, f_bf=0.0, t_bf=14.0357,
-                      wavelength="1064 nm", photons=10**6, seed=3, scenarios=None):
+                      wavelength="1064 nm", photons=10**6, seed=3, scenarios=None,
+                      edges=LOG_EDGES):
     """A surface result: R_d(t) = diffuse_integral · exp(−t/τ)/τ in the scattering component
-    (sr⁻¹ ns⁻¹), specular and BF-direct fractions as ray counts."""
-    edges = LOG_EDGES
+    (sr⁻¹ ns⁻¹), specular and BF-direct fractions as ray counts, on time ``edges`` (ns)."""
     cdf = 1.0 - np.exp(-edges / tau)
     refl = np.zeros((4, edges.size - 1))
     refl[3] = diffuse_integral * np.diff(cdf) / (cdf[-1] - cdf[0]) / np.diff(edges)

@@ -23,6 +23,15 @@ At a point between nodes, Var = Σ w_i² Var_i over the nodes that make it, with
 w_i in the response (:meth:`~.space.Space.node_weights`: the corners' and the curvature
 terms'); the nodes' errors are independent.
 
+**Time-bin part.** A node's diffuse response is known per log time bin, and the chain spreads
+each bin's amount evenly over the bin. Where a return is sharper than a bin (a slab floor's,
+arriving all at the round trip 2 n h / c) its true time is anywhere in the bin: the bins of
+20 per decade are 3 ns wide at 27 ns, as wide as GALA's pulse and filter. Each bin's mean
+arrival lies δ_b from its centre (:func:`bin_offsets`: Δ/√12 where a neighbour is empty, the
+offset s Δ²/12 of an exponential density of log slope s where the density is resolved),
+which moves μ by m_b δ_b / Δ_b (w(t − t_b) − w(t − t_b − Δ_b)) (:func:`binning_variance`).
+The bins are independent and, like the Monte Carlo part, the nodes too: Σ w_i² Var_i.
+
 **Interpolation part.** Leave one out along each axis: node m predicted from its neighbours
 m − 1 and m + 1 (:meth:`~.space.Space.left_out`, the cell of width D = x_{m+1} − x_{m−1}, m at
 fraction f₀ of it) gives the error E_m(t) of that wider cell. Linear interpolation errs by
@@ -30,7 +39,8 @@ fraction f₀ of it) gives the error E_m(t) of that wider cell. Linear interpola
 grid it errs by g E_m, g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), zero at the nodes. The space adds
 that term back (its curvature correction, :mod:`.space`); what is left is the part of the
 curvature that changes from cell to cell, of unknown sign, and its size is taken as that of
-the correction itself: E_m² less the Monte Carlo variance of the three nodes (its own noise),
+the correction itself: E_m² less the own variance of the three nodes (Monte Carlo and time
+bins: what the prediction misses by their noise),
 floored at 0, and the variance used is Σ_corners w_c g_c² E_c² summed over the axes. An axis
 of two values has no node to leave out, no correction and no estimate (the report says so).
 
@@ -111,6 +121,87 @@ def response_variance(surface, forward) -> np.ndarray:
     return np.clip(full, 0.0, None) * scale ** 2
 
 
+def bin_offsets(edges: np.ndarray, diffuse: np.ndarray) -> np.ndarray:
+    """How far (ns, rms) each log time bin's mean arrival may lie from the bin's centre, which
+    is where the chain puts it (uniform over the bin).
+
+    Where the bin and both neighbours hold a return, the density is resolved: an exponential
+    density of log slope s = d ln R_d / dt (from the neighbours) puts its mean s Δ² / 12 from
+    the centre of a bin of width Δ. Where a neighbour is empty (a return sharper than a bin,
+    such as a slab floor's), the arrival is anywhere in the bin: Δ / √12, the rms of a uniform
+    offset, which also bounds the resolved estimate.
+
+    Parameters
+    ----------
+    edges : array (n + 1,)
+        Time bin edges, ns.
+    diffuse : array (n,)
+        R_d per bin (any unit per ns).
+
+    Returns
+    -------
+    array (n,)
+        ns.
+    """
+    width = np.diff(edges)
+    centre = 0.5 * (edges[1:] + edges[:-1])
+    density = np.asarray(diffuse, float)
+    lo, hi = np.roll(density, 1), np.roll(density, -1)
+    lo[0] = hi[-1] = 0.0
+    resolved = (lo > 0) & (hi > 0) & (density > 0)
+    span = np.roll(centre, -1) - np.roll(centre, 1)
+    slope = np.zeros_like(density)
+    slope[resolved] = (np.log(hi[resolved]) - np.log(lo[resolved])) / span[resolved]
+    cap = width / math.sqrt(12.0)
+    return np.where(resolved, np.minimum(np.abs(slope) * width ** 2 / 12.0, cap), cap)
+
+
+def binning_variance(surface, forward) -> np.ndarray:
+    """Var μ(t) from where each log time bin's return lies inside its bin
+    (:func:`bin_offsets`), carried through the chain as :func:`response_variance` carries
+    the Monte Carlo error.
+
+    Moving the amount m_b of a bin of width Δ_b by δ_b changes the waveform by
+    m_b δ_b / Δ_b (w(t − t_b) − w(t − t_b − Δ_b)), w the chain's waveform of a unit spike:
+    the derivative of the bin's box. The bins' offsets are independent. A bin narrower than
+    two fine steps takes the derivative's limit, m_b δ_b w′(t − c_b).
+
+    Parameters
+    ----------
+    surface : SurfaceResponse
+    forward : Forward
+
+    Returns
+    -------
+    array
+        On ``forward.t``: mV² (linear mode) or (pe ns⁻¹)² (photon counting), amplitude 1.
+    """
+    grid = forward.grid
+    kernel, origin = kernel_of(forward)
+    p = forward.params
+    scale = forward.eta / grid.step if forward.counting else forward.eta * forward.mv_per_pe
+    unit = radiometry.photons_per_reflectance(p) * scale      # mV per sr⁻¹ placed at a time
+    edges = surface.edges
+    width = np.diff(edges)
+    shift = surface.diffuse * width * bin_offsets(edges, surface.diffuse)   # sr⁻¹ ns
+    inside = (shift > 0) & (edges[1:] > grid.start) & (edges[:-1] < grid.edges[-1])
+    narrow = inside & (width < 2.0 * grid.step)
+    slope = np.gradient(kernel) / grid.step                    # w′ per unit amount, ns⁻¹
+    centre = 0.5 * (edges[1:] + edges[:-1])
+    var = np.convolve(deposit(grid, centre[narrow], shift[narrow] ** 2),
+                      slope ** 2)[origin: origin + grid.size]
+    for b in np.nonzero(inside & ~narrow)[0]:
+        step = deposit(grid, [edges[b], edges[b + 1]], [1.0, -1.0])
+        used = np.nonzero(step)[0]
+        first, last = used[0], used[-1] + 1
+        piece = np.convolve(step[first:last], kernel) * (shift[b] / width[b])
+        start = first - origin
+        lo, hi = max(start, 0), min(start + piece.size, grid.size)
+        if hi > lo:
+            var[lo:hi] += piece[lo - start: hi - start] ** 2
+    return np.clip(var, 0.0, None) * unit ** 2
+
+
 class Emulator:
     """S(t) at any point of a database's space (module docstring).
 
@@ -125,7 +216,7 @@ class Emulator:
 
     def __init__(self, space, forward):
         self.space, self.forward = space, forward
-        self._mu, self._var, self._loo = {}, {}, {}
+        self._mu, self._var, self._bins, self._loo = {}, {}, {}, {}
         self.unmeasured = [a.key for a in space.axes if 1 < a.values.size < 3
                            and not (a.key in space.point
                                     and np.isclose(a.values, space.point[a.key]).any())]
@@ -138,36 +229,47 @@ class Emulator:
             self._var[index] = response_variance(surface, self.forward)
         return self._mu[index], self._var[index]
 
+    def _binning(self, index: tuple) -> np.ndarray:
+        """The variance of node ``index``'s μ from its time bins (:func:`binning_variance`)."""
+        if index not in self._bins:
+            self._bins[index] = binning_variance(self.space.nodes[index].surface, self.forward)
+        return self._bins[index]
+
+    def _own(self, index: tuple) -> np.ndarray:
+        """Node ``index``'s own variance: Monte Carlo and time bins."""
+        return self._node(index)[1] + self._binning(index)
+
     def _left_out(self, middle: tuple, d: int) -> np.ndarray:
         """E_m² of node ``middle`` (interior along axis ``d``) predicted from its two
-        neighbours (:meth:`~.space.Space.left_out`), less the three nodes' Monte Carlo
-        variance, floored at 0."""
+        neighbours (:meth:`~.space.Space.left_out`), less the three nodes' own variance
+        (Monte Carlo and time bins), floored at 0."""
         key = (middle, d)
         if key not in self._loo:
             guess, _, f0 = self.space.left_out(middle, d)
             predicted = self.forward.waveform(self.forward.photons(guess.surface), 0.0)[0]
-            mu, var = self._node(middle)
+            mu = self._node(middle)[0]
             m = middle[d]
             lo, hi = (middle[:d] + (k,) + middle[d + 1:] for k in (m - 1, m + 1))
-            noise = var + (1 - f0) ** 2 * self._node(lo)[1] + f0 ** 2 * self._node(hi)[1]
+            noise = self._own(middle) + (1 - f0) ** 2 * self._own(lo) + f0 ** 2 * self._own(hi)
             self._loo[key] = np.maximum((predicted - mu) ** 2 - noise, 0.0)
         return self._loo[key]
 
     def variance(self, point: dict) -> np.ndarray:
-        """S(t) at ``point`` (free keys -> values, axis units): the Monte Carlo and the
+        """S(t) at ``point`` (free keys -> values, axis units): the Monte Carlo, time-bin and
         interpolation parts of the module docstring, on ``forward.t``: mV² (linear mode) or
         (pe ns⁻¹)² (photon counting), at amplitude 1."""
         return sum(self.parts(point).values())
 
     def parts(self, point: dict) -> dict:
-        """The parts of S(t) at ``point`` (units of :meth:`variance`): ``"monte carlo"`` and,
-        per axis of three values or more whose cell the point (or a fixed value) is inside,
+        """The parts of S(t) at ``point`` (units of :meth:`variance`): ``"monte carlo"``,
+        ``"time bins"`` and, per axis of three values or more whose cell the point (or a fixed value) is inside,
         the axis' dotted key (its interpolation part)."""
         space = self.space
         bends = space.bends(point)
         weights = space.node_weights(point, bends)
-        out = {"monte carlo": sum(w ** 2 * self._node(i)[1] for i, w in weights.items()
-                                  if w != 0.0)}
+        used = [(i, w) for i, w in weights.items() if w != 0.0]
+        out = {"monte carlo": sum(w ** 2 * self._node(i)[1] for i, w in used),
+               "time bins": sum(w ** 2 * self._binning(i) for i, w in used)}
         for d, middle, w, g in bends:
             key = space.axes[d].key
             out[key] = out.get(key, 0.0) + w * g ** 2 * self._left_out(middle, d)
@@ -178,8 +280,9 @@ class Emulator:
 #: much (σ, log-likelihood units): a 68 % interval is where log L is within 0.5 of its
 #: maximum, a 95 % one within 2.
 ADEQUATE_SD = 1.0
-#: The most rays per node (a factor of today's) or halvings of a cell the advice considers.
-MOST_RAYS, MOST_HALVINGS = 1024, 4
+#: The most rays per node or time bins per decade (factors of today's) or halvings of a cell
+#: the advice considers.
+MOST_RAYS, MOST_BINS, MOST_HALVINGS = 1024, 64, 4
 
 
 def adequacy(emulator, shots, fit, point: dict, mu, nu, amplitude_free: bool = True) -> dict:
@@ -202,10 +305,13 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu, amplitude_free: bool = T
     Returns
     -------
     dict
-        ``sigma`` (all sources), ``sigma_monte_carlo``, ``sigma_interpolation`` (every
-        axis' part together), ``sigma_per_axis`` (axis key -> its part alone), ``adequate`` (σ ≤ ``ADEQUATE_SD``), ``rays_factor`` (rays per node, as a factor
-        of the database's, that bring the Monte Carlo part under half of it; the variance
-        falls as 1/rays) and ``halvings`` (per axis, halvings of the cell spacing that bring
+        ``sigma`` (all sources), ``sigma_monte_carlo``, ``sigma_time_bins``,
+        ``sigma_interpolation`` (every axis' part together), ``sigma_per_axis`` (axis key ->
+        its part alone), ``adequate`` (σ ≤ ``ADEQUATE_SD``), ``rays_factor`` (rays per node,
+        as a factor of the database's, that bring the Monte Carlo part under half of it; the
+        variance falls as 1/rays), ``bins_factor`` (time bins per decade, as a factor of the
+        database's, that bring the time-bin part under half of it; the variance falls as the
+        bin width squared) and ``halvings`` (per axis, halvings of the cell spacing that bring
         its part under half of it; an interpolation error falls 4 times per halving, its
         variance 16 times), and ``advice``, one line.
     """
@@ -215,8 +321,8 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu, amplitude_free: bool = T
     def sd(var):
         return shared_error(shots, fit, mu, nu, var, amplitude_free)[1]
     total = sd(sum(parts.values()))
-    mc = sd(parts["monte carlo"])
-    axes = {k: v for k, v in parts.items() if k != "monte carlo"}
+    mc, bins = sd(parts["monte carlo"]), sd(parts["time bins"])
+    axes = {k: v for k, v in parts.items() if k not in ("monte carlo", "time bins")}
     interp = sd(sum(axes.values())) if axes else 0.0
     target = 0.5 * ADEQUATE_SD
     rays = 1
@@ -226,6 +332,13 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu, amplitude_free: bool = T
     if rays > 1:
         short = sd(parts["monte carlo"] / rays) > target
         advice.append(f"{'more than ' if short else ''}{rays}x the rays per node")
+    finer = 1
+    while sd(parts["time bins"] / finer ** 2) > target and finer < MOST_BINS:
+        finer *= 2
+    if finer > 1:
+        short = sd(parts["time bins"] / finer ** 2) > target
+        advice.append(f"{'more than ' if short else ''}{finer}x the time bins per decade "
+                      "(simulation.time_bins.per_decade)")
     per_axis, halvings = {}, {}
     for key, var in axes.items():
         per_axis[key] = sd(var)
@@ -241,11 +354,12 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu, amplitude_free: bool = T
     line = (f"database adequate for these shots: its own error moves log L by {total:.2f} "
             f"(<= {ADEQUATE_SD:g})" if adequate else
             f"database not adequate for these shots: its own error moves log L by {total:.2f} "
-            f"(> {ADEQUATE_SD:g}; Monte Carlo {mc:.2f}, interpolation "
+            f"(> {ADEQUATE_SD:g}; Monte Carlo {mc:.2f}, time bins {bins:.2f}, interpolation "
             + ", ".join(f"{k.rsplit('.', 1)[-1]} {v:.2f}" for k, v in per_axis.items())
             + "); for these shots: " + ("; ".join(advice) or "no single change suffices"))
-    return {"sigma": total, "sigma_monte_carlo": mc, "sigma_interpolation": interp,
-            "sigma_per_axis": per_axis, "adequate": adequate, "rays_factor": rays,
+    return {"sigma": total, "sigma_monte_carlo": mc, "sigma_time_bins": bins,
+            "sigma_interpolation": interp, "sigma_per_axis": per_axis, "adequate": adequate,
+            "rays_factor": rays, "bins_factor": finer,
             "halvings": halvings, "advice": line}
 
 
@@ -264,7 +378,7 @@ class DirectSurface:
 
     def __init__(self, surface, forward, free_axes=()):
         self._surface = surface
-        self._variance = response_variance(surface, forward)
+        self._variance = response_variance(surface, forward) + binning_variance(surface, forward)
         self.free_axes = list(free_axes)
         self.unmeasured = []
 

@@ -222,6 +222,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
     if "adequacy" in summary:
         ad = summary["adequacy"]
         data["loglike_database_sd_monte_carlo"] = ((), ad["sigma_monte_carlo"])
+        data["loglike_database_sd_time_bins"] = ((), ad["sigma_time_bins"])
         data["loglike_database_sd_interpolation"] = ((), ad["sigma_interpolation"])
     attrs = provenance({
         "title": "warpe-cl inversion",
@@ -308,13 +309,15 @@ DESCRIPTIONS = {
     "p_value": (None, "1"),
     "loglike": ("log-likelihood of the best fit, the per-shot nuisances integrated out and the "
                 "database's own error with them", "1"),
-    "loglike_database_error": ("what integrating the database's own error (Monte Carlo and "
-                               "interpolation) out changed the best fit's log-likelihood by",
+    "loglike_database_error": ("what integrating the database's own error (Monte Carlo, "
+                               "time bins and interpolation) out changed the best fit's log-likelihood by",
                                "1"),
     "loglike_database_sd": ("stated error of the best fit's log-likelihood due to the "
                             "database's own error (0: the database taken as exact)", "1"),
     "loglike_database_sd_monte_carlo": ("part of loglike_database_sd due to the nodes' Monte "
                                         "Carlo errors", "1"),
+    "loglike_database_sd_time_bins": ("part of loglike_database_sd due to the nodes' time "
+                                      "bins (where in its bin each return arrives)", "1"),
     "loglike_database_sd_interpolation": ("part of loglike_database_sd due to the "
                                           "interpolation between nodes", "1"),
     "censored_samples": ("samples at or above the receiver's clipped level, counted as "

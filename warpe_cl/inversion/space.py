@@ -32,7 +32,10 @@ prediction's error, scaled to the point's own cell (width Δ, fraction f) by the
 law g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), is added back: the response is the interpolation
 plus Σ_axes Σ_corners w g (node m − its prediction), m the corner's index kept off the ends
 (:meth:`Space.bends`), on the diffuse response and the returns' fractions (each floored at 0;
-the delays stay exact). For what is combined linearly this is quadratic (Lagrange)
+the delays stay exact). The diffuse difference is first stretched in time to the point's own
+round trip (:func:`stretch`, by the ratio of the first back-and-forth delays): a slab floor's
+return moves with the thickness, and node m's difference belongs where the point's return
+arrives, not where node m's did. For what is combined linearly this is quadratic (Lagrange)
 interpolation through three nodes, and a blend of the two stencils with four or more
 (tests/test_inversion_curvature.py).
 
@@ -333,8 +336,9 @@ class Space:
         if len(nodes) == 1:
             return nodes[0].surface
         delay_w = value_weights(self.values_of(point), [a.values for a in self.axes], idx)
+        first_bf = float(np.dot(delay_w, [n.first_bf for n in nodes]))   # 2 Σ h n_eff / c
         return combine(nodes, w, self.edges, delay_weights=delay_w,
-                       bend=self._bend(self.bends(point)))
+                       bend=self._bend(self.bends(point), first_bf))
 
     def bends(self, point: dict) -> list:
         """The curvature terms at ``point``: for every corner of its cell (weight w) and every
@@ -391,16 +395,25 @@ class Space:
                                    float(x[m + 1] - x[m - 1]), float(f0))
         return self._left_out[key]
 
-    def _bend(self, terms: list):
+    def _bend(self, terms: list, first_bf: float = math.nan):
         """The curvature correction Σ w g (node m − its prediction) of the diffuse response
-        (sr⁻¹ ns⁻¹), the specular fraction and each passage's fraction, or None."""
+        (sr⁻¹ ns⁻¹), the specular fraction and each passage's fraction, or None.
+
+        The diffuse difference is taken to the point's own time scale first: stretched in
+        time by the ratio of the point's first back-and-forth delay ``first_bf`` (ns) to node
+        m's, keeping its integral (:func:`stretch`). What arrives with the layer's round trip
+        (a slab floor's return) then corrects the point's return where it arrives, not where
+        node m's did; where the delays are equal or unknown, the difference is added as it
+        is."""
         if not terms:
             return None
         diffuse, specular, passages = np.zeros(self.edges.size - 1), 0.0, {}
         for d, middle, w, g in terms:
             node, (guess, _, _) = self.nodes[middle], self.left_out(middle, d)
             a = w * g
-            diffuse += a * (node.surface.diffuse - guess.surface.diffuse)
+            ratio = first_bf / node.first_bf if node.first_bf > 0 else math.nan
+            diffuse += a * stretch(node.surface.diffuse - guess.surface.diffuse, self.edges,
+                                   ratio if math.isfinite(ratio) and ratio > 0 else 1.0)
             specular += a * (node.specular - guess.specular)
             for k in set(node.passages) | set(guess.passages):
                 passages[k] = passages.get(k, 0.0) + a * (node.passages.get(k, (0, 0.0))[1]
@@ -422,6 +435,16 @@ class Space:
                 index = middle[:d] + (k,) + middle[d + 1:]
                 out[index] = out.get(index, 0.0) + wi * g * share
         return out
+
+
+def stretch(density: np.ndarray, edges: np.ndarray, ratio: float) -> np.ndarray:
+    """A density per bin (any unit per ns) on ``edges`` (ns) with its time axis multiplied by
+    ``ratio``: what arrived at t arrives at ratio · t, the integral kept."""
+    if ratio == 1.0:
+        return density
+    width = np.diff(edges)
+    cumulative = np.concatenate([[0.0], np.cumsum(density * width)])
+    return np.diff(np.interp(edges / ratio, edges, cumulative)) / width
 
 
 def combine(nodes: list, weights: list, edges: np.ndarray,
