@@ -4,7 +4,8 @@
 
     python tools/studies/inversion_study.py build FAMILY --work DIR [--photons N]
     python tools/studies/inversion_study.py inject FAMILY --work DIR [--count 50] [--seed 7]
-                                           [--photons N] [--instruments bela,gala]
+                                           [--photons N] [--per-decade N]
+                                           [--instruments bela,gala]
                                            [--instrument NAME|FILE.yaml ...]
 
 ``FAMILY`` names a preset of ``presets/study/`` (``gran_co2``, ``slab_h2o_co2``, ``gran_h2o``),
@@ -35,11 +36,14 @@ first k points of ``--count 50`` are those of ``--count k``. Injection i runs th
 seed 1000 + i and the j-th instrument (0-based, in the order of ``--instruments``) with seed
 2000 + 1000 j + i (bela 2000 + i, gala 3000 + i for ``bela,gala``), so no two instruments
 share noise. ``--photons`` defaults to the database's own count (its manifest), so
-injections and database agree; without a database, to the preset's.
+injections and database agree; without a database, to the preset's. ``--per-decade`` sets the
+injected surfaces' log time bins per decade (default the preset's): a truth in finer bins than
+the database's places a return sharper than a bin (a slab floor's) where it arrives, as a real
+surface does (docs/inversion.md §4.3).
 
 Both verbs are resumable: ``build`` passes ``--resume`` to an existing database, ``inject``
 skips every file that exists and refuses an ``injections.csv`` that disagrees with the draw
-(another seed, photon count or preset). Every warpe-cl call is a child process of this
+(another seed, photon count, time bins or preset). Every warpe-cl call is a child process of this
 Python (``sys.executable -m warpe_cl``), so the tool works in any virtual environment.
 Exit codes: 0 all done, 1 a warpe-cl call failed (named on stderr, the others go on), 2 bad
 input.
@@ -410,7 +414,7 @@ def stage_instruments(family_dir: Path, resolved: list) -> list:
 
 
 def plan_injections(raw: dict, count: int, seed: int, photons: int, instruments: list,
-                    spacing: dict | None = None) -> tuple:
+                    spacing: dict | None = None, per_decade: int | None = None) -> tuple:
     """The injections of a study: their values, seeds and files, before anything runs.
 
     Parameters
@@ -425,6 +429,8 @@ def plan_injections(raw: dict, count: int, seed: int, photons: int, instruments:
         Instrument names (or files) each surface goes through.
     spacing : dict, optional
         ``{key: kind}`` overriding :func:`detect_spacing` for some keys.
+    per_decade : int, optional
+        Log time bins per decade of the injected surfaces (default: the preset's).
 
     Returns
     -------
@@ -439,6 +445,7 @@ def plan_injections(raw: dict, count: int, seed: int, photons: int, instruments:
     if unknown:
         raise StudyError(f"--spacing names keys that are not swept: {', '.join(sorted(unknown))}")
     kinds = {a.key: spacing.get(a.key) or detect_spacing(a.values) for a in axes}
+    bins = per_decade if per_decade is not None else preset_per_decade(raw)
     points = draw_points([a.values for a in axes], [kinds[a.key] for a in axes], count, seed)
     rows = []
     for i, values in enumerate(points):
@@ -449,7 +456,7 @@ def plan_injections(raw: dict, count: int, seed: int, photons: int, instruments:
             row["point"][axis.key] = text
             row[axis.key] = repr(node_value(text, axis.dimension))
             row[f"{axis.key}_text"] = str(text)
-        row.update(surface_seed=SURFACE_SEED + i, photons=int(photons),
+        row.update(surface_seed=SURFACE_SEED + i, photons=int(photons), per_decade=bins,
                    surface=f"{folder}/surface.nc")
         for j, instrument in enumerate(instruments):
             label = instrument_label(instrument)
@@ -462,25 +469,38 @@ def plan_injections(raw: dict, count: int, seed: int, photons: int, instruments:
 def csv_columns(axes: list, instruments: list) -> list:
     """The columns of ``injections.csv``: ``index``, ``name``; per swept key its true value
     in SI units (column named by the dotted key; m for lengths) and ``KEY_text`` as
-    simulated; ``surface_seed``, ``photons``, ``surface`` (path relative to the CSV's
-    folder); per instrument ``LABEL_seed`` and ``LABEL`` (path); ``status`` (``done``,
+    simulated; ``surface_seed``, ``photons``, ``per_decade`` (log time bins per decade),
+    ``surface`` (path relative to the CSV's folder); per instrument ``LABEL_seed`` and ``LABEL`` (path); ``status`` (``done``,
     ``pending``, or ``failed: STEP: error``)."""
     cols = ["index", "name"]
     for axis in axes:
         cols += [axis.key, f"{axis.key}_text"]
-    cols += ["surface_seed", "photons", "surface"]
+    cols += ["surface_seed", "photons", "per_decade", "surface"]
     for instrument in instruments:
         label = instrument_label(instrument)
         cols += [f"{label}_seed", label]
     return cols + ["status"]
 
 
-def injection_preset(raw: dict, point: dict, name: str) -> dict:
+def preset_per_decade(raw: dict):
+    """The log time bins per decade of a preset (the schema's default where it names none),
+    or None for linear bins."""
+    from warpe_cl.config.schema import DEFAULTS
+    bins = (raw.get("simulation") or {}).get("time_bins") or {}
+    if "width" in bins:
+        return None
+    return int(bins.get("per_decade", DEFAULTS["simulation.time_bins.per_decade"]))
+
+
+def injection_preset(raw: dict, point: dict, name: str, per_decade=None) -> dict:
     """The family's preset for one injection: no sweep block, ``point`` (dotted key -> value
-    as written) set, ``name`` given."""
+    as written) set, ``name`` given, and ``per_decade`` log time bins per decade when it
+    differs from the preset's."""
     from warpe_cl.config.keys import apply_overrides
     one = {k: copy.deepcopy(v) for k, v in raw.items() if k != "sweep"}
     apply_overrides(one, dict(point))
+    if per_decade is not None and per_decade != preset_per_decade(raw):
+        apply_overrides(one, {"simulation.time_bins.per_decade": int(per_decade)})
     one["name"] = name
     one["description"] = (f"Injection {name} of tools/studies/inversion_study.py: "
                           + ", ".join(f"{k} = {v}" for k, v in point.items()))
@@ -573,7 +593,8 @@ def run_injection(row: dict, raw: dict, family_dir: Path, instruments: list,
     log = folder / "log.txt"
     preset = folder / "preset.yaml"
     if not preset.exists():
-        preset.write_text(yaml.safe_dump(injection_preset(raw, row["point"], row["name"]),
+        preset.write_text(yaml.safe_dump(injection_preset(raw, row["point"], row["name"],
+                                                          row.get("per_decade")),
                                          sort_keys=False, width=100))
     surface = family_dir / row["surface"]
     times = []
@@ -640,14 +661,21 @@ def cmd_inject(args) -> int:
     resolved = resolve_instruments(chosen_instruments(args.instruments, args.instrument))
     instruments = [label for label, _ in resolved]
     photons = default_photons(raw, family_dir / "db", args.photons)
+    if args.per_decade is not None and args.per_decade < 1:
+        raise StudyError(f"--per-decade {args.per_decade}: time bins per decade, an integer "
+                         ">= 1")
+    if args.per_decade is not None and preset_per_decade(raw) is None:
+        raise StudyError(f"--per-decade {args.per_decade}: the preset's time bins are linear "
+                         "(simulation.time_bins.width), not per decade")
     axes, kinds, rows = plan_injections(raw, args.count, args.seed, photons, instruments,
-                                        parse_spacings(args.spacing))
+                                        parse_spacings(args.spacing), args.per_decade)
     columns = csv_columns(axes, instruments)
     csv_path = family_dir / "injections.csv"
     check_previous(csv_path, rows, columns)
     family_dir.mkdir(parents=True, exist_ok=True)
     sources = dict(stage_instruments(family_dir, resolved))
     print(f"inject {args.family}: {args.count} points, seed {args.seed}, {photons} photons, "
+          f"{rows[0]['per_decade'] if rows else '-'} time bins per decade, "
           f"instruments {', '.join(instruments) or 'none'}; spacing "
           + ", ".join(f"{k} {v}" for k, v in kinds.items()), flush=True)
     for row in rows:
@@ -690,6 +718,10 @@ def parser() -> argparse.ArgumentParser:
     i.add_argument("--instrument", action="append", metavar="NAME|FILE",
                    help="one more instrument: a bundled name or any instrument YAML file "
                         "(repeatable)")
+    i.add_argument("--per-decade", type=int, metavar="N",
+                   help="log time bins per decade of the injected surfaces (default: the "
+                        "preset's); finer than the database's, a truth resolves returns "
+                        "sharper than its bins")
     i.add_argument("--spacing", action="append", metavar="KEY=KIND",
                    help="draw KEY in linear, log or log1m coordinates instead of the "
                         "detected one (repeatable)")

@@ -258,3 +258,42 @@ def test_two_instruments_of_one_label_are_refused(tmp_path):
     (tmp_path / "a" / "bela.yaml").write_text(MLA.replace("name: mla", "name: bela"))
     with pytest.raises(study.StudyError, match="second instrument labelled 'bela'"):
         study.resolve_instruments(["bela", str(tmp_path / "a" / "bela.yaml")])
+
+
+def test_injections_in_finer_time_bins():
+    """``--per-decade``: the injected surfaces' time bins, recorded per row, set in their
+    presets (only where they differ from the family's), part of the draw a CSV must agree
+    with, and refused in one line when not a count >= 1."""
+    raw = study.read_preset(study.STUDY_PRESETS / "slab_co2_rough.yaml")
+    assert study.preset_per_decade(raw) == 20
+    axes, _, rows = study.plan_injections(raw, 2, 7, 1000, ["bela"])
+    assert [r["per_decade"] for r in rows] == [20, 20]
+    same = study.injection_preset(raw, rows[0]["point"], rows[0]["name"], 20)
+    assert same["simulation"] == raw["simulation"]
+    _, _, fine = study.plan_injections(raw, 2, 7, 1000, ["bela"], per_decade=2000)
+    one = study.injection_preset(raw, fine[0]["point"], fine[0]["name"], fine[0]["per_decade"])
+    assert load_preset(one).get("simulation.time_bins.per_decade") == 2000
+    assert raw["simulation"]["time_bins"]["per_decade"] == 20         # the family's untouched
+    assert "per_decade" in study.csv_columns(axes, ["bela"])
+
+
+def test_a_csv_of_other_time_bins_is_refused(tmp_path):
+    raw = study.read_preset(study.STUDY_PRESETS / "slab_co2_rough.yaml")
+    axes, _, rows = study.plan_injections(raw, 2, 7, 1000, ["bela"])
+    columns = study.csv_columns(axes, ["bela"])
+    for row in rows:
+        row["status"] = "pending"
+    path = tmp_path / "injections.csv"
+    study.write_csv(path, rows, columns)
+    _, _, fine = study.plan_injections(raw, 2, 7, 1000, ["bela"], per_decade=200)
+    with pytest.raises(study.StudyError):
+        study.check_previous(path, fine, columns)
+
+
+@pytest.mark.parametrize("value", ["0", "-3"])
+def test_bad_per_decade_is_refused_in_one_line(tmp_path, capsys, value):
+    rc = study.main(["inject", "slab_co2_rough", "--work", str(tmp_path / "w"),
+                     "--per-decade", value, "--instruments", ""])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "--per-decade" in err[0]
+    assert not (tmp_path / "w").exists()
