@@ -321,3 +321,12 @@ def test_binning_variance_against_spikes_spread_over_the_bin(gala_rough, per_dec
     exact = np.var(waves, axis=0)
     assert abs(approx.sum() / exact.sum() - 1.0) < 0.1
     assert abs(approx.max() / exact.max() - 1.0) < 0.1
+
+
+def test_a_time_bin_wider_than_the_grid_adds_nothing(bela):
+    """A late log bin can span the whole fine grid (its ends both outside): flat across the
+    grid, where it lies in the bin moves nothing there (it raised IndexError)."""
+    start, stop = bela.grid.start, bela.grid.edges[-1]
+    edges = np.array([start - 100.0, stop + 100.0, stop + 5000.0])
+    surface = SurfaceResponse(edges, np.array([1e-4, 0.0]), [], 1064e-9)
+    assert not np.any(binning_variance(surface, bela))

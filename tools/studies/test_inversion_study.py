@@ -265,15 +265,17 @@ def test_injections_in_finer_time_bins():
     presets (only where they differ from the family's), part of the draw a CSV must agree
     with, and refused in one line when not a count >= 1."""
     raw = study.read_preset(study.STUDY_PRESETS / "slab_co2_rough.yaml")
-    assert study.preset_per_decade(raw) == 20
+    own = raw["simulation"]["time_bins"]["per_decade"]
+    assert study.preset_per_decade(raw) == own
+    assert study.preset_per_decade({"name": "x"}) == 20                 # the schema's default
     axes, _, rows = study.plan_injections(raw, 2, 7, 1000, ["bela"])
-    assert [r["per_decade"] for r in rows] == [20, 20]
-    same = study.injection_preset(raw, rows[0]["point"], rows[0]["name"], 20)
+    assert [r["per_decade"] for r in rows] == [own, own]
+    same = study.injection_preset(raw, rows[0]["point"], rows[0]["name"], own)
     assert same["simulation"] == raw["simulation"]
     _, _, fine = study.plan_injections(raw, 2, 7, 1000, ["bela"], per_decade=2000)
     one = study.injection_preset(raw, fine[0]["point"], fine[0]["name"], fine[0]["per_decade"])
     assert load_preset(one).get("simulation.time_bins.per_decade") == 2000
-    assert raw["simulation"]["time_bins"]["per_decade"] == 20         # the family's untouched
+    assert raw["simulation"]["time_bins"]["per_decade"] == own        # the family's untouched
     assert "per_decade" in study.csv_columns(axes, ["bela"])
 
 
@@ -285,7 +287,7 @@ def test_a_csv_of_other_time_bins_is_refused(tmp_path):
         row["status"] = "pending"
     path = tmp_path / "injections.csv"
     study.write_csv(path, rows, columns)
-    _, _, fine = study.plan_injections(raw, 2, 7, 1000, ["bela"], per_decade=200)
+    _, _, fine = study.plan_injections(raw, 2, 7, 1000, ["bela"], per_decade=2000)
     with pytest.raises(study.StudyError):
         study.check_previous(path, fine, columns)
 

@@ -83,6 +83,13 @@ def kernel_length(forward) -> float:
     return float(kernel.sum() ** 2 / np.sum(kernel ** 2)) * forward.step
 
 
+def output_scale(forward) -> float:
+    """What one photon at the aperture in a fine bin gives at the output: mV (linear mode) or
+    pe ns⁻¹ (photon counting), detection efficiency included."""
+    step = forward.grid.step
+    return forward.eta / step if forward.counting else forward.eta * forward.mv_per_pe
+
+
 def response_variance(surface, forward) -> np.ndarray:
     """Var μ(t) of the module docstring for one simulated surface response.
 
@@ -116,9 +123,8 @@ def response_variance(surface, forward) -> np.ndarray:
         amounts = [(n_tx * forward.geo.kappa[c]) ** 2 * f * (1.0 - f) / n
                    for c, _, f in surface.returns]
         var += deposit(grid, times, amounts)
-    scale = forward.eta / grid.step if forward.counting else forward.eta * forward.mv_per_pe
     full = np.convolve(var, kernel ** 2)[origin: origin + var.size]
-    return np.clip(full, 0.0, None) * scale ** 2
+    return np.clip(full, 0.0, None) * output_scale(forward) ** 2
 
 
 def bin_offsets(edges: np.ndarray, diffuse: np.ndarray) -> np.ndarray:
@@ -178,9 +184,7 @@ def binning_variance(surface, forward) -> np.ndarray:
     """
     grid = forward.grid
     kernel, origin = kernel_of(forward)
-    p = forward.params
-    scale = forward.eta / grid.step if forward.counting else forward.eta * forward.mv_per_pe
-    unit = radiometry.photons_per_reflectance(p) * scale      # mV per sr⁻¹ placed at a time
+    unit = radiometry.photons_per_reflectance(forward.params) * output_scale(forward)
     edges = surface.edges
     width = np.diff(edges)
     shift = surface.diffuse * width * bin_offsets(edges, surface.diffuse)   # sr⁻¹ ns
@@ -193,6 +197,8 @@ def binning_variance(surface, forward) -> np.ndarray:
     for b in np.nonzero(inside & ~narrow)[0]:
         step = deposit(grid, [edges[b], edges[b + 1]], [1.0, -1.0])
         used = np.nonzero(step)[0]
+        if used.size == 0:                  # a bin over the whole grid: flat across it
+            continue
         first, last = used[0], used[-1] + 1
         piece = np.convolve(step[first:last], kernel) * (shift[b] / width[b])
         start = first - origin
