@@ -40,8 +40,8 @@ grid it errs by g E_m, g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), zero at t
 that term back (its curvature correction, :mod:`.space`); what is left is the part of the
 curvature that changes from cell to cell, of unknown sign, and its size is taken as that of
 the correction itself: E_m² less the own variance of the three nodes (Monte Carlo and time
-bins: what the prediction misses by their noise),
-floored at 0, and the variance used is Σ_corners w_c g_c² E_c² summed over the axes. An axis
+bins: what the prediction misses by their noise), floored at 0, and the variance used is
+Σ_corners w_c g_c² E_c² summed over the axes. An axis
 of two values has no node to leave out, no correction and no estimate (the report says so).
 
 **In the likelihood.** A common error e(t) ~ N(0, S(t)) of the model shifts every shot's
@@ -268,8 +268,8 @@ class Emulator:
 
     def parts(self, point: dict) -> dict:
         """The parts of S(t) at ``point`` (units of :meth:`variance`): ``"monte carlo"``,
-        ``"time bins"`` and, per axis of three values or more whose cell the point (or a fixed value) is inside,
-        the axis' dotted key (its interpolation part)."""
+        ``"time bins"`` and, per axis of three values or more whose cell the point (or a
+        fixed value) is inside, the axis' dotted key (its interpolation part)."""
         space = self.space
         bends = space.bends(point)
         weights = space.node_weights(point, bends)
@@ -371,7 +371,7 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu, amplitude_free: bool = T
 
 class DirectSurface:
     """One directly simulated surface in place of a database: the surface wherever it is
-    asked, and its own Monte Carlo variance as S(t) (no interpolation). What log L of a
+    asked, and its own Monte Carlo and time-bin variance as S(t) (no interpolation). What log L of a
     direct simulation is computed with (tools/studies/emulator_check.py).
 
     Parameters
