@@ -32,10 +32,11 @@ prediction's error, scaled to the point's own cell (width Δ, fraction f) by the
 law g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), is added back: the response is the interpolation
 plus Σ_axes Σ_corners w g (node m − its prediction), m the corner's index kept off the ends
 (:meth:`Space.bends`), on the diffuse response and the returns' fractions (each floored at 0;
-the delays stay exact). The diffuse difference is first stretched in time to the point's own
-round trip (:func:`stretch`, by the ratio of the first back-and-forth delays): a slab floor's
-return moves with the thickness, and node m's difference belongs where the point's return
-arrives, not where node m's did. For what is combined linearly this is quadratic (Lagrange)
+the delays stay exact). Where node m's diffuse return arrives at its round trip (a slab
+floor's), its difference is first stretched in time to the point's own round trip
+(:func:`stretch`, by the ratio of the first back-and-forth delays): that return moves with the
+thickness, and node m's difference belongs where the point's return arrives, not where node
+m's did. For what is combined linearly this is quadratic (Lagrange)
 interpolation through three nodes, and a blend of the two stencils with four or more
 (tests/test_inversion_curvature.py).
 
@@ -221,6 +222,12 @@ class NodeResponse:
         self.cdf = cdf / cdf[-1] if cdf[-1] > 0 else cdf
         self.specular = sum(f for c, _, f in r.returns if c == "specular")
         self.first_bf = first_bf_time
+        # a return that arrives at the round trip: half the diffuse amount or more in the
+        # time bin of the first back-and-forth delay (a slab floor's)
+        self.at_round_trip = False
+        if first_bf_time > 0 and self.total > 0:
+            b = int(np.searchsorted(r.edges, first_bf_time, side="right")) - 1
+            self.at_round_trip = 0 <= b < amount.size and amount[b] >= 0.5 * self.total
         self.passages = {}
         for c, t, f in r.returns:
             if c == "bf_direct":
@@ -399,19 +406,20 @@ class Space:
         """The curvature correction Σ w g (node m − its prediction) of the diffuse response
         (sr⁻¹ ns⁻¹), the specular fraction and each passage's fraction, or None.
 
-        The diffuse difference is taken to the point's own time scale first: stretched in
-        time by the ratio of the point's first back-and-forth delay ``first_bf`` (ns) to node
-        m's, keeping its integral (:func:`stretch`). What arrives with the layer's round trip
-        (a slab floor's return) then corrects the point's return where it arrives, not where
-        node m's did; where the delays are equal or unknown, the difference is added as it
-        is."""
+        Where node m's diffuse return arrives at its round trip (half its amount or more in
+        the time bin of its first back-and-forth delay: a slab floor's), the difference is
+        taken to the point's own time scale first: stretched in time by the ratio of the
+        point's first back-and-forth delay ``first_bf`` (ns) to node m's, keeping its integral
+        (:func:`stretch`), so that it corrects the point's return where it arrives, not where
+        node m's did. Elsewhere (a granular layer's spread response, or an unknown delay) the
+        difference is added as it is."""
         if not terms:
             return None
         diffuse, specular, passages = np.zeros(self.edges.size - 1), 0.0, {}
         for d, middle, w, g in terms:
             node, (guess, _, _) = self.nodes[middle], self.left_out(middle, d)
             a = w * g
-            ratio = first_bf / node.first_bf if node.first_bf > 0 else math.nan
+            ratio = first_bf / node.first_bf if node.at_round_trip else 1.0
             diffuse += a * stretch(node.surface.diffuse - guess.surface.diffuse, self.edges,
                                    ratio if math.isfinite(ratio) and ratio > 0 else 1.0)
             specular += a * (node.specular - guess.specular)
