@@ -331,31 +331,30 @@ def adequacy(emulator, shots, fit, point: dict, mu, nu, amplitude_free: bool = T
     axes = {k: v for k, v in parts.items() if k not in ("monte carlo", "time bins")}
     interp = sd(sum(axes.values())) if axes else 0.0
     target = 0.5 * ADEQUATE_SD
-    rays = 1
-    while sd(parts["monte carlo"] / rays) > target and rays < MOST_RAYS:
-        rays *= 2
     advice = []
-    if rays > 1:
-        short = sd(parts["monte carlo"] / rays) > target
-        advice.append(f"{'more than ' if short else ''}{rays}x the rays per node")
-    finer = 1
-    while sd(parts["time bins"] / finer ** 2) > target and finer < MOST_BINS:
-        finer *= 2
-    if finer > 1:
-        short = sd(parts["time bins"] / finer ** 2) > target
-        advice.append(f"{'more than ' if short else ''}{finer}x the time bins per decade "
-                      "(simulation.time_bins.per_decade)")
+
+    def doublings(var, fall: float, most: int, say) -> int:
+        """The fewest doublings (at most ``most``) that bring the part ``var`` under the
+        target, its variance falling ``fall`` times per doubling; ``say(n)`` is added to the
+        advice when n > 0, after "more than" if even ``most`` fall short."""
+        n = 0
+        while sd(var / fall ** n) > target and n < most:
+            n += 1
+        if n:
+            advice.append(("more than " if sd(var / fall ** n) > target else "") + say(n))
+        return n
+
+    rays = 2 ** doublings(parts["monte carlo"], 2.0, int(math.log2(MOST_RAYS)),
+                          lambda n: f"{2 ** n}x the rays per node")
+    finer = 2 ** doublings(parts["time bins"], 4.0, int(math.log2(MOST_BINS)),
+                           lambda n: f"{2 ** n}x the time bins per decade "
+                                     "(simulation.time_bins.per_decade)")
     per_axis, halvings = {}, {}
     for key, var in axes.items():
         per_axis[key] = sd(var)
-        h = 0
-        while sd(var / 16.0 ** h) > target and h < MOST_HALVINGS:
-            h += 1
-        halvings[key] = h
-        if h:
-            short = sd(var / 16.0 ** h) > target
-            advice.append(f"{'more than ' if short else ''}{h}x halved spacing of {key} "
-                          f"around {values[key]:.4g}")
+        halvings[key] = doublings(var, 16.0, MOST_HALVINGS,
+                                  lambda n: f"{n}x halved spacing of {key} "
+                                            f"around {values[key]:.4g}")
     adequate = total <= ADEQUATE_SD
     line = (f"database adequate for these shots: its own error moves log L by {total:.2f} "
             f"(<= {ADEQUATE_SD:g})" if adequate else
