@@ -186,9 +186,11 @@ def amplitude_curvature(problem, u, best) -> float:
     mu, nu = _model(problem, u, best.v)
     shots = problem.shots
     x0 = math.log(max(float(best.fit.overall), 1e-300))
+    shots.start(mu)                 # as Problem.evaluate: each fit afresh, from this scan
+    start = shots.arrival, shots.amplitude
 
     def ll(x):
-        shots.start(mu)            # as Problem.evaluate: each point afresh
+        shots.arrival, shots.amplitude = start      # a fit leaves its own result there
         return shots.fit(mu, nu, math.exp(x)).loglike
 
     f0 = ll(x0)

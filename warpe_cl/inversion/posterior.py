@@ -140,13 +140,11 @@ class Problem:
         # a poor local optimum of its arrival for the next dozen points (ln L 20 too low
         # after a grid's thick end), and a clipped shot's nearly free amplitude carried
         # rounding from point to point; the pulse widths at one point start from its own fit
-        fresh = [True]
 
         def neg(v):
             mu, nu = self.forward.waveform(photons, v)
-            if fresh[0]:
+            if not fits:                    # the point's first pulse width
                 self.shots.start(mu)
-                fresh[0] = False
             fit = self.shots.fit(mu, nu, self.overall)
             if shared is not None:
                 fit.emulator, fit.emulator_sd, fit.emulator_offset = shared_error(
