@@ -27,8 +27,8 @@ It then measures, printing the median and range of each:
    start, imports, the open, the inversion, the output file), ``--cli-rounds`` times;
 3. ``warpe_cl.invert(obs.nc, db)`` ``--rounds`` times in this process on the database loaded
    once (as a user inverting many waveforms would), with ``jobs=1`` and ``jobs=--jobs``
-   interleaved: wall time, model evaluations and evaluations per second; ``--profile FILE`` writes a cProfile of
-   one more such inversion and prints its 25 costliest functions.
+   interleaved: wall time, model evaluations and evaluations per second; ``--profile FILE``
+   writes a cProfile of one more such inversion and prints its 25 costliest functions.
 """
 from __future__ import annotations
 

@@ -76,7 +76,6 @@ class Spectrum:
         return sp_fft.irfft(self.at(m) * other.at(m), m)[:n]
 
 
-
 class Forward:
     """Expected samples and their variance for one linear-mode instrument.
 
