@@ -10,10 +10,14 @@ its cell in those coordinates.
 What is combined is not the waveform but the surface response, in the form in which it moves
 smoothly with the parameters:
 
-- the diffuse response R_d(t) as its total ∫R_d dt (combined in logarithm) and its shape as the
-  quantile function of the normalised cumulative return, ln t(q) (displacement interpolation:
-  a response whose delays grow with thickness moves along the time axis between grid points
-  instead of fading from one shape into the other, which a weighted sum of waveforms does);
+- the diffuse response R_d(t) as its total ∫R_d dt and its shape as the quantile function of
+  the normalised cumulative return, ln t(q) (displacement interpolation: a response whose
+  delays grow with thickness moves along the time axis between grid points instead of fading
+  from one shape into the other, which a weighted sum of waveforms does). The total is
+  combined one axis after the other, each in its own coordinate of the total
+  (:func:`total_scale`): ln ∫R_d where the axis' interior nodes are predicted better so (the
+  total falls by factors along a thickness or grain size), ∫R_d itself where they are
+  predicted better so (a floor's albedo A enters it almost in proportion, R_d ∝ A/(1 − rA));
 - the specular fraction and, for each k-th back-and-forth passage, its fraction (linear in
   the corner weights) and its delay, in the coordinate in which it is exact: the delay
   t_k = 2 k Σ h_i n_eff,i / c is linear in each layer thickness h_i, not in ln h_i, so the
@@ -31,8 +35,8 @@ predicted from its neighbours m ± 1 on their cell (width D, m at fraction f₀ 
 prediction's error, scaled to the point's own cell (width Δ, fraction f) by the quadratic
 law g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), is added back: the response is the interpolation
 plus Σ_axes Σ_corners w g (node m − its prediction), m the corner's index kept off the ends
-(:meth:`Space.bends`), on the diffuse response and the returns' fractions (each floored at 0;
-the delays stay exact). Where node m's diffuse return arrives at its round trip (a slab
+(:meth:`Space.bends`), on the diffuse response and the returns' fractions (each floored at 0,
+the diffuse response keeping its integral, :func:`floored`; the delays stay exact). Where node m's diffuse return arrives at its round trip (a slab
 floor's), its difference is first stretched in time to the point's own round trip
 (:func:`stretch`, by the ratio of the first back-and-forth delays): that return moves with the
 thickness, and node m's difference belongs where the point's return arrives, not where node
@@ -200,6 +204,44 @@ def value_weights(x: np.ndarray, values: list, indices: list) -> list:
     return list(out / total)
 
 
+#: The coordinates in which a total is combined along an axis (:func:`total_scale`).
+TOTAL_SCALES = ("log", "linear")
+
+
+def blend_total(a, b, f: float, scale: str):
+    """The total(s) (sr⁻¹, floats or arrays) a fraction ``f`` of the way from ``a`` to ``b``,
+    in ln (``log``) or in the total itself (``linear``); ``a`` at f = 0 and ``b`` at f = 1
+    exactly."""
+    if f <= 0.0:
+        return a
+    if f >= 1.0:
+        return b
+    if scale == "log":
+        with np.errstate(divide="ignore"):
+            return np.exp((1.0 - f) * np.log(a) + f * np.log(b))
+    return (1.0 - f) * np.asarray(a) + f * np.asarray(b)
+
+
+def total_scale(totals: np.ndarray, nodes: np.ndarray, axis: int) -> str:
+    """The coordinate of ``TOTAL_SCALES`` in which the diffuse totals ``totals`` (the grid's
+    array, sr⁻¹, all positive) are best interpolated along ``axis`` (grid ``nodes`` in the
+    interpolation coordinate): each interior node predicted from its two neighbours both
+    ways, the one with the smaller sum of squared ln(prediction / node) kept (``log`` on a
+    tie, and on an axis of fewer than three values, which has no interior node)."""
+    n = nodes.size
+    if n < 3 or not np.all(totals > 0):
+        return "log"
+    t = np.moveaxis(totals, axis, 0)
+    f0 = (nodes[1:-1] - nodes[:-2]) / (nodes[2:] - nodes[:-2])
+    f0 = f0.reshape((-1,) + (1,) * (t.ndim - 1))
+    lo, mid, hi = t[:-2], t[1:-1], t[2:]
+    log_guess = np.exp((1 - f0) * np.log(lo) + f0 * np.log(hi))
+    linear_guess = (1 - f0) * lo + f0 * hi
+    misfit = {name: float(np.sum(np.log(g / mid) ** 2))
+              for name, g in (("log", log_guess), ("linear", linear_guess))}
+    return "linear" if misfit["linear"] < misfit["log"] else "log"
+
+
 def _quantile(cdf: np.ndarray, edges: np.ndarray, q: np.ndarray) -> np.ndarray:
     """t(q) = inf{t : F(t) ≥ q} of a CDF linear in t inside each bin (a piecewise-constant
     density), F given at ``edges`` (non-decreasing, from 0 to 1), for q in [0, 1]."""
@@ -298,6 +340,9 @@ class Space:
             index = tuple(int(np.searchsorted(a.values, v[i])) for a, v in zip(self.axes, values))
             self.nodes[index] = NodeResponse(r, float(t1[i]))
         self.wavelength = self.nodes.flat[0].surface.wavelength
+        self.totals = np.vectorize(lambda n: n.total, otypes=[float])(self.nodes)
+        self.total_scales = [total_scale(self.totals, a.nodes, d)
+                             for d, a in enumerate(self.axes)]
         self._left_out = {}
         self.point = {}
         for key, value in fix.items():
@@ -345,7 +390,25 @@ class Space:
         delay_w = value_weights(self.values_of(point), [a.values for a in self.axes], idx)
         first_bf = float(np.dot(delay_w, [n.first_bf for n in nodes]))   # 2 Σ h n_eff / c
         return combine(nodes, w, self.edges, delay_weights=delay_w,
-                       bend=self._bend(self.bends(point), first_bf))
+                       bend=self._bend(self.bends(point), first_bf),
+                       total=self.total(point))
+
+    def total(self, point: dict) -> float:
+        """The diffuse total ∫R_d dt (sr⁻¹) at ``point`` before the curvature correction: the
+        cell's corners combined one axis after the other, in the axis' order, each in its
+        coordinate of ``total_scales`` (module docstring)."""
+        block, steps = self.totals, []
+        for x, a in zip(self.coords_of(point), self.axes):
+            n = a.nodes
+            if n.size == 1:
+                steps.append(0.0)
+                continue
+            j = int(np.clip(np.searchsorted(n, x, side="right") - 1, 0, n.size - 2))
+            steps.append(float(np.clip((x - n[j]) / (n[j + 1] - n[j]), 0.0, 1.0)))
+            block = np.take(block, [j, j + 1], axis=len(steps) - 1)
+        for f, scale in zip(steps, self.total_scales):
+            block = blend_total(block[0], block[-1], f, scale)
+        return float(block)
 
     def bends(self, point: dict) -> list:
         """The curvature terms at ``point``: for every corner of its cell (weight w) and every
@@ -396,8 +459,9 @@ class Space:
             x, v = self.axes[d].nodes, self.axes[d].values
             f0 = (x[m] - x[m - 1]) / (x[m + 1] - x[m - 1])
             fv = (v[m] - v[m - 1]) / (v[m + 1] - v[m - 1])
-            predicted = combine([self.nodes[lo], self.nodes[hi]], [1 - f0, f0], self.edges,
-                                delay_weights=[1 - fv, fv])
+            a, b = self.nodes[lo], self.nodes[hi]
+            predicted = combine([a, b], [1 - f0, f0], self.edges, delay_weights=[1 - fv, fv],
+                                total=blend_total(a.total, b.total, f0, self.total_scales[d]))
             self._left_out[key] = (NodeResponse(predicted, self.nodes[middle].first_bf),
                                    float(x[m + 1] - x[m - 1]), float(f0))
         return self._left_out[key]
@@ -455,8 +519,22 @@ def stretch(density: np.ndarray, edges: np.ndarray, ratio: float) -> np.ndarray:
     return np.diff(np.interp(edges / ratio, edges, cumulative)) / width
 
 
+def floored(density: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """A corrected diffuse response (sr⁻¹ ns⁻¹ on bins ``width`` ns wide) with its negative
+    bins set to 0 and the rest scaled down so that its integral stays what the correction
+    made it: a curvature term's negative lobe, where the response is small (beside a slab
+    floor's spike), would otherwise add its clipped part to the total (up to +1.7 % of it on
+    the rough-slab database, docs/inversion.md §2)."""
+    kept = np.maximum(density, 0.0)
+    intended, total = float(np.sum(density * width)), float(np.sum(kept * width))
+    if total > intended > 0.0:
+        kept *= intended / total
+    return kept
+
+
 def combine(nodes: list, weights: list, edges: np.ndarray,
-            delay_weights: list | None = None, bend=None) -> SurfaceResponse:
+            delay_weights: list | None = None, bend=None,
+            total: float | None = None) -> SurfaceResponse:
     """The displacement interpolation of the module docstring.
 
     Parameters
@@ -473,8 +551,12 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         :func:`value_weights`), for the back-and-forth delays, which are linear in the
         thicknesses; default ``weights``.
     bend : tuple, optional
-        The curvature correction (:meth:`Space._bend`): added to the diffuse response, the
-        specular fraction and each passage's fraction, each floored at 0.
+        The curvature correction (:meth:`Space._bend`): added to the diffuse response
+        (floored at 0 keeping its integral, :func:`floored`), the specular fraction and each
+        passage's fraction (each floored at 0).
+    total : float, optional
+        The diffuse total ∫R_d dt, sr⁻¹, where every node's is positive
+        (:meth:`Space.total`); default the nodes' totals combined in ln with ``weights``.
 
     Returns
     -------
@@ -484,7 +566,8 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
     wd = w if delay_weights is None else np.asarray(delay_weights, float)
     totals = np.array([n.total for n in nodes])
     if np.all(totals > 0):
-        total = float(np.exp(np.sum(w * np.log(totals))))
+        if total is None:
+            total = float(np.exp(np.sum(w * np.log(totals))))
         q = np.unique(np.concatenate([n.cdf for n in nodes]))
         positive = edges > 0
         log_t = sum(wi * np.log(np.maximum(_quantile(n.cdf, edges, q), edges[positive][0]))
@@ -495,7 +578,7 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
     else:
         diffuse = sum(wi * n.surface.diffuse for wi, n in zip(w, nodes))
     d_diffuse, d_specular, d_passages = bend if bend is not None else (0.0, 0.0, {})
-    diffuse = np.maximum(diffuse + d_diffuse, 0.0)
+    diffuse = floored(diffuse + d_diffuse, np.diff(edges))
     returns = []
     specular = max(float(np.sum(w * [n.specular for n in nodes])) + d_specular, 0.0)
     if specular > 0:
