@@ -36,8 +36,8 @@ prediction's error, scaled to the point's own cell (width Δ, fraction f) by the
 law g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), is added back: the response is the interpolation
 plus Σ_axes Σ_corners w g (node m − its prediction), m the corner's index kept off the ends
 (:meth:`Space.bends`), on the diffuse response and the returns' fractions (each floored at 0,
-the diffuse response keeping its integral, :func:`floored`; the delays stay exact). Where node m's diffuse return arrives at its round trip (a slab
-floor's), its difference is first stretched in time to the point's own round trip
+the diffuse response keeping its integral, :func:`floored`; the delays stay exact). Where node
+m's diffuse return arrives at its round trip (a slab floor's), its difference is first stretched in time to the point's own round trip
 (:func:`stretch`, by the ratio of the first back-and-forth delays): that return moves with the
 thickness, and node m's difference belongs where the point's return arrives, not where node
 m's did. For what is combined linearly this is quadratic (Lagrange)
@@ -150,6 +150,14 @@ def swept_keys(ds) -> list:
             if "sweep_key" in c.attrs and c.dims == ("scenario",)]
 
 
+def cell_of(x: float, nodes: np.ndarray) -> tuple[int, float]:
+    """The grid cell [nodes[j], nodes[j + 1]] that holds coordinate ``x`` (the first or last
+    outside the grid) and x's fraction f of it, clipped to [0, 1]."""
+    j = int(np.clip(np.searchsorted(nodes, x, side="right") - 1, 0, nodes.size - 2))
+    f = float((x - nodes[j]) / (nodes[j + 1] - nodes[j]))
+    return j, min(max(f, 0.0), 1.0)
+
+
 def corner_weights(u: np.ndarray, nodes: list) -> tuple[list, list]:
     """Multilinear weights of point ``u`` (one coordinate per axis) in its grid cell.
 
@@ -163,9 +171,7 @@ def corner_weights(u: np.ndarray, nodes: list) -> tuple[list, list]:
         if n.size == 1:
             per_axis.append([(0, 1.0)])
             continue
-        j = int(np.clip(np.searchsorted(n, x, side="right") - 1, 0, n.size - 2))
-        f = float((x - n[j]) / (n[j + 1] - n[j]))
-        f = min(max(f, 0.0), 1.0)
+        j, f = cell_of(x, n)
         per_axis.append([(j, 1.0 - f), (j + 1, f)])
     indices, weights = [()], [1.0]
     for options in per_axis:
@@ -204,10 +210,6 @@ def value_weights(x: np.ndarray, values: list, indices: list) -> list:
     return list(out / total)
 
 
-#: The coordinates in which a total is combined along an axis (:func:`total_scale`).
-TOTAL_SCALES = ("log", "linear")
-
-
 def blend_total(a, b, f: float, scale: str):
     """The total(s) (sr⁻¹, floats or arrays) a fraction ``f`` of the way from ``a`` to ``b``,
     in ln (``log``) or in the total itself (``linear``); ``a`` at f = 0 and ``b`` at f = 1
@@ -223,11 +225,12 @@ def blend_total(a, b, f: float, scale: str):
 
 
 def total_scale(totals: np.ndarray, nodes: np.ndarray, axis: int) -> str:
-    """The coordinate of ``TOTAL_SCALES`` in which the diffuse totals ``totals`` (the grid's
-    array, sr⁻¹, all positive) are best interpolated along ``axis`` (grid ``nodes`` in the
+    """The coordinate, ``log`` (ln total) or ``linear`` (the total), in which the diffuse
+    totals ``totals`` (the grid's array, sr⁻¹) are best interpolated along ``axis`` (grid ``nodes`` in the
     interpolation coordinate): each interior node predicted from its two neighbours both
     ways, the one with the smaller sum of squared ln(prediction / node) kept (``log`` on a
-    tie, and on an axis of fewer than three values, which has no interior node)."""
+    tie, on an axis of fewer than three values, which has no interior node, and where a
+    total is 0)."""
     n = nodes.size
     if n < 3 or not np.all(totals > 0):
         return "log"
@@ -403,8 +406,8 @@ class Space:
             if n.size == 1:
                 steps.append(0.0)
                 continue
-            j = int(np.clip(np.searchsorted(n, x, side="right") - 1, 0, n.size - 2))
-            steps.append(float(np.clip((x - n[j]) / (n[j + 1] - n[j]), 0.0, 1.0)))
+            j, f = cell_of(x, n)
+            steps.append(f)
             block = np.take(block, [j, j + 1], axis=len(steps) - 1)
         for f, scale in zip(steps, self.total_scales):
             block = blend_total(block[0], block[-1], f, scale)
@@ -430,8 +433,7 @@ class Space:
             if n < 3:
                 continue
             x = axis.nodes
-            j = int(np.clip(np.searchsorted(x, u[d], side="right") - 1, 0, n - 2))
-            f = float(np.clip((u[d] - x[j]) / (x[j + 1] - x[j]), 0.0, 1.0))
+            j, f = cell_of(u[d], x)
             if f <= 0.0 or f >= 1.0:
                 continue
             cell = x[j + 1] - x[j]
