@@ -102,17 +102,11 @@ def total_of(surface) -> float:
     return float(np.sum(surface.diffuse * np.diff(surface.edges)))
 
 
-def albedo_space(total, thickness=False):
+def albedo_space(total):
     """Diffuse-only surfaces of total ``total(A)`` (sr⁻¹) over ALBEDOS, the same shape at
-    every node; with ``thickness``, times two thicknesses (0.1 and 1 m, totals equal)."""
-    if not thickness:
-        parts = [synthetic_surface(diffuse_integral=total(a)) for a in ALBEDOS]
-        return Space(sweep_of(parts, ALBEDOS, ALBEDO, units="1"))
-    rows = [(h, a) for h in (0.1, 1.0) for a in ALBEDOS]
-    db = sweep_of([synthetic_surface(diffuse_integral=total(a)) for _, a in rows],
-                  [h for h, _ in rows], KEY)
-    return Space(db.assign_coords({ALBEDO: ("scenario", [a for _, a in rows],
-                                            {"sweep_key": ALBEDO, "units": "1"})}))
+    every node."""
+    parts = [synthetic_surface(diffuse_integral=total(a)) for a in ALBEDOS]
+    return Space(sweep_of(parts, ALBEDOS, ALBEDO, units="1"))
 
 
 @pytest.mark.parametrize("a", [0.08, 0.1, 0.2, 0.4])

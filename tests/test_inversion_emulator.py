@@ -289,7 +289,7 @@ def test_a_floored_curvature_term_keeps_the_total(per_decade):
     curvature term's negative lobe beside the spike is floored at 0 and the rest scaled to
     keep the integral. Floored alone, the lobe's clipped part was added: the total came back
     up to 0.27 % high in 20 bins per decade and 1.1 % in 200 (2.2 m), and on the rough-slab
-    database of docs/inversion.md §7.7 up to 1.7 % high against the truths' own."""
+    database of docs/inversion.md §7.7 up to 2.3 % high against the truths' own."""
     space = Space(floor_database(per_decade))
     for h in (1.1, 1.4, 2.2, 2.9364):
         r = space.surface({KEY: h})

@@ -525,7 +525,7 @@ def floored(density: np.ndarray, width: np.ndarray) -> np.ndarray:
     """A corrected diffuse response (sr⁻¹ ns⁻¹ on bins ``width`` ns wide) with its negative
     bins set to 0 and the rest scaled down so that its integral stays what the correction
     made it: a curvature term's negative lobe, where the response is small (beside a slab
-    floor's spike), would otherwise add its clipped part to the total (up to +1.7 % of it on
+    floor's spike), would otherwise add its clipped part to the total (up to +2.3 % of it on
     the rough-slab database, docs/inversion.md §2)."""
     kept = np.maximum(density, 0.0)
     intended, total = float(np.sum(density * width)), float(np.sum(kept * width))
