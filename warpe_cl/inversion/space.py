@@ -37,12 +37,12 @@ law g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), is added back: the response 
 plus Σ_axes Σ_corners w g (node m − its prediction), m the corner's index kept off the ends
 (:meth:`Space.bends`), on the diffuse response and the returns' fractions (each floored at 0,
 the diffuse response keeping its integral, :func:`floored`; the delays stay exact). Where node
-m's diffuse return arrives at its round trip (a slab floor's), its difference is first stretched in time to the point's own round trip
-(:func:`stretch`, by the ratio of the first back-and-forth delays): that return moves with the
-thickness, and node m's difference belongs where the point's return arrives, not where node
-m's did. For what is combined linearly this is quadratic (Lagrange)
-interpolation through three nodes, and a blend of the two stencils with four or more
-(tests/test_inversion_curvature.py).
+m's diffuse return arrives at its round trip (a slab floor's), its difference is first
+stretched in time to the point's own round trip (:func:`stretch`, by the ratio of the first
+back-and-forth delays): that return moves with the thickness, and node m's difference belongs
+where the point's return arrives, not where node m's did. For what is combined linearly this
+is quadratic (Lagrange) interpolation through three nodes, and a blend of the two stencils
+with four or more (tests/test_inversion_curvature.py).
 
 At a grid point the corner weights are (1, 0, …), there is no curvature term, and every step
 is exact: the response is the node's own, to rounding (tests/test_inversion.py).
@@ -226,22 +226,22 @@ def blend_total(a, b, f: float, scale: str):
 
 def total_scale(totals: np.ndarray, nodes: np.ndarray, axis: int) -> str:
     """The coordinate, ``log`` (ln total) or ``linear`` (the total), in which the diffuse
-    totals ``totals`` (the grid's array, sr⁻¹) are best interpolated along ``axis`` (grid ``nodes`` in the
-    interpolation coordinate): each interior node predicted from its two neighbours both
-    ways, the one with the smaller sum of squared ln(prediction / node) kept (``log`` on a
-    tie, on an axis of fewer than three values, which has no interior node, and where a
-    total is 0)."""
+    totals ``totals`` (the grid's array, sr⁻¹) are best interpolated along ``axis`` (grid
+    ``nodes`` in the interpolation coordinate): each interior node predicted from its two
+    neighbours both ways (:func:`blend_total`), the one with the smaller sum of squared
+    ln(prediction / node) kept (``log`` on a tie, on an axis of fewer than three values,
+    which has no interior node, and where a total is 0)."""
     n = nodes.size
     if n < 3 or not np.all(totals > 0):
         return "log"
     t = np.moveaxis(totals, axis, 0)
-    f0 = (nodes[1:-1] - nodes[:-2]) / (nodes[2:] - nodes[:-2])
-    f0 = f0.reshape((-1,) + (1,) * (t.ndim - 1))
-    lo, mid, hi = t[:-2], t[1:-1], t[2:]
-    log_guess = np.exp((1 - f0) * np.log(lo) + f0 * np.log(hi))
-    linear_guess = (1 - f0) * lo + f0 * hi
-    misfit = {name: float(np.sum(np.log(g / mid) ** 2))
-              for name, g in (("log", log_guess), ("linear", linear_guess))}
+    misfit = {}
+    for scale in ("log", "linear"):
+        misfit[scale] = 0.0
+        for m in range(1, n - 1):
+            f0 = float((nodes[m] - nodes[m - 1]) / (nodes[m + 1] - nodes[m - 1]))
+            guess = blend_total(t[m - 1], t[m + 1], f0, scale)
+            misfit[scale] += float(np.sum(np.log(guess / t[m]) ** 2))
     return "linear" if misfit["linear"] < misfit["log"] else "log"
 
 
