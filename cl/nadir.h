@@ -234,8 +234,17 @@ WALK_STEP void totals_to_rows(const rays_t *r, lane_rows_t *l)
  * score starts a new one; the lanes in `first` add theirs to the order-1 row at once. A ray's
  * pending sums depend on its own scores only, so the tallies do not depend on lanes or
  * launches. */
-WALK_STEP void nadir_add(VMASK m, VREAL s, VREAL v, const scene_t *sc, VREAL tv, VMASK row,
-                         VMASK first, rays_t *r, const tallies_t *tally)
+#ifdef WARPE_DOUBLE
+/* Out of line in double precision: inlined at its five calls, Intel's CPU compiler took 15 to
+ * 25 s to build a double-precision vector walk with the estimate (1.1 s out of line); the
+ * single-precision builds keep it inline (rays.h WALK_STEP). Where it is inlined changes no
+ * bit (real.h: no contraction). */
+#define NADIR_ADD_STEP __attribute__((noinline))
+#else
+#define NADIR_ADD_STEP WALK_STEP
+#endif
+NADIR_ADD_STEP void nadir_add(VMASK m, VREAL s, VREAL v, const scene_t *sc, VREAL tv,
+                              VMASK row, VMASK first, rays_t *r, const tallies_t *tally)
 {
     const int cols = tally->nadir_cols;
     const VMASK cell0 = row * (VMASK)cols;

@@ -37,9 +37,10 @@
 #define PHASE_GAP 2
 
 /* The steps of the walk below are functions to be read, not called: each is inlined into the
- * kernel, so that the rays stay in registers. With a plain `inline`, PoCL 3.1 (LLVM 15) kept
- * the larger ones out of line, and the rays in memory (about -1 % events/s on B1 and B3:
- * docs/bench/2026-11-22_refactor_ab.txt). */
+ * kernel, so that the rays stay in registers (all but nadir_add in double precision, whose
+ * inlined copies made Intel's compiler take 15 to 25 s: nadir.h). With a plain `inline`, PoCL
+ * 3.1 (LLVM 15) kept the larger ones out of line, and the rays in memory (about -1 % events/s
+ * on B1 and B3: docs/bench/2026-11-22_refactor_ab.txt). */
 #define WALK_STEP inline __attribute__((always_inline))
 
 /* The scenario's inputs (walk.md §1), the same for every ray of a launch. */

@@ -93,13 +93,14 @@ def test_joint_posterior_holds_the_truth_and_is_no_wider_than_either(files):
 def test_joint_evidence_is_the_integral_of_the_summed_likelihood(files):
     """With every amplitude fixed at 1 (no amplitude prior terms) the joint ln Z is
     ln ∫ L_a(θ) L_b(θ) π(θ) dθ: here against the trapezoid integral of the channels' own
-    log L on a fine grid of 241 points in ln thickness. The joint grid (40 points, refined
+    log L on a fine grid of 121 points in ln thickness (a step of 0.03 against a posterior
+    sd of 0.08: within 0.004 of the sum at 241 points). The joint grid (40 points, refined
     where the mass is) agrees within 0.05 (quadrature, not Monte Carlo: both use the same
     shots)."""
     fix = {"amplitude": 1}
     fits = invert_joint([files / "bela.nc", files / "atlas.nc"],
                         [files / "db1064.nc", files / "db532.nc"], fix=fix, budget=BUDGET)
-    coords = [np.linspace(np.log(0.5e-3), np.log(16e-3), 241)]
+    coords = [np.linspace(np.log(0.5e-3), np.log(16e-3), 121)]
     grids = [prepare(o, d, fix=fix).problem.grid(coords) for o, d in
              ((files / "bela.nc", files / "db1064.nc"), (files / "atlas.nc", files / "db532.nc"))]
     u = coords[0]
