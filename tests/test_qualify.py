@@ -246,8 +246,10 @@ def test_the_compilers_chatter_is_quiet_unless_debugging(monkeypatch, debug):
 def test_the_compilers_warnings_are_quiet_unless_debugging(capfd, monkeypatch, debug):
     """build_source builds with -w: on every device here, a source that warns (#warning) builds
     with no warning in its build log and nothing on the terminal (PoCL's clang prints "N
-    warnings generated." on stderr itself); WARPE_CL_DEBUG=1 keeps the warning. A comment
-    unique to this run keeps pyopencl's and PoCL's caches from answering."""
+    warnings generated." on stderr itself); WARPE_CL_DEBUG=1 keeps the warning where the
+    compiler reports ``#warning`` at all: NVIDIA's does not, with or without -w (its debug log
+    on an H200, driver 580, held only its own note on the kernel's inlining; issue 43). A
+    comment unique to this run keeps pyopencl's and PoCL's caches from answering."""
     import uuid
 
     import pyopencl as cl
@@ -260,7 +262,9 @@ def test_the_compilers_warnings_are_quiet_unless_debugging(capfd, monkeypatch, d
                   "__kernel void nothing(__global int *x) { x[0] = 1; }\n")
         prg = devmod.build_source(ctx, source)
         log = prg.get_build_info(dev, cl.program_build_info.LOG)
-        assert ("warpe_probe_of_warnings" in log) == (debug == "1"), (info.platform, log)
+        relays = not info.platform.startswith("NVIDIA")
+        assert ("warpe_probe_of_warnings" in log) == (debug == "1" and relays), \
+            (info.platform, log)
     err = capfd.readouterr().err
     if debug != "1":
         assert "warning" not in err, err
