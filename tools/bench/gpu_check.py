@@ -181,6 +181,14 @@ def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | 
     ]
 
 
+def _checkout_on_path() -> None:
+    """Let this process import the checkout's warpe_cl and tools/studies, as every step's
+    ``PYTHONPATH`` does: on a lent GPU the project is not installed, only its wheels."""
+    for folder in (str(REPO / "tools" / "studies"), str(REPO)):
+        if folder not in sys.path:
+            sys.path.insert(0, folder)
+
+
 def caller_paths(pythonpath: str | None = None, site_dirs=None) -> list:
     """The folders where this Python finds its packages beyond the standard library: the
     entries of ``PYTHONPATH`` (default: this process's) and its site-packages (default:
@@ -211,7 +219,7 @@ def mcx_venv(folder: Path, mcx: str, python: str = sys.executable) -> None:
                           capture_output=True, text=True, check=True).stdout.strip()
     Path(site, "gpu_check_caller.pth").write_text("\n".join(caller_paths()) + "\n")
     if mcx == "pmcx":
-        sys.path.insert(0, str(REPO / "tools" / "studies"))
+        _checkout_on_path()
         from mcxcl_compare import PMCXCL_VERSION
         Path(site, "pmcxcl.py").write_text(
             "# pmcx (MCX for CUDA) standing in for pmcxcl: tools/bench/gpu_check.py\n"
@@ -285,6 +293,7 @@ def summary_lines(device: str, records: list, figures: dict, quick: bool) -> lis
 
 def first_gpu() -> str | None:
     """The spec of the first GPU OpenCL lists, or None."""
+    _checkout_on_path()
     from warpe_cl.device import list_devices
     return next((info.spec for info, _ in list_devices() if info.kind == "gpu"), None)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 import sys
 from types import SimpleNamespace
 
@@ -250,3 +251,20 @@ def test_gpu_check_refuses_bad_input(capsys):
         assert len(capsys.readouterr().err.strip().splitlines()) == 1
     assert gpu_check.mcx_available(lambda name: None) is None
     assert gpu_check.mcx_available(lambda name: name == "pmcx" or None) == "pmcx"
+
+
+def test_gpu_check_makes_the_mcx_venv_where_warpe_cl_is_not_installed(tmp_path):
+    """On a lent GPU the project is not installed, only its wheels: the pmcx stand-in's
+    version comes from tools/studies/mcxcl_compare.py, which imports warpe_cl, and the check
+    stopped there (ModuleNotFoundError) before its first step. A Python started with -S
+    (no site-packages, so no installed warpe_cl) that sees numpy alone makes the venv."""
+    import numpy
+    numpy_site = os.path.dirname(os.path.dirname(numpy.__file__))
+    code = ("import sys; from pathlib import Path; "
+            f"sys.path[:0] = [{str(BENCH)!r}, {numpy_site!r}]; import gpu_check; "
+            "gpu_check.mcx_venv(Path('venv'), 'pmcx')")
+    out = subprocess.run([sys.executable, "-S", "-c", code], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    shim = list(tmp_path.glob("venv/lib/python*/site-packages/pmcxcl.py"))
+    assert len(shim) == 1 and "from pmcx import *" in shim[0].read_text()
