@@ -347,35 +347,42 @@ def test_a_forged_speed_does_not_win_auto(cache, monkeypatch):
 # --------------------------------------------------------------------------------------------
 # 4. a cache folder that cannot be written
 
+# the verdict cache first: where no pip driver is registered, it is what finds the folder
+# unwritable and hands the private one to $WARPE_CL_CACHE_DIR
 LISTING = """
 import json, os
 from warpe_cl.device import list_devices
 from warpe_cl.qualify import VerdictCache
-print(json.dumps({"devices": [[i.spec, i.platform, i.device] for i, _ in list_devices()],
-                  "cache": os.environ.get("WARPE_CL_CACHE_DIR"),
-                  "verdicts": str(VerdictCache().folder),
-                  "icd": os.environ.get("OCL_ICD_VENDORS")}))
+devices = [[i.spec, i.platform, i.device] for i, _ in list_devices()]
+verdicts = str(VerdictCache().folder)
+print(json.dumps({"devices": devices, "cache": os.environ.get("WARPE_CL_CACHE_DIR"),
+                  "verdicts": verdicts, "icd": os.environ.get("OCL_ICD_VENDORS")}))
 """
 
 
-def _listing(cache_dir: Path) -> tuple:
+def _listing(cache_dir: Path, pip_drivers: str = "1") -> tuple:
     env = {k: v for k, v in os.environ.items()
            if k not in ("OCL_ICD_VENDORS", "WARPE_CL_TEST_CACHE_DIR")}
     env["WARPE_CL_CACHE_DIR"] = str(cache_dir)
+    env["WARPE_CL_PIP_DRIVERS"] = pip_drivers
     out = subprocess.run([sys.executable, "-c", LISTING], capture_output=True, text=True,
                          env=env, timeout=300)
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.splitlines()[-1]), out.stderr
 
 
-def test_an_unwritable_cache_folder_keeps_the_device_numbers(tmp_path):
+@pytest.mark.parametrize("pip_drivers", ["1", "0"])
+def test_an_unwritable_cache_folder_keeps_the_device_numbers(tmp_path, pip_drivers):
     """$WARPE_CL_CACHE_DIR under a regular file (root ignores chmod): the devices are the
     same, in the same order, as with a writable folder -- Intel's runtime registered from a
     private folder -- with one warning line naming both folders and the cost; the private
-    folder is gone when the process ends."""
-    good, good_err = _listing(tmp_path / "writable")
+    folder is gone when the process ends. Also with no pip driver to register
+    ($WARPE_CL_PIP_DRIVERS=0, as on an Arm machine or a GPU machine without intel-opencl-rt,
+    where the check failed: the verdict cache made the private folder after the listing had
+    read the variable)."""
+    good, good_err = _listing(tmp_path / "writable", pip_drivers)
     (tmp_path / "a_file").write_text("not a folder")
-    bad, bad_err = _listing(tmp_path / "a_file" / "cache")
+    bad, bad_err = _listing(tmp_path / "a_file" / "cache", pip_drivers)
     assert bad["devices"] == good["devices"] and bad["devices"]
     private = Path(bad["cache"])
     assert private != tmp_path / "a_file" / "cache" and bad["verdicts"] == str(private)
