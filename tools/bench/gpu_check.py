@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """The GPU benchmark and check of issue 43 in one command, for a maintainer with a lent GPU
-(about 4 minutes on an H200):
+(about 5 minutes on an H200; with ``--suite`` 2-3 more):
 
     python tools/bench/gpu_check.py [--device SPEC] [--out DIR] [--quick] [--dry-run]
-                                    [--limit S]
+                                    [--limit S] [--suite]
 
 Each step runs as its own process, its output in DIR/<step>.log, one after the other:
 
@@ -25,6 +25,11 @@ Each step runs as its own process, its output in DIR/<step>.log, one after the o
    43); skipped, and said so, where neither is there. Goal: ours >= 2x MCX in events/s.
 6. ``paper``    ``tools/reproduce_paper.py`` at 1e6 rays per scenario, timed end to end
    (goal: under 5 s on one GPU, files and figures included), its files in DIR/paper/.
+7. ``suite``    with ``--suite``: the whole default test run with ``$WARPE_CL_DEVICE=SPEC``, a
+   worker per core, each test named in the log as it ends (``-v``), so that a run stopped by
+   ``--limit`` still names its failures; the summary lists them. It needs the ``[test]``
+   extras (iadpython, dask.distributed, pytest-xdist: carry them to a machine without a
+   network); the summary names those this Python cannot import.
 
 DIR/summary.txt and DIR/summary.json hold each step's command, exit code and wall time and
 the figures against the issue's goals. ``--quick`` runs every step small (a few thousand rays,
@@ -59,6 +64,8 @@ TEST_FILES = ("tests/test_parity.py", "tests/test_reproducibility.py", "tests/te
 QUICK_TESTS = "lane_width or lane_widths or typeof or event_budget"
 #: the issue's goals: T1 / B1 events/s, ours / MCX events/s on B1, the paper's wall time (s)
 GOALS = {"t1_over_b1": 0.8, "ours_over_mcx": 2.0, "paper_s": 5.0}
+#: the test extras the ``suite`` step needs (import names), from setup.cfg's ``[test]``
+TEST_EXTRAS = ("iadpython", "dask", "distributed", "xdist")
 #: the ``fill`` step: B1 and T1 with photons enough to fill a GPU's 2^20 work-items ten and
 #: two times over (bench.py's defaults, 1e6 and 1e5, give each work-item one photon or none,
 #: so that a launch lasts as long as its longest ray)
@@ -87,6 +94,8 @@ def parse_args(argv=None):
     p.add_argument("--dry-run", action="store_true", help="print the steps, run nothing")
     p.add_argument("--photons", type=float, default=None,
                    help="rays per scenario of the paper step (default 1e6; --quick 2e3)")
+    p.add_argument("--suite", action="store_true",
+                   help="also run the whole test suite on the device (step 7)")
     p.add_argument("--limit", type=float, default=None,
                    help="stop any step after this many seconds (default: each step's own, "
                         "5-15 minutes); for a lent machine's short lease")
@@ -116,7 +125,8 @@ def mcx_available(find_spec=importlib.util.find_spec) -> str | None:
 
 
 def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | None = None,
-         python: str = sys.executable, pythonpath: str | None = None) -> list:
+         python: str = sys.executable, pythonpath: str | None = None,
+         suite: bool = False) -> list:
     """The steps of the check, in order.
 
     Parameters
@@ -135,6 +145,8 @@ def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | 
         The interpreter of every step.
     pythonpath : str, optional
         The caller's ``PYTHONPATH`` (default: this process's), kept after the repository.
+    suite : bool
+        Run the whole test suite too (else the step is skipped, and said so).
 
     Returns
     -------
@@ -169,6 +181,8 @@ def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | 
     fill += (["--photons", "4e4", "--tail-photons", "1e3", "--rounds", "1"] if quick else
              ["--photons", f"{FILL['photons']:g}", "--tail-photons",
               f"{FILL['tail_photons']:g}", "--rounds", "3"])
+    suite_cmd = [python, "-m", "pytest", "-v", "-rfE", "-p", "no:cacheprovider", "-n", "auto",
+             "--maxprocesses", str(os.cpu_count() or 1)] + (["-k", QUICK_TESTS] if quick else [])
     return [
         Step("devices", [python, "-m", "warpe_cl", "devices", "--requalify", "--device", device],
              env, 300),
@@ -178,6 +192,8 @@ def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | 
         Step("mcx", mcx_cmd, env, 600,
              skip=None if mcx else "neither pmcx nor pmcxcl can be imported by this Python"),
         Step("paper", paper, env, 900),
+        Step("suite", suite_cmd, env, 900,
+             skip=None if suite else "not asked for (--suite runs it)"),
     ]
 
 
@@ -237,6 +253,24 @@ def pytest_counts(text: str) -> dict:
             if k in ("passed", "failed", "skipped", "errors", "error", "deselected", "xfailed")}
 
 
+def pytest_outcomes(text: str) -> tuple:
+    """The tests a ``pytest -v`` log names as ended, with or without xdist (``[gw3] [ 12%]
+    PASSED tests/t.py::test_a`` or ``tests/t.py::test_a PASSED [ 12%]``): the counts per
+    outcome and the names of those that failed or erred, in order. A run stopped before its
+    summary line is read so."""
+    counts, failed = {}, []
+    for line in text.splitlines():
+        m = re.search(r"(tests/\S+::\S+)", line)
+        word = re.search(r"\b(PASSED|FAILED|ERROR|SKIPPED|XFAIL|XPASS)\b", line)
+        if not (m and word) or line.startswith(("FAILED ", "ERROR ")):   # -rfE's recap
+            continue
+        outcome = word.group(1).lower()
+        counts[outcome] = counts.get(outcome, 0) + 1
+        if outcome in ("failed", "error"):
+            failed.append(m.group(1))
+    return counts, failed
+
+
 def bench_figures(result: dict) -> dict:
     """The figures of a bench.py JSON: ``{"B1 analog": events/s, ...}`` (medians), and
     ``"T1/B1"`` and ``"ours/MCX"`` where the JSON has them."""
@@ -279,6 +313,12 @@ def summary_lines(device: str, records: list, figures: dict, quick: bool) -> lis
         note = r.get("skip") or r.get("note") or ""
         rc = "skipped" if r.get("skip") else r["rc"]
         lines.append(f"| {r['name']} | {rc} | {r.get('wall_s', 0):.1f} | {note} |")
+    failed = next((r.get("failed_tests") for r in records if r["name"] == "suite"), None)
+    if failed:
+        lines += ["", f"Failed or erred in the suite ({len(failed)}):"]
+        lines += [f"- {name}" for name in failed[:40]]
+        if len(failed) > 40:
+            lines.append(f"- ... and {len(failed) - 40} more (suite.log)")
     if figures:
         lines += ["", "| figure | value |", "| --- | --- |"]
         lines += [f"| {k} | {v:.4g} |" for k, v in figures.items()]
@@ -334,7 +374,7 @@ def main(argv=None) -> int:
             return 2
     out = Path(args.out or f"gpu_check_{dt.datetime.now():%Y%m%d_%H%M%S}").resolve()
     mcx = mcx_available()
-    steps = plan(device, out, args.quick, mcx, args.photons)
+    steps = plan(device, out, args.quick, mcx, args.photons, suite=args.suite)
     if args.dry_run:
         for s in steps:
             env = " ".join(f"{k}={v}" for k, v in s.env.items())
@@ -361,6 +401,18 @@ def main(argv=None) -> int:
     if "log" in tests:
         counts = pytest_counts(Path(tests["log"]).read_text())
         tests["note"] = ", ".join(f"{n} {k}" for k, n in counts.items())
+    suite = next(r for r in records if r["name"] == "suite")
+    if "log" in suite:
+        text = Path(suite["log"]).read_text()
+        counts = pytest_counts(text)
+        ended, suite["failed_tests"] = pytest_outcomes(text)
+        note = ", ".join(f"{n} {k}" for k, n in (counts or ended).items())
+        if not counts:
+            note += " (stopped before pytest's summary: the tests that ended)"
+        missing = [m for m in TEST_EXTRAS if importlib.util.find_spec(m) is None]
+        if missing:
+            note += "; test extras missing: " + ", ".join(missing)
+        suite["note"] = note
     lines = summary_lines(device, records, figures, args.quick)
     (out / "summary.txt").write_text("\n".join(lines) + "\n")
     (out / "summary.json").write_text(json.dumps(

@@ -183,12 +183,15 @@ import gpu_check  # noqa: E402
 
 
 def test_gpu_check_plan_has_every_step_on_the_device(tmp_path):
-    """The six steps in order, each pointed at the device (the tests through
-    $WARPE_CL_DEVICE, the tools through --device); MCX skipped, and said so, without pmcx."""
+    """The seven steps in order, each pointed at the device (the tests through
+    $WARPE_CL_DEVICE, the tools through --device); MCX skipped, and said so, without pmcx;
+    the whole suite only with --suite."""
     steps = gpu_check.plan("2:0", tmp_path, quick=False, mcx=None, python="py")
-    assert [s.name for s in steps] == ["devices", "tests", "bench", "fill", "mcx", "paper"]
+    assert [s.name for s in steps] == ["devices", "tests", "bench", "fill", "mcx", "paper",
+                                       "suite"]
     assert all(s.env["WARPE_CL_DEVICE"] == "2:0" for s in steps)
-    devices, tests, bench_, fill, mcx, paper = steps
+    devices, tests, bench_, fill, mcx, paper, suite = steps
+    assert suite.skip
     assert fill.command[fill.command.index("--photons") + 1] == "1e+07"
     assert fill.command[fill.command.index("--scenes") + 1] == "B1,T1"
     assert devices.command[-3:] == ["--requalify", "--device", "2:0"]
@@ -268,3 +271,27 @@ def test_gpu_check_makes_the_mcx_venv_where_warpe_cl_is_not_installed(tmp_path):
     assert out.returncode == 0, out.stderr
     shim = list(tmp_path.glob("venv/lib/python*/site-packages/pmcxcl.py"))
     assert len(shim) == 1 and "from pmcx import *" in shim[0].read_text()
+
+
+def test_gpu_check_suite_step_is_asked_for_and_names_its_failures(tmp_path):
+    """--suite adds the whole test run on the device (-v, a worker per core); without it the
+    step is skipped and says how to ask. A run stopped before pytest's summary line (the H200's
+    second suite run, at its time limit) still names the tests that failed."""
+    steps = gpu_check.plan("0:0", tmp_path, quick=False, mcx=None, python="py", suite=True)
+    assert [s.name for s in steps][-1] == "suite" and steps[-1].skip is None
+    suite = steps[-1].command
+    assert "-v" in suite and suite[suite.index("-n") + 1] == "auto" and "-k" not in suite
+    assert steps[-1].env["WARPE_CL_DEVICE"] == "0:0"
+    plain = gpu_check.plan("0:0", tmp_path, quick=False, mcx=None, python="py")
+    assert "--suite" in plain[-1].skip
+    log = ("[gw0] [ 10%] PASSED tests/test_a.py::test_one\n"
+           "[gw1] [ 20%] FAILED tests/test_b.py::test_two[1-x]\n"
+           "tests/test_c.py::test_three SKIPPED (no GPU) [ 30%]\n"
+           "[gw2] [ 40%] ERROR tests/test_d.py::test_four\n"
+           "FAILED tests/test_b.py::test_two[1-x] - AssertionError\n")
+    counts, failed = gpu_check.pytest_outcomes(log)
+    assert counts == {"passed": 1, "failed": 1, "skipped": 1, "error": 1}
+    assert failed == ["tests/test_b.py::test_two[1-x]", "tests/test_d.py::test_four"]
+    records = [{"name": "suite", "rc": 1, "wall_s": 9.0, "failed_tests": failed}]
+    lines = gpu_check.summary_lines("0:0", records, {}, quick=False)
+    assert "- tests/test_d.py::test_four" in lines
