@@ -182,7 +182,8 @@ def plan(device: str, out: Path, quick: bool, mcx: str | None, photons: float | 
              ["--photons", f"{FILL['photons']:g}", "--tail-photons",
               f"{FILL['tail_photons']:g}", "--rounds", "3"])
     suite_cmd = [python, "-m", "pytest", "-v", "-rfE", "-p", "no:cacheprovider", "-n", "auto",
-             "--maxprocesses", str(os.cpu_count() or 1)] + (["-k", QUICK_TESTS] if quick else [])
+                 "--maxprocesses", str(os.cpu_count() or 1)]
+    suite_cmd += ["-k", QUICK_TESTS] if quick else []
     return [
         Step("devices", [python, "-m", "warpe_cl", "devices", "--requalify", "--device", device],
              env, 300),
