@@ -138,6 +138,11 @@ def test_counts_and_rays_do_not_depend_on_the_event_budget(engine, mode, texture
                                event_budget=budget, progress=launches.append, qualified=True)
             assert other.same_as(reference), budget
             assert len(launches) >= MIN_LAUNCHES and launches[-1] == n, launches[:5]
+            # the engine's own account of the launches (what tools/bench/bench.py reports)
+            log = engine.last_launches
+            assert len(log) == len(launches) and sum(x["photons"] for x in log) == n
+            assert {x["event_budget"] for x in log} == {budget} and log[-1]["parked"] == 0
+            assert all(x["seconds"] > 0 for x in log)
             for field, value in reference.records.items():
                 assert np.array_equal(other.records[field], value, equal_nan=True), field
 

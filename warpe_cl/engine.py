@@ -334,6 +334,10 @@ class Engine:
         self.last_build_s = 0.0
         #: seconds the last :meth:`run` spent walking (its launches), what the speeds count
         self.last_walk_s = None
+        #: the last :meth:`run`'s launches, in order: new photons taken, parked rays resumed,
+        #: rays parked, the event budget and the seconds each took (launch to readback), for
+        #: telling a walk bound by its launches from one bound by its set-up (tools/bench)
+        self.last_launches: list = []
         self._kernels = {}
         self._folds = {}      # the nadir_fold kernel of each nadir build (same keys)
         self._stats_folds = {}   # the stats_fold kernel of each build (same keys)
@@ -505,6 +509,7 @@ class Engine:
         handed = 0         # photons handed to launches so far
         carried = 0        # rays parked by the last launch, resumed by the next
         budget = int(event_budget or FIRST_EVENT_BUDGET)
+        self.last_launches = []
         # new photons per launch: the uint32 histograms hold them and the carried rays
         offer = min(int(batch) if batch else MAX_LAUNCH, MAX_LAUNCH - walk.capacity)
         while handed < photons or carried:
@@ -515,6 +520,8 @@ class Engine:
             part, lost, resumed, parked, elapsed = self._launch(walk, launch, carried)
             lost_weights += lost
             took = part.photons
+            self.last_launches.append({"photons": took, "resumed": resumed, "parked": parked,
+                                       "event_budget": budget, "seconds": elapsed})
             total.add_walk(part)
             handed += took
             carried = _carry_unresumed(self.queue, walk.carry, carried, resumed, parked,

@@ -119,7 +119,7 @@ TAIL_GOAL = 0.8
 TOY_VARIANT = "vec16"
 #: What one timed run of ours reports, each summarised over rounds.
 RUN_KEYS = ("seconds", "cpu_seconds", "photons_per_s", "scattering_events_per_s",
-            "scatterings_per_photon")
+            "scatterings_per_photon", "walk_seconds", "launches")
 
 
 # ---------------------------------------------------------------- statistics over rounds
@@ -156,14 +156,21 @@ def warm_up(engine, params, photons: int, precision: str) -> None:
 
 
 def timed_run(engine, params, photons: int, precision: str) -> tuple:
-    """One timed run: its figures (``RUN_KEYS``) and its :class:`~warpe_cl.params.Counts`."""
+    """One timed run: its figures (``RUN_KEYS``) and its :class:`~warpe_cl.params.Counts`.
+    ``walk_seconds`` is the part of ``seconds`` spent in the launches (the rest: setting up
+    the walk's buffers, its warm-up and the final readback); ``launches`` their number, and
+    ``launch_seconds`` each one's time: a GPU walk of ever the same rays whose time varies
+    from round to round (B3 on the H200) shows there whether its launches or the rest vary."""
     t0, c0 = time.perf_counter(), time.process_time()
     counts = engine.run(params, photons, precision=precision)
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
+    launches = getattr(engine, "last_launches", [])
     return {"photons": photons, "seconds": elapsed, "cpu_seconds": cpu,
             "photons_per_s": photons / elapsed,
             "scattering_events_per_s": counts.scattering_events / elapsed,
-            "scatterings_per_photon": counts.scattering_events / photons}, counts
+            "scatterings_per_photon": counts.scattering_events / photons,
+            "walk_seconds": sum(x["seconds"] for x in launches), "launches": len(launches),
+            "launch_seconds": [x["seconds"] for x in launches]}, counts
 
 
 def figure_of_merit(counts, params, seconds: float, t_min: float = 0.0) -> dict:
@@ -215,7 +222,10 @@ def scene_line(name: str, mode: str, runs: list) -> str:
     return (f"{name} {mode}: "
             f"{fmt_spread(spread(r['photons_per_s'] for r in runs))} photons/s, "
             f"{fmt_spread(spread(r['scattering_events_per_s'] for r in runs))} scattering "
-            f"events/s ({per_photon:.0f} per photon, {runs[0]['photons']:.3g} photons); FOM of "
+            f"events/s ({per_photon:.0f} per photon, {runs[0]['photons']:.3g} photons); "
+            f"launches {fmt_spread(spread(r['launches'] for r in runs))}, their time "
+            f"{fmt_spread(spread(r['walk_seconds'] for r in runs))} s of "
+            f"{fmt_spread(spread(r['seconds'] for r in runs))} s; FOM of "
             f"the scattering energy in its FOV: {fom}")
 
 

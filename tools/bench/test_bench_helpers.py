@@ -59,10 +59,14 @@ def test_spread_and_its_text():
 def test_summary_keeps_the_keys_bench_ab_reads():
     runs = [{"photons": 10, "seconds": s, "cpu_seconds": s, "photons_per_s": 10 / s,
              "scattering_events_per_s": 900 / s, "scatterings_per_photon": 90.0,
+             "walk_seconds": 0.5 * s, "launches": 2 + s,
              "figure_of_merit": [{"t_min_ns": 0.0, "value": 0.1, "relative_stderr": 0.1,
                                   "fom_per_s": 100 / s}]} for s in (1.0, 2.0, 4.0)]
     out = bench.summarize_runs(runs)
     assert out["scattering_events_per_s"] == 450.0 and out["photons_per_s"] == 5.0
+    assert out["walk_seconds"] == 1.0 and out["range"]["launches"] == [3.0, 6.0]
+    assert "launches 4 [3–6], their time 1 [0.5–2] s of 2 [1–4] s" in bench.scene_line(
+        "B1", "analog", runs)
     assert out["range"]["scattering_events_per_s"] == [225.0, 900.0]
     assert out["figure_of_merit"][0]["fom_per_s"] == 50.0
     assert out["rounds"] == 3 and out["runs"] is runs
