@@ -327,6 +327,10 @@ def _photon_counting(p, grid, signal_rate, dc_rate, modes, shots, seed, scenario
     ts = adc.sample_times(p["window.start"], p["window.stop"], interval)
     bins = np.concatenate([ts, [ts[-1] + interval]])
     expected = rebin_density(edges, signal_rate[crop] + dc_rate, bins)
+    recorded, _ = photon_counting.expected_recorded(
+        edges, signal_rate[crop], dc_rate, bins, p["detector.channels"],
+        p["detector.analog_dead_time"], p["detector.digital_dead_time"],
+        p["detector.timing_jitter"], modes)
     sig = signal_rate[crop] * grid.step
     t_c = grid.centres[crop]
     mean = float(np.sum(sig * t_c) / sig.sum()) if sig.sum() > 0 else 0.0
@@ -360,6 +364,7 @@ def _photon_counting(p, grid, signal_rate, dc_rate, modes, shots, seed, scenario
         "sample_time": ts,
         "signal_counts": counts,
         "expected_counts": expected,
+        "expected_recorded_counts": recorded,
         "photon_time": photon_time,
         "photon_count": np.array([t.size for t in tags]),
         "speckle_factor": factor,

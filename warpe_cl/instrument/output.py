@@ -55,6 +55,10 @@ VARIABLES = {
     "signal_counts": (("shot", "sample_time"), "1", "recorded photons per bin of each shot"),
     "expected_counts": (("sample_time",), "1", "expected photoelectrons per bin per shot, "
                                                "before dead time"),
+    "expected_recorded_counts": (("sample_time",), "1", "expected recorded photons per bin per "
+                                 "shot: after the dead times and the timing jitter, speckle "
+                                 "averaged (an upper bound where the digital dead time exceeds "
+                                 "twice the analog one)"),
     "photon_time": (("shot", "photon"), "ns", "recorded time tags (NaN padded)"),
     "photon_count": (("shot",), "1", "recorded photons per shot"),
     "expected_photoelectrons": ((), "1", "expected photoelectrons per shot in the window"),

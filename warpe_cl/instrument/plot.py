@@ -199,8 +199,11 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
             hist = sc["signal_counts"].values.sum(axis=0)
             bot.step(sc["sample_time"].values, hist, where="post", color=colour,
                      label=f"{label}: {int(hist.sum())} photons in {shots} shots")
-            bot.plot(sc["sample_time"].values + 0.5 * np.diff(sc["sample_time"].values[:2]),
-                     sc["expected_counts"].values * shots, color=colour, ls="--", lw=0.8)
+            mid_bin = sc["sample_time"].values + 0.5 * np.diff(sc["sample_time"].values[:2])
+            bot.plot(mid_bin, sc["expected_counts"].values * shots, color=colour, ls=":", lw=0.8)
+            if "expected_recorded_counts" in sc:
+                bot.plot(mid_bin, sc["expected_recorded_counts"].values * shots, color=colour,
+                         ls="--", lw=0.8)
     for a in (top, frac_ax):
         a.set_xscale("log")
         a.set_yscale("log")
@@ -236,7 +239,8 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
                       "dashed = unclipped shape x the factor shown", fontsize=9)
     else:
         bot.set_ylabel("photons per bin (all shots)")
-        bot.set_title("photon-counting histogram (dashed: expected, before dead time)", fontsize=9)
+        bot.set_title("photon-counting histogram (dashed: expected recorded; dotted: expected "
+                      "before dead time)", fontsize=9)
     for ax in axes:
         ax.grid(True, alpha=0.3)
         if ax is not top:
