@@ -566,7 +566,7 @@ def _recorded_z(counts: np.ndarray, expected: np.ndarray) -> np.ndarray:
 
 def test_expected_recorded_counts_follow_dead_time_jitter_and_speckle():
     """photon_counting.expected_recorded against the recording itself: 4000 shots of a bright
-    return (10 photoelectrons, most in 2 ns, over 16 channels with 3 ns dead times), with
+    return (10 photoelectrons, 8 in a pulse of 1 ns sigma; 16 channels, 3 ns dead times), with
     speckle of 4 modes and without, with jitter and without: every bin within 5 sigma of
     the mean of the shots, where the expectation before dead time misses by more; and its
     exact limits (no dead time, no jitter: the rebinned rate; jitter keeps the total)."""

@@ -159,8 +159,8 @@ def timed_run(engine, params, photons: int, precision: str) -> tuple:
     """One timed run: its figures (``RUN_KEYS``) and its :class:`~warpe_cl.params.Counts`.
     ``walk_seconds`` is the part of ``seconds`` spent in the launches (the rest: setting up
     the walk's buffers, its warm-up and the final readback); ``launches`` their number, and
-    ``launch_seconds`` each one's time: a GPU walk of ever the same rays whose time varies
-    from round to round (B3 on the H200) shows there whether its launches or the rest vary."""
+    ``launch_seconds`` each one's time. A walk of the same rays whose time varies from round
+    to round (B3 on the H200) shows there whether its launches or the rest vary."""
     t0, c0 = time.perf_counter(), time.process_time()
     counts = engine.run(params, photons, precision=precision)
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
