@@ -13,7 +13,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import ndtr
+
+#: math.erfc over arrays (exact to double precision; the chain of a run or a sweep worker
+#: does not import scipy, tests/test_cli.py)
+_ERFC = np.frompyfunc(math.erfc, 1, 1)
 
 
 def arrivals(rng: np.random.Generator, edges_ns: np.ndarray, rate_per_ns: np.ndarray) -> np.ndarray:
@@ -154,4 +157,5 @@ def expected_recorded(edges_ns: np.ndarray, signal_rate: np.ndarray, dark_rate: 
 
 def _psi(z: np.ndarray) -> np.ndarray:
     """z Φ(z) + φ(z): the integral of the normal CDF Φ up to z."""
-    return z * ndtr(z) + np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+    phi_cdf = 0.5 * _ERFC(-z / math.sqrt(2.0)).astype(float)
+    return z * phi_cdf + np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
