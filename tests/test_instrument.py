@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from warpe_cl import report
 from warpe_cl.errors import ConfigError
 from warpe_cl.instrument import adc, apply_instrument, detection, detector, electronics, \
     footprint, load_instrument, photon_counting, pulse, radiometry, specular, speckle
@@ -614,6 +615,13 @@ def test_atlas_histogram_matches_its_expected_recorded_counts():
     totals = counts.sum(axis=1)
     assert abs(totals.mean() - recorded.sum()) < 5.0 * totals.std(ddof=1) / math.sqrt(3000)
     assert recorded.sum() < 0.85 * out["expected_counts"].values.sum()
+    # `warpe-cl instrument` says how many the dead times take (a file without the variable,
+    # from an older version, is reported as before)
+    lost = 100.0 * (1.0 - recorded.sum() / out["expected_counts"].values.sum())
+    line = next(ln for ln in report.instrument_lines(out) if "photons recorded" in ln)
+    assert f"before the dead times, {lost:.0f} % lost" in line, line
+    older = report.instrument_lines(out.drop_vars("expected_recorded_counts"))
+    assert [ln for ln in older if "photons recorded" in ln][0].endswith("per shot")
 
 
 def test_detection_closed_forms():

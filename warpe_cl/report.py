@@ -132,7 +132,8 @@ def scenario_lines(ds, build_s: float = 0.0, walk_s: float | None = None) -> lis
 
 def instrument_lines(ds) -> list:
     """What the instrument recorded, case by case: photons at the aperture per part, the
-    expected peak (mV) and noise, or photons recorded per shot, detection, range and width (ns).
+    expected peak (mV) and noise, or photons recorded per shot (with their expectation after
+    and before the dead times), detection, range and width (ns).
 
     Parameters
     ----------
@@ -158,8 +159,14 @@ def instrument_lines(ds) -> list:
                 f"(unclipped), noise {float(sc['noise_mv']):.3g} mV, saturated shots "
                 f"{float(sc['saturated'].mean()):.2f}")
         else:
-            lines.append(f"    photons recorded      {float(sc['photon_count'].mean()):.3g} "
-                         f"per shot")
+            line = f"    photons recorded      {float(sc['photon_count'].mean()):.3g} per shot"
+            if "expected_recorded_counts" in sc:    # files of older versions lack it
+                after = float(sc["expected_recorded_counts"].sum())
+                before = float(sc["expected_counts"].sum())
+                lost = 100.0 * (1.0 - after / before) if before > 0 else 0.0
+                line += (f" (expected {after:.3g}; {before:.3g} before the dead times, "
+                         f"{lost:.0f} % lost)")
+            lines.append(line)
         detected = sc["detected"].any()
         lines.append(
             f"    detected              {float(sc['detected'].mean()):.2f} of shots; range "
