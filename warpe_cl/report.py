@@ -160,12 +160,12 @@ def instrument_lines(ds) -> list:
                 f"{float(sc['saturated'].mean()):.2f}")
         else:
             line = f"    photons recorded      {float(sc['photon_count'].mean()):.3g} per shot"
-            if "expected_recorded_counts" in sc:    # files of older versions lack it
+            if "dead_time_loss" in sc:    # files of older versions lack it
                 after = float(sc["expected_recorded_counts"].sum())
-                before = float(sc["expected_counts"].sum())
-                lost = 100.0 * (1.0 - after / before) if before > 0 else 0.0
-                line += (f" (expected {after:.3g}; {before:.3g} before the dead times, "
-                         f"{lost:.0f} % lost)")
+                exact = bool(sc["dead_time_loss_exact"])
+                lost = 100.0 * float(sc["dead_time_loss"])
+                line += (f" (expected {'' if exact else 'at most '}{after:.3g}; the dead times "
+                         f"take {'' if exact else 'at least '}{lost:.0f} %)")
             lines.append(line)
         detected = sc["detected"].any()
         lines.append(

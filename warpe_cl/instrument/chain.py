@@ -327,10 +327,15 @@ def _photon_counting(p, grid, signal_rate, dc_rate, modes, shots, seed, scenario
     ts = adc.sample_times(p["window.start"], p["window.stop"], interval)
     bins = np.concatenate([ts, [ts[-1] + interval]])
     expected = rebin_density(edges, signal_rate[crop] + dc_rate, bins)
-    recorded, _ = photon_counting.expected_recorded(
+    recorded, exact = photon_counting.expected_recorded(
         edges, signal_rate[crop], dc_rate, bins, p["detector.channels"],
         p["detector.analog_dead_time"], p["detector.digital_dead_time"],
         p["detector.timing_jitter"], modes)
+    # the same with no dead time: what they take, the jitter's spill past the window aside
+    spread_only, _ = photon_counting.expected_recorded(
+        edges, signal_rate[crop], dc_rate, bins, p["detector.channels"], 0.0, 0.0,
+        p["detector.timing_jitter"], modes)
+    lost = 1.0 - recorded.sum() / spread_only.sum() if spread_only.sum() > 0 else 0.0
     sig = signal_rate[crop] * grid.step
     t_c = grid.centres[crop]
     mean = float(np.sum(sig * t_c) / sig.sum()) if sig.sum() > 0 else 0.0
@@ -365,6 +370,8 @@ def _photon_counting(p, grid, signal_rate, dc_rate, modes, shots, seed, scenario
         "signal_counts": counts,
         "expected_counts": expected,
         "expected_recorded_counts": recorded,
+        "dead_time_loss": lost,
+        "dead_time_loss_exact": int(exact),
         "photon_time": photon_time,
         "photon_count": np.array([t.size for t in tags]),
         "speckle_factor": factor,

@@ -59,6 +59,10 @@ VARIABLES = {
                                  "shot: after the dead times and the timing jitter, speckle "
                                  "averaged (an upper bound where the digital dead time exceeds "
                                  "twice the analog one)"),
+    "dead_time_loss": ((), "1", "fraction of the expected photons in the window that the dead "
+                               "times take (a lower bound where dead_time_loss_exact is 0)"),
+    "dead_time_loss_exact": ((), "1", "1 where expected_recorded_counts is exact, 0 where the "
+                                      "digital dead time exceeds twice the analog one"),
     "photon_time": (("shot", "photon"), "ns", "recorded time tags (NaN padded)"),
     "photon_count": (("shot",), "1", "recorded photons per shot"),
     "expected_photoelectrons": ((), "1", "expected photoelectrons per shot in the window"),

@@ -239,8 +239,10 @@ def instrument_figure(cases, title: str | None = None, shot: int = 0):
                       "dashed = unclipped shape x the factor shown", fontsize=9)
     else:
         bot.set_ylabel("photons per bin (all shots)")
-        bot.set_title("photon-counting histogram (dashed: expected recorded; dotted: expected "
-                      "before dead time)", fontsize=9)
+        recorded = any("expected_recorded_counts" in sc for _, sc in cases)
+        bot.set_title("photon-counting histogram (" + ("dashed: expected recorded; dotted: "
+                      "expected before dead time)" if recorded else "dotted: expected, before "
+                      "dead time)"), fontsize=9)
     for ax in axes:
         ax.grid(True, alpha=0.3)
         if ax is not top:
