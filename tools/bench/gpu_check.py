@@ -259,16 +259,25 @@ def pytest_outcomes(text: str) -> tuple:
     PASSED tests/t.py::test_a`` or ``tests/t.py::test_a PASSED [ 12%]``): the counts per
     outcome and the names of those that failed or erred, in order. A run stopped before its
     summary line is read so."""
+    words = "PASSED|FAILED|ERROR|SKIPPED|XFAIL|XPASS"
+    # xdist: the outcome, then the id to the end of the line (an id may hold spaces);
+    # without: the id, then the last outcome word before the progress "[ 12%]"
+    xdist = re.compile(rf"^\[gw\d+\] \[\s*\d+%\] ({words}) (tests/.+?)\s*$")
+    plain = re.compile(rf"^(tests/.+::.+) ({words})\b.*\[\s*\d+%\]\s*$")
     counts, failed = {}, []
     for line in text.splitlines():
-        m = re.search(r"(tests/\S+::\S+)", line)
-        word = re.search(r"\b(PASSED|FAILED|ERROR|SKIPPED|XFAIL|XPASS)\b", line)
-        if not (m and word) or line.startswith(("FAILED ", "ERROR ")):   # -rfE's recap
-            continue
-        outcome = word.group(1).lower()
+        m = xdist.match(line)
+        if m:
+            outcome, name = m.group(1), m.group(2)
+        else:
+            m = plain.match(line)
+            if not m:           # the summary, -rfE's recap, anything else
+                continue
+            name, outcome = m.group(1), m.group(2)
+        outcome = outcome.lower()
         counts[outcome] = counts.get(outcome, 0) + 1
         if outcome in ("failed", "error"):
-            failed.append(m.group(1))
+            failed.append(name)
     return counts, failed
 
 

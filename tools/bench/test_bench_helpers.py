@@ -264,11 +264,17 @@ def test_gpu_check_makes_the_mcx_venv_where_warpe_cl_is_not_installed(tmp_path):
     """On a lent GPU the project is not installed, only its wheels: the pmcx stand-in's
     version comes from tools/studies/mcxcl_compare.py, which imports warpe_cl, and the check
     stopped there (ModuleNotFoundError) before its first step. A Python started with -S
-    (no site-packages, so no installed warpe_cl) that sees numpy alone makes the venv."""
+    (no site-packages, so no installed warpe_cl, editable or not) that sees numpy alone,
+    through a folder of links to numpy's own, makes the venv."""
     import numpy
-    numpy_site = os.path.dirname(os.path.dirname(numpy.__file__))
+    site = os.path.dirname(os.path.dirname(numpy.__file__))
+    alone = tmp_path / "numpy_alone"
+    alone.mkdir()
+    for name in ("numpy", "numpy.libs"):
+        if os.path.exists(os.path.join(site, name)):
+            (alone / name).symlink_to(os.path.join(site, name))
     code = ("import sys; from pathlib import Path; "
-            f"sys.path[:0] = [{str(BENCH)!r}, {numpy_site!r}]; import gpu_check; "
+            f"sys.path[:0] = [{str(BENCH)!r}, {str(alone)!r}]; import gpu_check; "
             "gpu_check.mcx_venv(Path('venv'), 'pmcx')")
     out = subprocess.run([sys.executable, "-S", "-c", code], cwd=tmp_path, capture_output=True,
                          text=True, timeout=300)
@@ -288,14 +294,18 @@ def test_gpu_check_suite_step_is_asked_for_and_names_its_failures(tmp_path):
     assert steps[-1].env["WARPE_CL_DEVICE"] == "0:0"
     plain = gpu_check.plan("0:0", tmp_path, quick=False, mcx=None, python="py")
     assert "--suite" in plain[-1].skip
+    spaced = "tests/test_sweep.py::test_bad[extra2---scheduler: local:0 is not allowed]"
     log = ("[gw0] [ 10%] PASSED tests/test_a.py::test_one\n"
            "[gw1] [ 20%] FAILED tests/test_b.py::test_two[1-x]\n"
            "tests/test_c.py::test_three SKIPPED (no GPU) [ 30%]\n"
            "[gw2] [ 40%] ERROR tests/test_d.py::test_four\n"
-           "FAILED tests/test_b.py::test_two[1-x] - AssertionError\n")
+           f"[gw3] [ 45%] FAILED {spaced}\n"
+           "tests/test_e.py::test_five[ERROR case] PASSED [ 50%]\n"
+           "FAILED tests/test_b.py::test_two[1-x] - AssertionError\n"
+           "=== 2 failed, 2 passed, 1 skipped, 1 error in 3.0s ===\n")
     counts, failed = gpu_check.pytest_outcomes(log)
-    assert counts == {"passed": 1, "failed": 1, "skipped": 1, "error": 1}
-    assert failed == ["tests/test_b.py::test_two[1-x]", "tests/test_d.py::test_four"]
+    assert counts == {"passed": 2, "failed": 2, "skipped": 1, "error": 1}
+    assert failed == ["tests/test_b.py::test_two[1-x]", "tests/test_d.py::test_four", spaced]
     records = [{"name": "suite", "rc": 1, "wall_s": 9.0, "failed_tests": failed}]
     lines = gpu_check.summary_lines("0:0", records, {}, quick=False)
     assert "- tests/test_d.py::test_four" in lines
