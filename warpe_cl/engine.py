@@ -496,6 +496,7 @@ class Engine:
             exact sums would have dropped it (docs/walk.md §6).
         """
         t_build = time.perf_counter()    # first use: qualification and kernel build
+        self.last_launches = []
         walk = self._set_up(params, precision, records, global_size, local_size, lanes,
                             qualified, shared_nadir, first_photon)
         self._warm_up(walk)
@@ -509,7 +510,6 @@ class Engine:
         handed = 0         # photons handed to launches so far
         carried = 0        # rays parked by the last launch, resumed by the next
         budget = int(event_budget or FIRST_EVENT_BUDGET)
-        self.last_launches = []
         # new photons per launch: the uint32 histograms hold them and the carried rays
         offer = min(int(batch) if batch else MAX_LAUNCH, MAX_LAUNCH - walk.capacity)
         while handed < photons or carried:

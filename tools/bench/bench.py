@@ -219,14 +219,16 @@ def scene_line(name: str, mode: str, runs: list) -> str:
         + fmt_spread(spread(r["figure_of_merit"][i]["fom_per_s"] for r in runs)) + "/s"
         for i, f in enumerate(runs[0]["figure_of_merit"]))
     per_photon = spread(r["scatterings_per_photon"] for r in runs)["median"]
+    # an engine that keeps no launch record (an older tree's, tools/bench/bench_ab.py) has none
+    launches = (f"launches {fmt_spread(spread(r['launches'] for r in runs))}, their time "
+                f"{fmt_spread(spread(r['walk_seconds'] for r in runs))} s of "
+                f"{fmt_spread(spread(r['seconds'] for r in runs))} s; "
+                if any(r.get("launches") for r in runs) else "")
     return (f"{name} {mode}: "
             f"{fmt_spread(spread(r['photons_per_s'] for r in runs))} photons/s, "
             f"{fmt_spread(spread(r['scattering_events_per_s'] for r in runs))} scattering "
             f"events/s ({per_photon:.0f} per photon, {runs[0]['photons']:.3g} photons); "
-            f"launches {fmt_spread(spread(r['launches'] for r in runs))}, their time "
-            f"{fmt_spread(spread(r['walk_seconds'] for r in runs))} s of "
-            f"{fmt_spread(spread(r['seconds'] for r in runs))} s; FOM of "
-            f"the scattering energy in its FOV: {fom}")
+            f"{launches}FOM of the scattering energy in its FOV: {fom}")
 
 
 # ---------------------------------------------------------------- the toy walk

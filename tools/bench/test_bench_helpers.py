@@ -67,6 +67,9 @@ def test_summary_keeps_the_keys_bench_ab_reads():
     assert out["walk_seconds"] == 1.0 and out["range"]["launches"] == [3.0, 6.0]
     assert "launches 4 [3–6], their time 1 [0.5–2] s of 2 [1–4] s" in bench.scene_line(
         "B1", "analog", runs)
+    for r in runs:      # an older tree's engine keeps no launch record: no zeros printed
+        r["launches"], r["walk_seconds"] = 0, 0.0
+    assert "launches" not in bench.scene_line("B1", "analog", runs)
     assert out["range"]["scattering_events_per_s"] == [225.0, 900.0]
     assert out["figure_of_merit"][0]["fom_per_s"] == 50.0
     assert out["rounds"] == 3 and out["runs"] is runs
