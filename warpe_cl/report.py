@@ -132,8 +132,8 @@ def scenario_lines(ds, build_s: float = 0.0, walk_s: float | None = None) -> lis
 
 def instrument_lines(ds) -> list:
     """What the instrument recorded, case by case: photons at the aperture per part, the
-    expected peak (mV) and noise, or photons recorded per shot (with their expectation after
-    and before the dead times), detection, range and width (ns).
+    expected peak (mV) and noise, or photons recorded per shot (with their expectation and
+    the share the dead times take), detection, range and width (ns).
 
     Parameters
     ----------

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from .grid import rebin_density
+
 #: math.erfc over arrays (exact to double precision; the chain of a run or a sweep worker
 #: does not import scipy, tests/test_cli.py)
 _ERFC = np.frompyfunc(math.erfc, 1, 1)
@@ -132,27 +134,26 @@ def expected_recorded(edges_ns: np.ndarray, signal_rate: np.ndarray, dark_rate: 
     # no arrival before the grid starts: a dead window reaching before it sees less dark
     dark_seen = dark_rate * np.minimum(analog_dead, centre - edges[0])
     rate = np.exp(-dark_seen / channels) * (s * with_signal + dark_rate * without)
-    amount = rate * width
     bins = np.asarray(bins_ns, float)
+    exact = bool(digital_dead <= 2.0 * analog_dead)
+    if jitter <= 0.0:
+        return rebin_density(edges, rate, bins), exact
+    amount = rate * width
     total = np.concatenate([[0.0], np.cumsum(amount)])
-    if jitter > 0.0:
-        # the recorded amount below each edge b: the fine bins wholly below b − 8σ_j, then
-        # those within reach, each by P(u + J < b) for u uniform over [a, a + h]:
-        # (σ/h)[ψ(z) − ψ(z − h/σ)], z = (b − a)/σ, ψ(z) = z Φ(z) + φ(z)
-        reach = 8.0 * jitter
-        first = np.clip(np.searchsorted(edges, bins - reach, side="right") - 1, 0, s.size)
-        last = np.clip(np.searchsorted(edges, bins + reach, side="left"), 0, s.size)
-        k = first[:, None] + np.arange(max(int(np.max(last - first, initial=0)), 1))[None, :]
-        inside = k < last[:, None]
-        k = np.minimum(k, s.size - 1)
-        h = width[k]
-        z = (bins[:, None] - edges[k]) / jitter
-        part = jitter / h * (_psi(z) - _psi(z - h / jitter))
-        below = total[first] + np.sum(np.where(inside, part * amount[k], 0.0), axis=1)
-        recorded = np.diff(below)
-    else:
-        recorded = np.diff(np.interp(bins, edges, total, left=0.0))
-    return recorded, bool(digital_dead <= 2.0 * analog_dead)
+    # the recorded amount below each edge b: the fine bins wholly below b − 8σ_j, then
+    # those within reach, each by P(u + J < b) for u uniform over [a, a + h]:
+    # (σ/h)[ψ(z) − ψ(z − h/σ)], z = (b − a)/σ, ψ(z) = z Φ(z) + φ(z)
+    reach = 8.0 * jitter
+    first = np.clip(np.searchsorted(edges, bins - reach, side="right") - 1, 0, s.size)
+    last = np.clip(np.searchsorted(edges, bins + reach, side="left"), 0, s.size)
+    k = first[:, None] + np.arange(max(int(np.max(last - first, initial=0)), 1))[None, :]
+    inside = k < last[:, None]
+    k = np.minimum(k, s.size - 1)
+    h = width[k]
+    z = (bins[:, None] - edges[k]) / jitter
+    part = jitter / h * (_psi(z) - _psi(z - h / jitter))
+    below = total[first] + np.sum(np.where(inside, part * amount[k], 0.0), axis=1)
+    return np.diff(below), exact
 
 
 def _psi(z: np.ndarray) -> np.ndarray:
