@@ -608,6 +608,31 @@ def test_expected_recorded_counts_follow_dead_time_jitter_and_speckle():
                                                  math.inf)[1]
 
 
+@pytest.mark.parametrize("modes", [math.inf, 3.0])
+def test_dead_time_derivatives_are_the_rates_own(modes):
+    """DeadTime.along and .bend (the likelihood's ∂R/∂A, ∂²R/∂A² and a direction's tangent)
+    against central differences of DeadTime.rate, steady and from the grid's start. The
+    differences' own error is O(h²) of the third derivative for the first (h = 1e-4: 1e-8
+    relative) and O(h²)/h² rounding for the second (1e-16/1e-8 of R: under 1e-6 here)."""
+    edges = np.linspace(-5.0, 20.0, 501)
+    c = 0.5 * (edges[1:] + edges[:-1])
+    s = 3.0 * np.exp(-0.5 * (c / 0.7) ** 2) + 0.3 * np.exp(-np.clip(c, 0, None) / 3.0) * (c > 0)
+    w = np.exp(-0.5 * ((c - 1.0) / 1.2) ** 2)
+    for steady in (True, False):
+        dead = photon_counting.DeadTime(edges, 0.4, 16, 3.0, modes, steady)
+        a, h = 1.3, 1e-4
+        up, mid, down = (dead.rate(x * s) for x in (a + h, a, a - h))
+        first, second = (up - down) / (2 * h), (up - 2 * mid + down) / h ** 2
+        np.testing.assert_allclose(dead.along(a * s, s), first, rtol=0, atol=1e-8 * first.max())
+        np.testing.assert_allclose(dead.bend(a * s, s), second, rtol=0,
+                                   atol=1e-5 * np.abs(second).max())
+        tangent = (dead.rate(a * s + h * w) - dead.rate(a * s - h * w)) / (2 * h)
+        np.testing.assert_allclose(dead.along(a * s, w), tangent, rtol=0,
+                                   atol=1e-8 * np.abs(tangent).max())
+    none = photon_counting.DeadTime(edges, 0.4, 16, 0.0, modes)
+    assert not none.active and np.array_equal(none.rate(s), s + 0.4)
+
+
 @pytest.mark.slow
 def test_expected_recorded_counts_at_the_start_of_the_window():
     """Nothing arrives before the window: within τ_a of its start the dead time has seen less

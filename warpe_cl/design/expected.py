@@ -23,6 +23,7 @@ import numpy as np
 from ..inversion.emulator import Emulator
 from ..inversion.forward import Forward
 from ..inversion.invert import DETECTION_SIGMA
+from ..inversion.recording import Recording
 from .family import slope
 from .fisher import NUISANCES, counting_information, covariance, linear_information, sd_along
 
@@ -56,8 +57,8 @@ class Expected:
         Fisher standard deviation in the comparison coordinate (inf: not constrained).
     detected : array of bool (nodes,)
     peak_snr : array (nodes,)
-        Linear mode: the expected peak over σ_n; counting: the expected signal counts of
-        all shots.
+        Linear mode: the expected peak over σ_n; counting: the expected recorded signal
+        counts of all shots (after the dead time).
     min_delta_chi2 : array (nodes,)
         The least Asimov Δχ² to a neighbouring node.
     nearest : array of int (nodes,)
@@ -93,7 +94,8 @@ class Channel:
         The same with the database taken as exact (``full`` where its error is not counted).
     detected : array of bool
     strength : array
-        Per node, the expected peak over σ_n (linear mode) or signal counts (counting).
+        Per node, the expected peak over σ_n (linear mode) or recorded signal counts
+        (counting).
     near : list of list of int
         Per node, the positions of its neighbouring nodes (the steps' order in ``full``).
     elapsed_s : float
@@ -147,6 +149,7 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
     shots = int(params["shots"])
     counting = forward.counting
     emulator = Emulator(family.space, forward) if database_error else None
+    recording = Recording(forward) if counting else None    # counts after the dead time
     n_nodes, n_axes = len(family.nodes), len(family.axes)
     out = Channel([], [], np.zeros(n_nodes, bool), np.zeros(n_nodes), [], 0.0, [])
     position = {node.index: i for i, node in enumerate(family.nodes)}
@@ -170,7 +173,7 @@ def channel(family, params, *, phases: int = 8, database_error: bool = True,
     for i, node in enumerate(family.nodes):
         mu, nu = waves[i]
         if counting:
-            strength = shots * float(np.sum(mu)) * forward.step
+            strength = shots * float(np.sum(recording.level(mu, 1.0))) * forward.step
             detected = strength >= COUNTS_DETECTED
         else:
             strength = float(mu.max()) / forward.sigma_n

@@ -22,11 +22,11 @@ global nuisance with the prior precision 1/S_b: it does not average down with th
 it caps what many shots can learn.
 
 **Photon counting** (ATLAS). The counts of histogram bin k summed over N shots are Poisson of
-mean N m_k, m_k = A λ_k(δ) + b Δ (docs/inversion.md §4.2); the information is
-N Σ_k ∂_i m_k ∂_j m_k / m_k, with A, δ (common to the shots) and v marginalised; the
-database's own error, common to the shots, is eliminated per block of model time as long
-as the kernel, as the inversion does (:func:`counting_information`). As in the inversion,
-speckle and dead time are left out for counts.
+mean N m_k, m_k the recorded counts after the dead time and the jitter (docs/inversion.md §4.2,
+:mod:`warpe_cl.inversion.recording`); the information is N Σ_k ∂_i m_k ∂_j m_k / m_k, with A,
+δ (common to the shots) and v marginalised; the database's own error, common to the shots, is
+eliminated per block of model time as long as the kernel, as the inversion does
+(:func:`counting_information`). As in the inversion, the speckle's extra variance is left out.
 
 Samples whose expected value reaches the receiver's clipped level carry no information here
 (a censored sample carries little; this is conservative).
@@ -39,6 +39,7 @@ import numpy as np
 
 from ..instrument import adc
 from ..inversion.emulator import kernel_length
+from ..inversion.recording import Recording
 
 #: Speckle modes above this count as this many (a_s = A up to 1e-3): keeps the Schur
 #: complement of the amplitude well conditioned without speckle (M = inf).
@@ -231,7 +232,9 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
     (:meth:`warpe_cl.inversion.counting.CountShots.error_blocks`): a common error e_b of the
     rate in each block of model time as long as the kernel's effective length, with the
     prior N(0, S_b) (S_b the mean of S over the block's bins, weighted as the bins weigh
-    it); it moves bin k's expected counts per shot by Δ e_b and is eliminated block by block
+    it); it moves bin k's expected counts per shot by Δ G_k e_b (G the recorded rate's gain,
+    :meth:`warpe_cl.inversion.recording.Recording.gain`; S is taken as G² S, in units of the
+    recorded rate) and is eliminated block by block
     (Schur): I −= c_b c_bᵀ / (Σ_k N Δ²/m_k + 1/S_b), c_b = Σ_k N Δ ∂m_k/m_k. It does not
     average down with the shots. (Blocks of one bin would give each bin the weight
     N/(m_k + N Δ² S_k) instead.)
@@ -242,7 +245,8 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
         A photon-counting instrument (histogram bins of ``forward.interval`` ns, background
         ``forward.dc_rate`` per ns).
     rate : array (N,)
-        Signal photoelectrons per ns at amplitude 1 on ``forward.t``.
+        Signal photoelectrons per ns at amplitude 1 on ``forward.t``, before the dead time and
+        the jitter (:meth:`warpe_cl.inversion.forward.Forward.waveform`).
     d_rate : array (d, N)
         Its derivatives along the d parameters of interest.
     shots : int
@@ -264,18 +268,21 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
     t = forward.t
     step = t[1] - t[0]
     d = d_rate.shape[0]
-    error = np.zeros_like(rate) if variance is None else np.asarray(variance, float)
-    rows = [error, rate, *d_rate]
+    rec = Recording(forward)
+    error = np.zeros_like(rate) if variance is None else \
+        np.asarray(variance, float) * rec.gain(rate, 1.0) ** 2
+    rows = [error, rec.level(rate, 1.0), *(rec.along(rate, 1.0, w) for w in d_rate)]
     if "pulse" in nuisances:
-        rows.append(pulse)
+        rows.append(rec.along(rate, 1.0, pulse))
     if "amplitude" in nuisances:
-        rows.append(rate)                       # ∂m/∂A = λ
+        rows.append(rec.along(rate, 1.0, rate))         # ∂m/∂A
+    recorded = rows[1]
     table = np.cumsum(np.array(rows), axis=1) * step
     table = np.concatenate([np.zeros((table.shape[0], 1)), table], axis=1)
     edges = np.concatenate([t - 0.5 * step, [t[-1] + 0.5 * step]])
     width = forward.interval
     ts = adc.sample_times(forward.params["window.start"], forward.params["window.stop"], width)
-    background = forward.dc_rate * width
+    background = rec.background * width
     total = np.zeros((len(rows) - 2 + int("arrival" in nuisances),) * 2)
     length = max(kernel_length(forward), width)
     for j in range(phases):
@@ -286,7 +293,7 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
         m = lam[1] + background
         jac = list(lam[2:])
         if "arrival" in nuisances:              # ∂λ_k/∂δ = −(r(hi) − r(lo))
-            jac.append(-(np.interp(hi, t, rate) - np.interp(lo, t, rate)))
+            jac.append(-(np.interp(hi, t, recorded) - np.interp(lo, t, recorded)))
         jac = np.array(jac)
         ok = m > 1e-300
         m, jac, s_k, lo = m[ok], jac[:, ok], s_k[ok], lo[ok]

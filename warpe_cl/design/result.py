@@ -123,7 +123,8 @@ def build_dataset(study, families: list, results: dict) -> xr.Dataset:
                 **flag}),
             "peak_snr": (("point", "instrument"), snr, {
                 "long_name": "linear mode: expected peak over the per-sample noise sigma_n; "
-                             "photon counting: expected signal counts of all shots",
+                             "photon counting: expected recorded signal counts of all "
+                             "shots (after the dead time)",
                 "units": "1"}),
             "min_delta_chi2": (("point", "instrument"), chi2, {
                 "long_name": "least expected (Asimov) delta chi2 between the point and a "

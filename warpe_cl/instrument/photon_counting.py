@@ -119,41 +119,125 @@ def expected_recorded(edges_ns: np.ndarray, signal_rate: np.ndarray, dark_rate: 
         τ_d > 2 τ_a, whose timing-channel losses it leaves out (it is then an upper bound).
     """
     edges = np.asarray(edges_ns, float)
-    s = np.asarray(signal_rate, float)
+    rate = DeadTime(edges, dark_rate, channels, analog_dead, modes,
+                    steady=False).rate(np.asarray(signal_rate, float))
+    return jittered_bins(edges, rate, bins_ns, jitter), bool(digital_dead <= 2.0 * analog_dead)
+
+
+class DeadTime:
+    """The rate a photon-counting receiver's channels pass, before the jitter
+    (:func:`expected_recorded`), as a function of the signal rate u(t) (pe ns⁻¹) on a fine
+    grid, with its first two derivatives along a direction w (pe ns⁻¹):
+
+        R(u) = E_d [u F₁(X) + d F₀(X)],   X = W(u) / N_ch,   W(u)(t) = ∫ u over (t − τ_a, t),
+        DR[u]·w = E_d [w F₁(X) + (u F₁′(X) + d F₀′(X)) W(w) / N_ch],
+        D²R[u](w, w) = E_d [2 w F₁′(X) W(w) / N_ch + (u F₁″(X) + d F₀″(X)) (W(w) / N_ch)²],
+
+    with F_k(x) = (1 + x/M)^{−(M+k)} (e^{−x} for M infinite) and E_d = e^{−d τ_a / N_ch}. The
+    amplitude A of a rate A s enters as u = A s: ∂R/∂A = DR[A s]·s, ∂²R/∂A² = D²R[A s](s, s).
+
+    Parameters
+    ----------
+    edges : array (n + 1,)
+        Edges of the fine grid, ns.
+    dark_rate : float
+        Background and dark photoelectrons per ns.
+    channels : int
+        Detector channels N_ch.
+    analog_dead : float
+        Paralyzable dead time τ_a per channel, ns (0: none, R(u) = u + d).
+    modes : float
+        Speckle modes M (``inf``: no speckle).
+    steady : bool
+        Dark counts from long before the grid (E_d everywhere), as for an arrival the
+        likelihood shifts; False: none before the grid's start, E_d = e^{−d min(τ_a, t − t₀)
+        / N_ch}, as the chain draws them.
+    """
+
+    def __init__(self, edges, dark_rate: float, channels: int, analog_dead: float,
+                 modes: float, steady: bool = True):
+        self.edges = np.asarray(edges, float)
+        self.width = np.diff(self.edges)
+        self.centre = 0.5 * (self.edges[:-1] + self.edges[1:])
+        self.dark, self.channels, self.tau, self.modes = (float(dark_rate), int(channels),
+                                                          float(analog_dead), float(modes))
+        seen = self.dark * (self.tau if steady
+                            else np.minimum(self.tau, self.centre - self.edges[0]))
+        self.e_d = np.exp(-seen / self.channels)
+        #: The passed rate far from any signal (pe ns⁻¹), where steady.
+        self.dark_level = float(np.exp(-self.dark * self.tau / self.channels) * self.dark)
+
+    @property
+    def active(self) -> bool:
+        """Whether any arrival is lost (τ_a > 0)."""
+        return self.tau > 0.0
+
+    def window(self, w: np.ndarray) -> np.ndarray:
+        """W(w) / N_ch at the fine bins' centres (w piecewise constant)."""
+        cumulative = np.concatenate([[0.0], np.cumsum(w * self.width)])
+        return (np.interp(self.centre, self.edges, cumulative)
+                - np.interp(self.centre - self.tau, self.edges, cumulative, left=0.0)) / self.channels
+
+    def _factors(self, x: np.ndarray, order: int) -> tuple:
+        """(F₁, F₀) at x, or their ``order``-th derivatives."""
+        m = self.modes
+        if not math.isfinite(m):
+            f = np.exp(-x) * (-1.0) ** order
+            return f, f
+        base = 1.0 + x / m
+        coefficient = {0: (1.0, 1.0), 1: (-(m + 1.0) / m, -1.0),
+                       2: ((m + 1.0) * (m + 2.0) / m ** 2, (m + 1.0) / m)}[order]
+        return (coefficient[0] * base ** -(m + 1.0 + order),
+                coefficient[1] * base ** -(m + order))
+
+    def rate(self, u: np.ndarray) -> np.ndarray:
+        """R(u), pe ns⁻¹ on the fine grid."""
+        with_signal, without = self._factors(self.window(u), 0)
+        return self.e_d * (u * with_signal + self.dark * without)
+
+    def along(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """DR[u]·w, pe ns⁻¹."""
+        x = self.window(u)
+        f1, _ = self._factors(x, 0)
+        d1, d0 = self._factors(x, 1)
+        return self.e_d * (w * f1 + (u * d1 + self.dark * d0) * self.window(w))
+
+    def bend(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """D²R[u](w, w), pe ns⁻¹."""
+        x = self.window(u)
+        d1, _ = self._factors(x, 1)
+        b1, b0 = self._factors(x, 2)
+        ww = self.window(w)
+        return self.e_d * (2.0 * w * d1 * ww + (u * b1 + self.dark * b0) * ww * ww)
+
+
+def jittered_bins(edges_ns: np.ndarray, rate: np.ndarray, bins_ns: np.ndarray,
+                  jitter: float) -> np.ndarray:
+    """A rate (per ns, piecewise constant on the fine grid ``edges_ns``) spread by a Gaussian
+    timing jitter σ_j (ns) and integrated over the histogram bins ``bins_ns``: each fine bin
+    uniform over its width, convolved exactly with the Gaussian."""
+    edges = np.asarray(edges_ns, float)
+    rate = np.asarray(rate, float)
     width = np.diff(edges)
-    centre = 0.5 * (edges[:-1] + edges[1:])
-    cumulative = np.concatenate([[0.0], np.cumsum(s * width)])
-    window = (np.interp(centre, edges, cumulative)
-              - np.interp(centre - analog_dead, edges, cumulative, left=0.0))
-    x = window / channels
-    if math.isfinite(modes):
-        base = 1.0 + x / modes
-        with_signal, without = base ** -(modes + 1.0), base ** -modes
-    else:
-        with_signal = without = np.exp(-x)
-    # no arrival before the grid starts: a dead window reaching before it sees less dark
-    dark_seen = dark_rate * np.minimum(analog_dead, centre - edges[0])
-    rate = np.exp(-dark_seen / channels) * (s * with_signal + dark_rate * without)
     bins = np.asarray(bins_ns, float)
-    exact = bool(digital_dead <= 2.0 * analog_dead)
     if jitter <= 0.0:
-        return rebin_density(edges, rate, bins), exact
+        return rebin_density(edges, rate, bins)
     amount = rate * width
     total = np.concatenate([[0.0], np.cumsum(amount)])
     # the recorded amount below each edge b: the fine bins wholly below b − 8σ_j, then
     # those within reach, each by P(u + J < b) for u uniform over [a, a + h]:
     # (σ/h)[ψ(z) − ψ(z − h/σ)], z = (b − a)/σ, ψ(z) = z Φ(z) + φ(z)
     reach = 8.0 * jitter
-    first = np.clip(np.searchsorted(edges, bins - reach, side="right") - 1, 0, s.size)
-    last = np.clip(np.searchsorted(edges, bins + reach, side="left"), 0, s.size)
+    first = np.clip(np.searchsorted(edges, bins - reach, side="right") - 1, 0, rate.size)
+    last = np.clip(np.searchsorted(edges, bins + reach, side="left"), 0, rate.size)
     k = first[:, None] + np.arange(max(int(np.max(last - first, initial=0)), 1))[None, :]
     inside = k < last[:, None]
-    k = np.minimum(k, s.size - 1)
+    k = np.minimum(k, rate.size - 1)
     h = width[k]
     z = (bins[:, None] - edges[k]) / jitter
     part = jitter / h * (_psi(z) - _psi(z - h / jitter))
     below = total[first] + np.sum(np.where(inside, part * amount[k], 0.0), axis=1)
-    return np.diff(below), exact
+    return np.diff(below)
 
 
 def _psi(z: np.ndarray) -> np.ndarray:

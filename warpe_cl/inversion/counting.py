@@ -1,31 +1,34 @@
 """The likelihood of photon-counting shots (ATLAS ``signal_counts``; docs/inversion.md §4.2).
 
 A photon-counting receiver records a few time tags per shot; shot s puts c_sk of them in
-histogram bin k = [t_k, t_k + Δ). With r(t) the signal photoelectrons per ns at amplitude 1
-(pulse, footprint and timing jitter: :meth:`.forward.Forward.waveform`) and b the background
-and dark counts per ns, the expected counts per shot are
+histogram bin k = [t_k, t_k + Δ). With s(t) the signal photoelectrons per ns at amplitude 1
+(pulse and footprint: :meth:`.forward.Forward.waveform`), the recorded rate at amplitude A is
+d_r + ρ(t; A), ρ = J ⊗ R(A s) − d_r: the channels' dead time R averaged over the speckle, then
+the timing jitter J, less the recorded dark and background level d_r (:mod:`.recording`). The
+expected recorded counts per shot are
 
-    m_k(A, δ) = A λ_k(δ) + b Δ,    λ_k(δ) = ∫ r(t − δ) dt over bin k,
+    m_k(A, δ) = d_r Δ + ∫ ρ(t − δ; A) dt over bin k,
 
-with A the overall amplitude (profiled, like the linear mode's) and δ the arrival (range
-offset), common to the shots: the tags are continuous times, not samples of a free-running
-clock, so there is no per-shot sampling phase, and a shot's few photons could not fix its own
-arrival anyway. The counts of bin k summed over the N shots, c_k, are then Poisson of mean
-N m_k, and
+with A the overall amplitude (profiled) and δ the arrival (range offset), common to the
+shots: the tags are continuous times, not samples of a free-running clock, so there is no
+per-shot sampling phase, and a shot's few photons could not fix its own arrival anyway. The
+counts of bin k summed over the N shots, c_k, are taken as Poisson of mean N m_k, and
 
     log L = log ∫ dδ max_A Σ_k [c_k log(N m_k) − N m_k − log c_k!]
 
-(the arrival integrated with a flat prior on a coarse, then a fine grid; A profiled by
-Newton's method, the objective being concave in A).
+(the arrival integrated with a flat prior on a coarse, then a fine grid). Without dead time
+m_k = A λ_k(δ) + d Δ, concave in A: A is profiled by Newton's method. With it, ρ is expanded to
+second order in A around a centre A_c (:meth:`.recording.Recording.bend`), A profiled by Newton
+in that expansion at each δ (within A_c/2 and 2 A_c), A_c starting where the recorded photons
+of all bins equal the observed ones and moved to the best arrival's A until it stays (to 1e-6):
+exact there, third order in A − A_c at the other arrivals.
 
-Left out, and why it is small for ATLAS-like receivers (say so when it is not):
-
-- speckle: each shot's amplitude A S_s varies, which adds N A² λ_k²/M to the variance of c_k,
-  a fraction A λ_k / M of the Poisson term: below 1e-3 when a bin holds less than a tenth of a
-  photon per shot;
-- dead time: a channel that fired is blind for a few ns; with 16 channels and a few photons per
-  shot the lost fraction is the chance that two photons of a shot meet in one channel within
-  the dead time, under 2 % for 5 photons within 3 ns.
+The sum of N shots' counts in a bin is not exactly Poisson: speckle spreads it more (a
+fraction A λ_k / M of the Poisson variance: below 1e-3 when a bin holds less than a tenth of a
+photon per shot) and the dead time less (a shot that recorded one photon is less likely to
+record a second within τ_a); the likelihood leaves both out of the variance. When the timing
+channels' dead time exceeds twice the analog one, their own losses are left out of the mean too
+(``Recording.exact``).
 """
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ from scipy.special import gammaln
 
 from ..instrument.pulse import sigma_from_fwhm
 from .likelihood import ShotFit, kept_span, log_trapezoid
+from .recording import Recording
 
 #: Arrival grid: coarse step (fraction of the pulse's σ at the nominal width), half-width
 #: of the coarse scan (ns, around the histogram's peak), points of the fine grid, and the part
@@ -44,6 +48,13 @@ FINE_POINTS = 81
 KEEP = 12.0
 #: Newton steps of the amplitude at each arrival.
 NEWTON = 8
+#: With dead time: moves of the expansion's centre A_c, and when it has stayed (relative).
+CENTRE_MOVES, CENTRE_TOLERANCE = 6, 1e-6
+#: Expected counts per shot below this are taken as this in the amplitude's Newton steps (a
+#: bin with counts where the model at a far arrival expects none: its squared ratio stays finite).
+FLOOR = 1e-100
+#: With dead time: the amplitudes the expansion is trusted over, relative to its centre.
+TRUST = (0.5, 2.0)
 #: Consecutive bins are grouped until the expected count reaches this for the Pearson χ².
 CHI2_GROUP = 5.0
 #: Bins expecting fewer counts (all shots) than this are left out of the database's error
@@ -70,8 +81,11 @@ class CountShots:
         self.f = forward
         self.n = self.x.shape[0]
         self.c = self.x.sum(axis=0)                        # aggregated histogram
+        self.hit = self.c > 0
+        self.contiguous = bool(np.allclose(np.diff(self.t), forward.interval))
         self.width = forward.interval
-        self.b = forward.dc_rate * self.width             # background counts per bin per shot
+        self.recording = Recording(forward)
+        self.b = self.recording.background * self.width   # dark counts per bin per shot
         self.censored = np.zeros(self.x.shape, bool)      # nothing clips
         self.arrival = None
         self.amplitude = None
@@ -80,43 +94,111 @@ class CountShots:
     def start(self, mu: np.ndarray) -> None:
         """Nothing to start: every fit scans its arrivals afresh."""
 
-    def _lambda(self, mu: np.ndarray, deltas: np.ndarray) -> np.ndarray:
-        """λ_k(δ) (counts per bin per shot at amplitude 1) for each arrival: shape (D, K)."""
+    def _cumulative(self, rate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The fine grid's edges and the rate's integral up to each, for :func:`np.interp`."""
         step = self.f.step
         edges = np.concatenate([self.f.t - 0.5 * step, [self.f.t[-1] + 0.5 * step]])
-        cum = np.concatenate([[0.0], np.cumsum(mu) * step])
+        return edges, np.concatenate([[0.0], np.cumsum(rate) * step])
+
+    def _lambda(self, mu: np.ndarray, deltas: np.ndarray) -> np.ndarray:
+        """The integral of a rate (per ns on the fine grid) over each bin, shifted by each
+        arrival: shape (D, K)."""
+        edges, cum = self._cumulative(mu)
         lo = np.interp(self.t[None, :] - deltas[:, None], edges, cum)
         hi = np.interp(self.t[None, :] + self.width - deltas[:, None], edges, cum)
         return hi - lo
 
-    def _profile(self, lam: np.ndarray, overall) -> tuple[np.ndarray, np.ndarray]:
-        """(log L, A) at each arrival (rows of ``lam``), A profiled unless ``overall``."""
-        n, c, b = self.n, self.c, self.b
-        total = lam.sum(axis=1)
+    def _hits(self, rate: np.ndarray, deltas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The integrals of a rate over the bins holding counts, (D, hits), and over all
+        bins, (D,), at each arrival: the likelihood needs no more, and the bins are
+        contiguous, so the sum is one difference."""
+        if not self.contiguous:
+            full = self._lambda(rate, deltas)
+            return full[:, self.hit], full.sum(1)
+        edges, cum = self._cumulative(rate)
+        t = self.t[self.hit]
+        lo = np.interp(t[None, :] - deltas[:, None], edges, cum)
+        hi = np.interp(t[None, :] + self.width - deltas[:, None], edges, cum)
+        total = (np.interp(self.t[-1] + self.width - deltas, edges, cum)
+                 - np.interp(self.t[0] - deltas, edges, cum))
+        return hi - lo, total
+
+    def _rows(self, mu: np.ndarray, centre: float, deltas: np.ndarray) -> tuple:
+        """The recorded signal counts per shot at amplitude ``centre`` and their first two
+        derivatives in A (None without dead time), at each arrival: per row, the bins holding
+        counts (D, hits) and the sum over all bins (D,); and the range of A − centre over
+        which the expansion stays ≥ 0 (:func:`_nonnegative`) within ``TRUST``."""
+        rec = self.recording
+        if rec.linear:
+            one = self._hits(self.f.jitter(mu), deltas)
+            return (centre * one[0], centre * one[1]), one, None, (1e-6 - centre, np.inf)
+        rows = rec.level(mu, centre), rec.along(mu, centre, mu), rec.bend(mu, centre)
+        lo, hi = _nonnegative(rec.background + rows[0], rows[1], rows[2])
+        span = (max(lo, (TRUST[0] - 1.0) * centre), min(hi, (TRUST[1] - 1.0) * centre))
+        return (*(self._hits(row, deltas) for row in rows), span)
+
+    def _profile(self, rows: tuple, centre: float, overall) -> tuple[np.ndarray, np.ndarray]:
+        """(log L, A) at each arrival, A profiled unless ``overall``: Newton's method on the
+        counts' expansion in A around ``centre`` (:meth:`_rows`)."""
+        n, b = self.n, self.b
+        c = self.c[self.hit]
+        (h0, s0), (h1, s1), bent, (lo, hi) = rows
+        h2, s2 = (None, 0.0) if bent is None else bent
         if overall is not None:
-            a = np.full(lam.shape[0], float(overall))
+            e = np.full(s0.shape[0], float(overall) - centre)
         else:
-            a = np.maximum((c.sum() - n * b * c.size) / np.maximum(n * total, 1e-300), 1e-6)
+            # the linear estimate from the total, then Newton
+            e = np.clip((self.c.sum() / n - b * self.c.size - s0) / np.maximum(s1, 1e-300),
+                        lo, hi)
             for _ in range(NEWTON):
-                ratio = lam / np.maximum(a[:, None] * lam + b, 1e-300)
-                g = (c * ratio).sum(1) - n * total
-                h = (c * ratio * ratio).sum(1)
-                a = np.maximum(a + g / np.maximum(h, 1e-300), 0.5 * a)
-        m = n * (a[:, None] * lam + b)
-        ll = (c * np.log(np.maximum(m, 1e-300))).sum(1) - m.sum(1) - self.log_factorial
-        return ll, a
+                x = e[:, None]
+                slope = h1 if h2 is None else h1 + x * h2
+                mean = b + h0 + x * (h1 if h2 is None else h1 + 0.5 * x * h2)
+                ratio = slope / np.maximum(mean, FLOOR)
+                g = (c * ratio).sum(1) - n * (s1 + e * s2)
+                h = (c * ratio * ratio).sum(1)          # −∂²/∂A², less the curvature below
+                if h2 is not None:
+                    h -= (c * h2 / np.maximum(mean, FLOOR)).sum(1) - n * s2
+                step = g / np.where(h > 0, h, np.abs(g) / np.maximum(centre + e, 1e-300) + 1e-300)
+                a = centre + e
+                e = np.clip(np.maximum(a + step, 0.5 * a) - centre, lo, hi)
+        x = e[:, None]
+        hits = n * (b + h0 + x * (h1 if h2 is None else h1 + 0.5 * x * h2))
+        total = n * (b * self.c.size + s0 + e * (s1 + 0.5 * e * s2))
+        ll = (c * np.log(np.maximum(hits, 1e-300))).sum(1) - total - self.log_factorial
+        return ll, centre + e
+
+    def _scan(self, mu: np.ndarray, deltas: np.ndarray, centre: float, overall,
+              moves: int = CENTRE_MOVES) -> tuple:
+        """(log L, A, centre) at ``deltas``, the expansion's centre moved to the best arrival's
+        A until it stays, at most ``moves`` times (once without dead time or with
+        ``overall``)."""
+        for _ in range(moves):
+            rows = self._rows(mu, centre, deltas)
+            ll, a = self._profile(rows, centre, overall)
+            best = float(a[int(np.argmax(ll))])
+            if rows[2] is None or overall is not None \
+                    or abs(best - centre) <= CENTRE_TOLERANCE * centre:
+                break
+            centre = best
+        return ll, a, best
 
     def fit(self, mu: np.ndarray, nu=None, overall: float | None = None) -> ShotFit:
-        """The log-likelihood of the module docstring at model rate ``mu`` (pe per ns on the
-        fine grid), with the best arrival and amplitude."""
+        """The log-likelihood of the module docstring at the signal rate ``mu`` (pe per ns on
+        the fine grid, amplitude 1), with the best arrival and amplitude."""
         sigma = np.hypot(sigma_from_fwhm(self.f.fwhm), self.f.geo.sigma_g)  # nominal σ, ns
         step = COARSE_FRACTION * max(sigma, self.width)
         centre = (self.t[np.argmax(self.c)] + 0.5 * self.width) - self.f.t[np.argmax(mu)]
         coarse = centre + np.arange(-SCAN_NS, SCAN_NS + 1e-9, step)
-        ll, _ = self._profile(self._lambda(mu, coarse), overall)
+        if overall is not None:
+            start = float(overall)
+        else:       # the amplitude whose recorded photons are the observed ones
+            start = self.recording.amplitude_for(
+                mu, max(self.c.sum() / self.n - self.b * self.c.size, 1e-12))
+        ll, _, middle = self._scan(mu, coarse, start, overall, moves=1)   # where the mass is
         (lo,), (hi,) = kept_span(coarse, ll[None, :], KEEP)
         fine = np.linspace(lo, hi, FINE_POINTS)
-        ll, a = self._profile(self._lambda(mu, fine), overall)
+        ll, a, _ = self._scan(mu, fine, middle, overall)
         top = int(np.argmax(ll))
         loglike = float(log_trapezoid(ll, fine[1] - fine[0]))
         chi2, groups = pearson(self.c, self.n * self.expected(mu, a[top], fine[top]))
@@ -126,54 +208,93 @@ class CountShots:
 
     def error_blocks(self, fit, mu: np.ndarray, variance: np.ndarray, block_ns: float) -> tuple:
         """The database's common error per block of model time, for
-        :func:`~.emulator.integrate_blocks`. With e_b the error of the rate in block b (pe
-        ns⁻¹ at amplitude 1, common to its bins: the error is correlated over the kernel's
-        length, many 0.1 ns bins), bin k's summed counts move by N A Δ e_b; the Poisson log L,
-        quadratic around the fit, has per bin G_k = N A Δ (c_k − M_k)/M_k and W_k =
-        (N A Δ)²/M_k (M_k = N m_k), summed over the block's bins, and S_b the W-weighted mean
-        of S over them, as for linear-mode samples (docs/inversion.md §4.3).
+        :func:`~.emulator.integrate_blocks`. With e_b the error of the signal rate in block b
+        (pe ns⁻¹ at amplitude 1, common to its bins: the error is correlated over the kernel's
+        length, many 0.1 ns bins), bin k's summed counts move by N A Δ G_k e_b, G_k the
+        recorded rate's gain for an error constant over the dead time (1 without dead time:
+        :meth:`.recording.Recording.gain`); the Poisson log L, quadratic around the fit, has
+        per bin G_k' = N A Δ G_k (c_k − M_k)/M_k and W_k = (N A Δ G_k)²/M_k (M_k = N m_k),
+        summed over the block's bins, and S_b the W-weighted mean of S over them, as for
+        linear-mode samples (docs/inversion.md §4.3).
 
         Parameters
         ----------
         fit : ShotFit
             The common amplitude A and arrival δ of the fit.
         mu, variance : array
-            The rate (pe ns⁻¹) and S(t) ((pe ns⁻¹)²) on the forward grid, amplitude 1.
+            The signal rate (pe ns⁻¹) and S(t) ((pe ns⁻¹)²) on the forward grid, amplitude 1.
         block_ns : float
             The blocks' length, ns (at least one bin).
 
         Returns
         -------
         (w, g, s, base)
-            Per block: W, G, S and the directions A and δ absorb (the rate and its time
-            derivative, per ns).
+            Per block: W, G, S and the directions A and δ absorb (in units of e: the
+            recorded rate's derivatives in A and δ over A G_k).
         """
         a, d = float(fit.overall), float(fit.arrival[0])
-        lam, s, slope = (self._lambda(x, np.array([d]))[0] / self.width
-                         for x in (mu, variance, np.gradient(mu, self.f.t)))
-        expect = self.n * (a * lam * self.width + self.b)
-        scale = self.n * a * self.width
+        rec = self.recording
+        at = np.array([d])
+        level = rec.level(mu, a)
+        gain, s, by_a, by_d = (self._lambda(x, at)[0] / self.width for x in (
+            rec.gain(mu, a), variance, rec.along(mu, a, mu), np.gradient(level, self.f.t)))
+        expect = self.n * (self.b + self._lambda(level, at)[0])
+        scale = self.n * a * self.width * gain
         # the quadratic form holds where the error of a bin's expected counts (sd scale √S)
         # is below the counts themselves; where it is not (a bin expecting almost nothing that
         # the database is unsure of) the mean cannot go below 0 and the Gaussian integral
         # would charge log(1 + scale² S / M) for it: such bins are left out
-        kept = (expect > ERROR_MIN_COUNTS) & (scale ** 2 * s <= expect ** 2)
-        w = np.where(kept, scale ** 2 / np.maximum(expect, 1e-300), 0.0)
+        kept = (expect > ERROR_MIN_COUNTS) & (scale ** 2 * s <= expect ** 2) & (gain > 0)
+        # the curvature of the Poisson log L in the mean is c/M² per count²: (N A Δ G)²/M at
+        # the fit's own counts (c = M), more where the counts exceed it. The larger of the
+        # two is taken: with 1/M alone the quadratic form's gain from moving the mean to the
+        # counts, ½ (c − M)²/M, grows without bound where c ≫ M, the Poisson log L's own,
+        # c log(c/M) − (c − M), only as a logarithm (a model far off, whose tail bins held
+        # many counts expecting almost none, gained thousands of units from the database's
+        # error and ranked above the truth); with c/M² it is ½ (c − M)²/c there, below it
+        floor = np.maximum(expect, ERROR_MIN_COUNTS)       # bins below are not kept
+        curvature = np.maximum(self.c / floor, 1.0) / floor
+        w = np.where(kept, scale ** 2 * curvature, 0.0)
         g = np.where(kept, scale * (self.c - expect) / np.maximum(expect, 1e-300), 0.0)
         block = np.floor((self.t - d - self.f.t[0]) / max(block_ns, self.width)).astype(np.intp)
         block -= block.min()
         w_b = np.bincount(block, w)
         used = w_b > 0
         w_b = w_b[used]
+        unit = np.where(kept, 1.0 / np.maximum(a * gain, 1e-300), 0.0)
 
         def mean(x):
             return np.bincount(block, w * x)[used] / w_b
         return (w_b, np.bincount(block, g)[used], mean(s),
-                np.stack([mean(lam), mean(slope)], axis=1))
+                np.stack([mean(by_a * unit), mean(by_d * unit)], axis=1))
 
     def expected(self, mu: np.ndarray, amplitude: float, arrival: float) -> np.ndarray:
-        """Expected counts per bin per shot at ``amplitude`` and ``arrival``."""
-        return amplitude * self._lambda(mu, np.array([arrival]))[0] + self.b
+        """Expected recorded counts per bin per shot at ``amplitude`` and ``arrival``."""
+        level = self.recording.level(mu, amplitude)
+        return self.b + self._lambda(level, np.array([arrival]))[0]
+
+
+def _nonnegative(r0: np.ndarray, r1: np.ndarray, r2: np.ndarray) -> tuple[float, float]:
+    """The range of e around 0 over which r0 + e r1 + ½ e² r2 ≥ 0 at every point where r0
+    is above 1e-9 of its largest (a rate's expansion in A: where it holds on the fine grid,
+    every bin's integral holds it too, at any arrival)."""
+    keep = r0 > 1e-9 * max(float(r0.max()), 1e-300)
+    a, b, c = r0[keep], r1[keep], 0.5 * r2[keep]
+    lo, hi = -np.inf, np.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disc = b * b - 4.0 * a * c
+        root = np.sqrt(np.clip(disc, 0.0, None))
+        quadratic = (np.abs(c) > 1e-300) & (disc >= 0)
+        roots = np.concatenate([np.where(quadratic, (-b - root) / (2 * c), np.nan),
+                                np.where(quadratic, (-b + root) / (2 * c), np.nan),
+                                np.where(~quadratic & (np.abs(c) <= 1e-300) & (b != 0),
+                                         -a / b, np.nan)])
+    roots = roots[np.isfinite(roots)]
+    if (roots > 0).any():
+        hi = float(roots[roots > 0].min())
+    if (roots < 0).any():
+        lo = float(roots[roots < 0].max())
+    return lo, hi
 
 
 def pearson(observed: np.ndarray, expected: np.ndarray) -> tuple[float, int]:

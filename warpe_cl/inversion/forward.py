@@ -118,15 +118,18 @@ class Forward:
             lo, hi = -self.geo.sigma_g ** 2, broadening_max ** 2
         self.v_bounds = (lo, hi)
         self.counting = p["detector.type"] == "photon_counting"
-        if self.counting:       # time tags: no receiver filter, a Gaussian timing jitter
-            self.h, self.h_origin = pulse.gaussian_kernel(p["detector.timing_jitter"], self.step) \
-                if p["detector.timing_jitter"] > 0 else (np.ones(1), 0)
+        if self.counting:       # time tags: no receiver filter; the jitter comes after the
+            self.h, self.h_origin = np.ones(1), 0        # dead time (:meth:`jitter`)
+            jitter, self.jitter_origin = pulse.gaussian_kernel(p["detector.timing_jitter"],
+                                                               self.step)
+            self._jitter = Spectrum(jitter)
         else:
             self.h, self.h_origin = electronics.filter_kernel(
                 p["electronics.filter"], p["electronics.bandwidth"], self.step)
         self._h, self._h2 = Spectrum(self.h), Spectrum(self.h ** 2)     # their FFTs, kept
         widest = math.sqrt(self.sigma_p ** 2 + self.geo.sigma_g ** 2 + max(hi, 0.0))
-        margin = self.step * self.h.size + 8.0 * widest + 2.0 * self.interval + 5.0
+        spread = self._jitter.signal.size if self.counting else self.h.size
+        margin = self.step * spread + 8.0 * widest + 2.0 * self.interval + 5.0
         self.grid = make_grid(p["window.start"], p["window.stop"], self.step, margin)
         self.t = self.grid.centres
         self.eta = radiometry.detection_efficiency(p)
@@ -166,8 +169,8 @@ class Forward:
 
     def waveform(self, photons, v: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """μ (mV) and ν (mV²) of the module docstring on the fine grid (``self.t``); for a
-        photon-counting detector, the signal photoelectrons per ns (amplitude 1) with the
-        timing jitter, and None. ``photons``: an array (:meth:`photons`), or its
+        photon-counting detector, the signal photoelectrons per ns at the detector (amplitude
+        1, before the dead time and the timing jitter: :mod:`.recording`), and None. ``photons``: an array (:meth:`photons`), or its
         :class:`Spectrum` when the same photons are taken at several ``v``."""
         if not isinstance(photons, Spectrum):
             photons = Spectrum(photons)
@@ -175,11 +178,17 @@ class Forward:
         pe = np.clip(self._convolve(photons, Spectrum(k), k_o), 0.0, None) * self.eta
         pe = Spectrum(pe)
         if self.counting:
-            rate = np.clip(self._convolve(pe, self._h, self.h_origin), 0.0, None)
-            return rate / self.step, None
+            return pe.signal / self.step, None
         mu = self.mv_per_pe * self._convolve(pe, self._h, self.h_origin)
         nu = self.mv2_per_pe * self._convolve(pe, self._h2, self.h_origin)
         return mu, np.clip(nu, 0.0, None)
+
+    def jitter(self, rate: np.ndarray) -> np.ndarray:
+        """A photon-counting receiver's rate on the fine grid (per ns) spread by its Gaussian
+        timing jitter, which acts on the recorded tags: after the dead time."""
+        if self._jitter.signal.size == 1:
+            return rate * self._jitter.signal[0]
+        return self._convolve(Spectrum(rate), self._jitter, self.jitter_origin)
 
     @staticmethod
     def _convolve(signal: Spectrum, kernel: Spectrum, origin: int) -> np.ndarray:

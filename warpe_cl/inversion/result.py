@@ -32,16 +32,19 @@ def _band(problem, final, rng_seed: int = 0):
         u = np.array([c[i] for c, i in zip(final.coords, index)])
         photons = f.photons(problem.space.surface(problem.point(u)))
         mu, _ = f.waveform(photons, e.v)
-        curves.append(_curve(f, mu, e.fit.overall))
+        curves.append(_curve(problem, mu, e.fit.overall))
     curves = np.array(curves)
     return np.percentile(curves, 16, axis=0), np.percentile(curves, 84, axis=0)
 
 
-def _curve(f, mu, amplitude):
+def _curve(problem, mu, amplitude):
     """The expected waveform at amplitude A on the fine grid: mV (baseline + A μ), or for a
-    photon-counting receiver counts per histogram bin per shot (A r Δ + b Δ)."""
+    photon-counting receiver recorded counts per histogram bin per shot ((d_r + ρ) Δ, dead
+    time and jitter applied: :mod:`.counting`)."""
+    f = problem.forward
     if f.counting:
-        return (amplitude * mu + f.dc_rate) * f.interval
+        recording = problem.shots.recording
+        return (recording.background + recording.level(mu, amplitude)) * f.interval
     return f.baseline + amplitude * mu
 
 
@@ -204,7 +207,7 @@ def build_result(obs, params, space, problem, nodes, final, summary, used, *, db
         f"expected_{suffix}": (("shot", "sample_time"), np.array(expected), {
             "units": unit, "long_name": "best-fit expected samples of each shot"
                                         + (" (per histogram bin)" if f.counting else "")}),
-        f"fit_{suffix}": ("fit_time", _curve(f, mu, fit.overall), {
+        f"fit_{suffix}": ("fit_time", _curve(problem, mu, fit.overall), {
             "units": unit, "long_name": "best-fit expected waveform, amplitude A"
                                         + (", per bin width and shot" if f.counting else "")}),
         f"fit_low68_{suffix}": ("fit_time", low, {"units": unit}),
