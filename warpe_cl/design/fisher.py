@@ -230,7 +230,8 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
 
     The database's own error, when ``variance`` is given, is taken as the inversion takes it
     (:meth:`warpe_cl.inversion.counting.CountShots.error_blocks`): a common error e_b of the
-    rate in each block of model time as long as the kernel's effective length, with the
+    rate in each block of model time as long as the kernel's effective length (and at least
+    the dead time, :attr:`warpe_cl.inversion.recording.Recording.correlation_ns`), with the
     prior N(0, S_b) (S_b the mean of S over the block's bins, weighted as the bins weigh
     it); it moves bin k's expected counts per shot by Δ G_k e_b (G the recorded rate's gain,
     :meth:`warpe_cl.inversion.recording.Recording.gain`; S is taken as G² S, in units of the
@@ -284,7 +285,7 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
     ts = adc.sample_times(forward.params["window.start"], forward.params["window.stop"], width)
     background = rec.background * width
     total = np.zeros((len(rows) - 2 + int("arrival" in nuisances),) * 2)
-    length = max(kernel_length(forward), width)
+    length = max(kernel_length(forward), width, rec.correlation_ns)
     for j in range(phases):
         lo = ts + (j + 0.5) * width / phases
         hi = lo + width

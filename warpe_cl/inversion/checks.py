@@ -212,7 +212,7 @@ def amplitude_test(problem, u, best) -> dict:
     is N(0, 1) under the model; Σ z_s² against χ² of n − 1 degrees of freedom (n with A fixed).
 
     Shots with clipped samples are left out (their amplitude is bounded, not measured);
-    photon counts have no per-shot amplitude (speckle is left out of their likelihood).
+    photon counts have no per-shot amplitude (their likelihood averages over the speckle).
 
     Returns
     -------
@@ -366,6 +366,11 @@ def check(problem, nodes, final, *, chi2: float, dof: int, p_value: float) -> Ch
                edges=edge_masses(final, axes))
     c.warnings = warnings_of(c, fixed_amplitude=problem.overall, chi2=chi2, dof=dof,
                              p_value=p_value)
+    if problem.forward.counting and not problem.shots.recording.exact:
+        c.warnings.append("inexact dead time: detector.digital_dead_time exceeds twice "
+                          "detector.analog_dead_time, and the expected counts leave out the "
+                          "timing channels' own losses (an upper bound; docs/instrument.md "
+                          "§3.9)")
     return c
 
 

@@ -19,16 +19,19 @@ counts of bin k summed over the N shots, c_k, are taken as Poisson of mean N m_k
 (the arrival integrated with a flat prior on a coarse, then a fine grid). Without dead time
 m_k = A λ_k(δ) + d Δ, concave in A: A is profiled by Newton's method. With it, ρ is expanded to
 second order in A around a centre A_c (:meth:`.recording.Recording.bend`), A profiled by Newton
-in that expansion at each δ (within A_c/2 and 2 A_c), A_c starting where the recorded photons
-of all bins equal the observed ones and moved to the best arrival's A until it stays (to 1e-6):
-exact there, third order in A − A_c at the other arrivals.
+in that expansion at each δ (within A_c/2 and 2 A_c, where it stays ≥ 0), A_c starting where
+the recorded photons equal the signal that the model without dead time fits at its best arrival,
+and moved to the best arrival's A until it stays (to 1e-6): exact there, third order in A − A_c
+at the other arrivals. Where it has not stayed after ``CENTRE_MOVES`` moves (a model far off,
+whose best arrival moves with the centre), A is held at the last centre: exact there, and
+never above the profile.
 
 The sum of N shots' counts in a bin is not exactly Poisson: speckle spreads it more (a
 fraction A λ_k / M of the Poisson variance: below 1e-3 when a bin holds less than a tenth of a
 photon per shot) and the dead time less (a shot that recorded one photon is less likely to
 record a second within τ_a); the likelihood leaves both out of the variance. When the timing
 channels' dead time exceeds twice the analog one, their own losses are left out of the mean too
-(``Recording.exact``).
+(``Recording.exact``; ``invert`` warns).
 """
 from __future__ import annotations
 
@@ -49,10 +52,10 @@ KEEP = 12.0
 #: Newton steps of the amplitude at each arrival.
 NEWTON = 8
 #: With dead time: moves of the expansion's centre A_c, and when it has stayed (relative).
-CENTRE_MOVES, CENTRE_TOLERANCE = 6, 1e-6
-#: Expected counts per shot below this are taken as this in the amplitude's Newton steps (a
-#: bin with counts where the model at a far arrival expects none: its squared ratio stays finite).
-FLOOR = 1e-100
+CENTRE_MOVES, CENTRE_TOLERANCE = 8, 1e-6
+#: Bins holding counts whose expected counts are below this fraction of the arrival's largest
+#: are left out of the amplitude's Newton steps: the model reaches them only by rounding.
+NEGLIGIBLE = 1e-12
 #: With dead time: the amplitudes the expansion is trusted over, relative to its centre.
 TRUST = (0.5, 2.0)
 #: Consecutive bins are grouped until the expected count reaches this for the Pearson χ².
@@ -110,8 +113,8 @@ class CountShots:
 
     def _hits(self, rate: np.ndarray, deltas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The integrals of a rate over the bins holding counts, (D, hits), and over all
-        bins, (D,), at each arrival: the likelihood needs no more, and the bins are
-        contiguous, so the sum is one difference."""
+        bins, (D,), at each arrival: the likelihood needs no more. For contiguous bins the
+        sum is one difference of the cumulative rate; otherwise every bin is integrated."""
         if not self.contiguous:
             full = self._lambda(rate, deltas)
             return full[:, self.hit], full.sum(1)
@@ -154,11 +157,14 @@ class CountShots:
                 x = e[:, None]
                 slope = h1 if h2 is None else h1 + x * h2
                 mean = b + h0 + x * (h1 if h2 is None else h1 + 0.5 * x * h2)
-                ratio = slope / np.maximum(mean, FLOOR)
+                # bins the model reaches only by rounding (the jitter's FFT) steer nothing
+                live = mean > NEGLIGIBLE * np.max(mean, axis=1, initial=0.0)[:, None]
+                inverse = np.where(live, 1.0 / np.where(live, mean, 1.0), 0.0)
+                ratio = slope * inverse
                 g = (c * ratio).sum(1) - n * (s1 + e * s2)
                 h = (c * ratio * ratio).sum(1)          # −∂²/∂A², less the curvature below
                 if h2 is not None:
-                    h -= (c * h2 / np.maximum(mean, FLOOR)).sum(1) - n * s2
+                    h -= (c * h2 * inverse).sum(1) - n * s2
                 step = g / np.where(h > 0, h, np.abs(g) / np.maximum(centre + e, 1e-300) + 1e-300)
                 a = centre + e
                 e = np.clip(np.maximum(a + step, 0.5 * a) - centre, lo, hi)
@@ -179,22 +185,38 @@ class CountShots:
             best = float(a[int(np.argmax(ll))])
             if rows[2] is None or overall is not None \
                     or abs(best - centre) <= CENTRE_TOLERANCE * centre:
-                break
+                return ll, a, best
             centre = best
-        return ll, a, best
+        if moves > 1:
+            # not settled (the best arrival moves with the centre, as for a model far off):
+            # log L with A held at the last centre, exact there and never above the profile
+            ll, a = self._profile(self._rows(mu, centre, deltas), centre, centre)
+        return ll, a, centre
 
     def fit(self, mu: np.ndarray, nu=None, overall: float | None = None) -> ShotFit:
         """The log-likelihood of the module docstring at the signal rate ``mu`` (pe per ns on
         the fine grid, amplitude 1), with the best arrival and amplitude."""
         sigma = np.hypot(sigma_from_fwhm(self.f.fwhm), self.f.geo.sigma_g)  # nominal σ, ns
         step = COARSE_FRACTION * max(sigma, self.width)
-        centre = (self.t[np.argmax(self.c)] + 0.5 * self.width) - self.f.t[np.argmax(mu)]
+        # the scan's centre: the shift of the model's counts that matches the histogram best
+        # (the histogram's highest bin alone is a background count when the return is weak)
+        template = self._lambda(self.f.jitter(mu), np.zeros(1))[0]
+        support = np.flatnonzero(template > 1e-6 * template.max(initial=0.0))
+        first = int(support[0]) if support.size else 0
+        template = template[first: int(support[-1]) + 1] if support.size else template[:1]
+        match = np.correlate(self.c, template, mode="full")
+        centre = (int(np.argmax(match)) - (template.size - 1) - first) * self.width
         coarse = centre + np.arange(-SCAN_NS, SCAN_NS + 1e-9, step)
-        if overall is not None:
-            start = float(overall)
-        else:       # the amplitude whose recorded photons are the observed ones
-            start = self.recording.amplitude_for(
-                mu, max(self.c.sum() / self.n - self.b * self.c.size, 1e-12))
+        if overall is not None or self.recording.linear:
+            start = 1.0 if overall is None else float(overall)
+        else:
+            # the counts the model without dead time fits at its best arrival, then the
+            # amplitude whose recorded photons are those
+            one = self._hits(self.f.jitter(mu), coarse)
+            ll, a = self._profile(((one[0], one[1]), one, None, (-1.0 + 1e-6, np.inf)), 1.0,
+                                  None)
+            signal = float(a[int(np.argmax(ll))]) * float(np.sum(mu)) * self.f.step
+            start = self.recording.amplitude_for(mu, signal)
         ll, _, middle = self._scan(mu, coarse, start, overall, moves=1)   # where the mass is
         (lo,), (hi,) = kept_span(coarse, ll[None, :], KEEP)
         fine = np.linspace(lo, hi, FINE_POINTS)

@@ -70,8 +70,9 @@ from .likelihood import model_table, padded
 
 
 def kernel_of(forward) -> tuple[np.ndarray, int]:
-    """The whole kernel of the forward model at v = 0 (pulse, footprint and receiver filter
-    or timing jitter), amounts per fine bin, and its origin index."""
+    """The whole kernel of the forward model at v = 0 (pulse, footprint and receiver filter;
+    a photon-counting receiver has none, its jitter coming after the dead time), amounts per
+    fine bin, and its origin index."""
     k, k_o = forward.kernel(0.0)
     return np.convolve(k, forward.h), k_o + forward.h_origin
 
@@ -420,8 +421,9 @@ def shared_error(shots, fit, mu: np.ndarray, nu, variance: np.ndarray,
     (float, float, float)
         Δ log L, σ and the offset −½ Σ λ_i (log-likelihood units).
     """
-    if shots.f.counting:            # blocks as long as the kernel: its error's correlation
-        w, g, s, base = shots.error_blocks(fit, mu, variance, kernel_length(shots.f))
+    if shots.f.counting:            # blocks as long as the kernel (its error's correlation)
+        block = max(kernel_length(shots.f), shots.recording.correlation_ns)    # and the dead time
+        w, g, s, base = shots.error_blocks(fit, mu, variance, block)
         return integrate_blocks(w, g, s, base if amplitude_free else base[:, 1:])
     f = shots.f
     a, d = fit.amplitude, fit.arrival

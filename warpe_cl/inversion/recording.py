@@ -42,6 +42,12 @@ class Recording:
         self.exact = bool(p["detector.digital_dead_time"] <= 2.0 * p["detector.analog_dead_time"])
 
     @property
+    def correlation_ns(self) -> float:
+        """The shortest block over which the database's error is taken as common (ns): the
+        analog dead time, over which :meth:`gain` assumes it."""
+        return self.dead.tau
+
+    @property
     def linear(self) -> bool:
         """No dead time: the recorded rate is A J ⊗ s."""
         return not self.dead.active
@@ -67,8 +73,10 @@ class Recording:
 
     def gain(self, s: np.ndarray, amplitude: float) -> np.ndarray:
         """J ⊗ DR[A s]·1: the recorded rate's response to an error of the signal rate that is
-        constant over the dead time (the database's error is common over blocks longer than
-        that: docs/inversion.md §4.3), per unit error; 1 without dead time."""
+        constant over the dead time, per unit error; 1 without dead time. The database's error
+        is taken as common over blocks at least that long (:attr:`correlation_ns`,
+        docs/inversion.md §4.3); within a block's first τ_a the window still reaches into
+        the block before, whose error is independent: there the gain is an approximation."""
         if self.linear:
             return np.ones_like(s)
         return self.f.jitter(self.dead.along(amplitude * s, np.ones_like(s)))
@@ -85,14 +93,23 @@ class Recording:
         a = signal / total
         if self.linear:
             return a
+        def count(x):
+            u = x * s
+            return (float(np.sum(self.dead.rate(u) - self.background)) * step,
+                    float(np.sum(self.dead.along(u, s))) * step)
+        have, slope = count(a)
         for _ in range(AMPLITUDE_STEPS):
-            u = a * s
-            have = float(np.sum(self.dead.rate(u) - self.background)) * step
-            slope = float(np.sum(self.dead.along(u, s))) * step
             if slope <= 0.0:
                 break
             move = (signal - have) / slope
-            a += move
             if abs(move) <= 1e-9 * a:
                 break
+            have_next, slope_next = count(a + move)
+            if slope_next <= 0.0:           # past the highest count: bisect for it
+                lo, hi = a, a + move
+                for _ in range(AMPLITUDE_STEPS):
+                    mid = 0.5 * (lo + hi)
+                    lo, hi = (mid, hi) if count(mid)[1] > 0.0 else (lo, mid)
+                return lo
+            a, have, slope = a + move, have_next, slope_next
         return a
