@@ -9,6 +9,8 @@ two-key one, grain size d and compacity c act only through E = 1.5 c / d, the de
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -20,7 +22,7 @@ from warpe_cl.cli import main
 from warpe_cl.config import load_preset
 from warpe_cl.errors import ConfigError
 from warpe_cl.instrument import apply_instrument
-from warpe_cl.inversion.derived import quantities, truth_values
+from warpe_cl.inversion.derived import _response_values, quantities, truth_values
 from warpe_cl.inversion.invert import invert
 from warpe_cl.inversion.observed import Observed
 from warpe_cl.inversion.space import Space
@@ -201,3 +203,14 @@ def test_cli_refuses_a_bad_truth_in_one_line(tmp_path, capsys):
                  "--out", str(tmp_path / "fit.nc"), "--truth", f"{KEY}=2"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--truth" in err, err
+
+
+def test_a_response_without_tail_has_a_tail_fraction_of_zero():
+    """All of the diffuse return before the cut: a tail fraction of exactly 0, not 1 less a
+    sum rounded above 1 (−2.2e-16, which the summary printed as a 95 % bound)."""
+    edges = np.geomspace(1e-3, 100.0, 401)
+    diffuse = np.random.default_rng(0).random(400)
+    found = _response_values(SimpleNamespace(diffuse=diffuse, edges=edges), 200.0)
+    assert found["tail_fraction"] == 0.0
+    whole = _response_values(SimpleNamespace(diffuse=diffuse, edges=edges), 1e-4)
+    assert whole["tail_fraction"] == pytest.approx(1.0, abs=1e-15)

@@ -114,9 +114,10 @@ def _response_values(r, tail_after_ns: float) -> dict:
     if not total > 0:
         return {"mean_delay_ns": math.nan, "tail_fraction": math.nan}
     mid = 0.5 * (r.edges[1:] + r.edges[:-1])
-    cdf = np.concatenate([[0.0], np.cumsum(amount)]) / total
+    # the share after the cut from the end, so that none is 0 and not 1 less a rounded 1
+    later = np.concatenate([np.cumsum(amount[::-1])[::-1], [0.0]]) / total
     return {"mean_delay_ns": float(np.sum(mid * amount) / total),
-            "tail_fraction": float(1.0 - np.interp(tail_after_ns, r.edges, cdf))}
+            "tail_fraction": float(np.interp(tail_after_ns, r.edges, later))}
 
 
 def quantities(space, db, tail_after_ns: float) -> list:
