@@ -178,7 +178,7 @@ def test_the_start_amplitude_stays_on_the_rising_count():
     def recorded(a):
         return float(np.sum(rec.level(mu, a))) * f.step
     assert recorded(rec.amplitude_for(mu, 8.0)) == pytest.approx(8.0, rel=1e-6)
-    for target in (20.0, 24.5, 25.0, 40.0):
+    for target in (20.0, 24.5, 25.0, 40.0, 1e3):
         a = rec.amplitude_for(mu, target)
         assert recorded(a) <= target * (1 + 1e-6)
         assert recorded(a) >= recorded(0.99 * a) - 1e-9 * target, target
@@ -193,6 +193,44 @@ def test_an_inexact_dead_time_is_said():
     with pytest.warns(UserWarning, match="inexact dead time"):
         invert(Observed("counts", obs["sample_time"].values, obs["signal_counts"].values,
                         "atlas", "atlas"), database(), load_instrument("atlas", overrides))
+
+
+def test_a_cropped_and_shifted_histogram_finds_its_return():
+    """The arrival scan's centre comes from the model's counts over the whole forward grid,
+    not only over the histogram's bins: a histogram whose times are moved by 30 ns and cut
+    to [10, 60) ns (the return's leading edge outside it at arrival 0) gives the arrival
+    30.01 ns and A 1.004, as uncut (the template over the histogram's own bins missed it:
+    log L 290 below)."""
+    f = Forward(load_instrument("atlas"))
+    surface = synthetic_surface(diffuse_integral=0.5, tau=2.8, wavelength="532 nm")
+    mu, _ = f.waveform(f.photons(response(surface)), 0.0)
+    obs = bright_observation(2.8, 1000, 2)
+    t, counts = obs["sample_time"].values, obs["signal_counts"].values
+    whole = CountShots(t, counts, f).fit(mu)
+    moved = t + 30.0
+    keep = (moved >= 10.0) & (moved < 60.0)
+    cut = CountShots(moved[keep], counts[:, keep], f).fit(mu)
+    assert cut.arrival[0] - 30.0 == pytest.approx(whole.arrival[0], abs=0.02)
+    assert cut.overall == pytest.approx(whole.overall, rel=1e-3)
+
+
+def test_a_stray_count_costs_the_same_at_every_arrival():
+    """Without background, one count far from the return (−15 ns) where the model expects
+    only its convolution's rounding (±1e-17) costs log of NEGLIGIBLE of the largest expected
+    count at every arrival, not −33 at some and −691 at the next."""
+    f = Forward(load_instrument("atlas"))
+    surface = synthetic_surface(diffuse_integral=0.5, tau=2.8, wavelength="532 nm")
+    mu, _ = f.waveform(f.photons(response(surface)), 0.0)
+    obs = bright_observation(2.8, 1000, 2)
+    t, counts = obs["sample_time"].values, obs["signal_counts"].values.copy()
+    plain = CountShots(t, counts, f)
+    counts[0, np.argmin(np.abs(t + 15.0))] += 1
+    stray = CountShots(t, counts, f)
+    deltas = np.linspace(-0.3, 0.3, 81)
+    a = plain.fit(mu).overall
+    cost = (stray._profile(stray._rows(mu, a, deltas), a, a)[0]
+            - plain._profile(plain._rows(mu, a, deltas), a, a)[0])
+    assert np.ptp(cost) < 1.0
 
 
 def test_the_amplitude_expansion_stays_nonnegative():

@@ -207,10 +207,11 @@ def test_cli_refuses_a_bad_truth_in_one_line(tmp_path, capsys):
 
 def test_a_response_without_tail_has_a_tail_fraction_of_zero():
     """All of the diffuse return before the cut: a tail fraction of exactly 0, not 1 less a
-    sum rounded above 1 (−2.2e-16, which the summary printed as a 95 % bound)."""
+    sum rounded above 1 (−2.2e-16, which the summary printed as a 95 % bound); all of it
+    after: exactly 1."""
     edges = np.geomspace(1e-3, 100.0, 401)
     diffuse = np.random.default_rng(0).random(400)
     found = _response_values(SimpleNamespace(diffuse=diffuse, edges=edges), 200.0)
     assert found["tail_fraction"] == 0.0
     whole = _response_values(SimpleNamespace(diffuse=diffuse, edges=edges), 1e-4)
-    assert whole["tail_fraction"] == pytest.approx(1.0, abs=1e-15)
+    assert whole["tail_fraction"] == 1.0

@@ -175,8 +175,9 @@ class DeadTime:
     def window(self, w: np.ndarray) -> np.ndarray:
         """W(w) / N_ch at the fine bins' centres (w piecewise constant)."""
         cumulative = np.concatenate([[0.0], np.cumsum(w * self.width)])
-        return (np.interp(self.centre, self.edges, cumulative)
-                - np.interp(self.centre - self.tau, self.edges, cumulative, left=0.0)) / self.channels
+        window = (np.interp(self.centre, self.edges, cumulative)
+                  - np.interp(self.centre - self.tau, self.edges, cumulative, left=0.0))
+        return window / self.channels
 
     def _factors(self, x: np.ndarray, order: int) -> tuple:
         """(F₁, F₀) at x, or their ``order``-th derivatives."""

@@ -42,19 +42,21 @@ from ..instrument.pulse import sigma_from_fwhm
 from .likelihood import ShotFit, kept_span, log_trapezoid
 from .recording import Recording
 
-#: Arrival grid: coarse step (fraction of the pulse's σ at the nominal width), half-width
-#: of the coarse scan (ns, around the histogram's peak), points of the fine grid, and the part
-#: of the coarse grid kept (log units below its maximum).
+#: Arrival grid: coarse step (fraction of the pulse's σ at the nominal width), half-width of
+#: the coarse scan (ns, around :meth:`CountShots._centre`), points of the fine grid, and the
+#: part of the coarse grid kept (log units below its maximum).
 COARSE_FRACTION = 0.25
 SCAN_NS = 10.0
 FINE_POINTS = 81
 KEEP = 12.0
-#: Newton steps of the amplitude at each arrival.
-NEWTON = 8
+#: Newton steps of the amplitude at each arrival, at most, and the relative step below which
+#: they stop (every arrival's).
+NEWTON, NEWTON_TOLERANCE = 8, 1e-10
 #: With dead time: moves of the expansion's centre A_c, and when it has stayed (relative).
 CENTRE_MOVES, CENTRE_TOLERANCE = 8, 1e-6
 #: Bins holding counts whose expected counts are below this fraction of the arrival's largest
-#: are left out of the amplitude's Newton steps: the model reaches them only by rounding.
+#: are left out of the amplitude's Newton steps and expect that fraction in log L: the model
+#: reaches them only by the rounding of its convolutions.
 NEGLIGIBLE = 1e-12
 #: With dead time: the amplitudes the expansion is trusted over, relative to its centre.
 TRUST = (0.5, 2.0)
@@ -167,11 +169,18 @@ class CountShots:
                     h -= (c * h2 * inverse).sum(1) - n * s2
                 step = g / np.where(h > 0, h, np.abs(g) / np.maximum(centre + e, 1e-300) + 1e-300)
                 a = centre + e
-                e = np.clip(np.maximum(a + step, 0.5 * a) - centre, lo, hi)
+                moved = np.clip(np.maximum(a + step, 0.5 * a) - centre, lo, hi)
+                settled = np.all(np.abs(moved - e) <= NEWTON_TOLERANCE * a)
+                e = moved
+                if settled:
+                    break
         x = e[:, None]
         hits = n * (b + h0 + x * (h1 if h2 is None else h1 + 0.5 * x * h2))
         total = n * (b * self.c.size + s0 + e * (s1 + 0.5 * e * s2))
-        ll = (c * np.log(np.maximum(hits, 1e-300))).sum(1) - total - self.log_factorial
+        # expected counts below the convolution's rounding (NEGLIGIBLE of the arrival's
+        # largest) are that much: a stray count there costs the same at every arrival
+        floor = np.maximum(NEGLIGIBLE * np.max(hits, axis=1, initial=0.0), 1e-300)[:, None]
+        ll = (c * np.log(np.maximum(hits, floor))).sum(1) - total - self.log_factorial
         return ll, centre + e
 
     def _scan(self, mu: np.ndarray, deltas: np.ndarray, centre: float, overall,
@@ -193,19 +202,36 @@ class CountShots:
             ll, a = self._profile(self._rows(mu, centre, deltas), centre, centre)
         return ll, a, centre
 
+    def _centre(self, mu: np.ndarray) -> float:
+        """The arrival scan's centre (ns): the shift of the model's counts that matches the
+        histogram best, their cross-correlation over bins of the histogram's width laid over
+        the whole forward grid (the histogram's highest bin alone is a background count
+        when the return is weak); for bins with gaps, the shift of the highest bin to the
+        model's peak."""
+        rate = self.f.jitter(mu)
+        peak = (self.t[np.argmax(self.c)] + 0.5 * self.width) - self.f.t[np.argmax(rate)]
+        if not self.contiguous:
+            return float(peak)
+        grid = self.f.t
+        m = int(np.floor((grid[0] - self.t[0]) / self.width))      # bins from t_0 to the grid
+        starts = self.t[0] + self.width * np.arange(m, m + int(np.ceil(
+            (grid[-1] - grid[0]) / self.width)) + 2)
+        edges, cum = self._cumulative(rate)
+        template = np.diff(np.interp(np.append(starts, starts[-1] + self.width), edges, cum))
+        support = np.flatnonzero(template > 1e-6 * template.max(initial=0.0))
+        if not support.size or not self.c.any():
+            return float(peak)
+        first = int(support[0])
+        match = np.correlate(self.c, template[first: int(support[-1]) + 1], mode="full")
+        # histogram bin i holding template bin k means δ = (i − k − m) Δ
+        return (int(np.argmax(match)) - (support[-1] - first) - first - m) * self.width
+
     def fit(self, mu: np.ndarray, nu=None, overall: float | None = None) -> ShotFit:
         """The log-likelihood of the module docstring at the signal rate ``mu`` (pe per ns on
         the fine grid, amplitude 1), with the best arrival and amplitude."""
         sigma = np.hypot(sigma_from_fwhm(self.f.fwhm), self.f.geo.sigma_g)  # nominal σ, ns
         step = COARSE_FRACTION * max(sigma, self.width)
-        # the scan's centre: the shift of the model's counts that matches the histogram best
-        # (the histogram's highest bin alone is a background count when the return is weak)
-        template = self._lambda(self.f.jitter(mu), np.zeros(1))[0]
-        support = np.flatnonzero(template > 1e-6 * template.max(initial=0.0))
-        first = int(support[0]) if support.size else 0
-        template = template[first: int(support[-1]) + 1] if support.size else template[:1]
-        match = np.correlate(self.c, template, mode="full")
-        centre = (int(np.argmax(match)) - (template.size - 1) - first) * self.width
+        centre = self._centre(mu)
         coarse = centre + np.arange(-SCAN_NS, SCAN_NS + 1e-9, step)
         if overall is not None or self.recording.linear:
             start = 1.0 if overall is None else float(overall)

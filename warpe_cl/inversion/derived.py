@@ -114,8 +114,9 @@ def _response_values(r, tail_after_ns: float) -> dict:
     if not total > 0:
         return {"mean_delay_ns": math.nan, "tail_fraction": math.nan}
     mid = 0.5 * (r.edges[1:] + r.edges[:-1])
-    # the share after the cut from the end, so that none is 0 and not 1 less a rounded 1
-    later = np.concatenate([np.cumsum(amount[::-1])[::-1], [0.0]]) / total
+    # the share after the cut summed from the end: none is 0 and all is 1, not a rounded 1
+    later = np.concatenate([np.cumsum(amount[::-1])[::-1], [0.0]])
+    later /= later[0]
     return {"mean_delay_ns": float(np.sum(mid * amount) / total),
             "tail_fraction": float(np.interp(tail_after_ns, r.edges, later))}
 

@@ -170,8 +170,9 @@ class Forward:
     def waveform(self, photons, v: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """μ (mV) and ν (mV²) of the module docstring on the fine grid (``self.t``); for a
         photon-counting detector, the signal photoelectrons per ns at the detector (amplitude
-        1, before the dead time and the timing jitter: :mod:`.recording`), and None. ``photons``: an array (:meth:`photons`), or its
-        :class:`Spectrum` when the same photons are taken at several ``v``."""
+        1, before the dead time and the timing jitter: :mod:`.recording`), and None.
+        ``photons``: an array (:meth:`photons`), or its :class:`Spectrum` when the same
+        photons are taken at several ``v``."""
         if not isinstance(photons, Spectrum):
             photons = Spectrum(photons)
         k, k_o = self.kernel(v)

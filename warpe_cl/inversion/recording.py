@@ -84,8 +84,9 @@ class Recording:
     def amplitude_for(self, s: np.ndarray, signal: float) -> float:
         """The amplitude A at which the recorded signal photons per shot (the whole grid)
         are ``signal``: the lower root where a paralyzable dead time makes the recorded
-        count fall again (Newton's method from the no-loss amplitude, which is below it);
-        the highest count's A where ``signal`` is beyond reach."""
+        count fall again (Newton's method from the no-loss amplitude, which is below it, or
+        from 1 if that is lower, each step at most doubling A); where the count stalls below
+        ``signal``, the A of the stall."""
         step = self.f.step
         total = float(s.sum()) * step
         if total <= 0.0:
@@ -93,6 +94,8 @@ class Recording:
         a = signal / total
         if self.linear:
             return a
+        a = min(a, 1.0)         # below the first stall of the rising count, as a rule
+
         def count(x):
             u = x * s
             return (float(np.sum(self.dead.rate(u) - self.background)) * step,
@@ -101,11 +104,11 @@ class Recording:
         for _ in range(AMPLITUDE_STEPS):
             if slope <= 0.0:
                 break
-            move = (signal - have) / slope
+            move = min((signal - have) / slope, a)          # at most doubling A
             if abs(move) <= 1e-9 * a:
                 break
             have_next, slope_next = count(a + move)
-            if slope_next <= 0.0:           # past the highest count: bisect for it
+            if slope_next <= 0.0 or have_next < have:   # past a stall: bisect for it
                 lo, hi = a, a + move
                 for _ in range(AMPLITUDE_STEPS):
                     mid = 0.5 * (lo + hi)
