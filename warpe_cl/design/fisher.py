@@ -25,8 +25,8 @@ it caps what many shots can learn.
 mean N m_k, m_k the recorded counts after the dead time and the jitter (docs/inversion.md §4.2,
 :mod:`warpe_cl.inversion.recording`); the information is N Σ_k ∂_i m_k ∂_j m_k / m_k, with A,
 δ (common to the shots) and v marginalised; the database's own error, common to the shots, is
-eliminated per block of model time as long as the kernel, as the inversion does
-(:func:`counting_information`). As in the inversion, the speckle's extra variance is left out.
+eliminated per block of model time as long as the kernel (and at least the dead time), as the
+inversion does (:func:`counting_information`). As in the inversion, the speckle's extra variance is left out.
 
 Samples whose expected value reaches the receiver's clipped level carry no information here
 (a censored sample carries little; this is conservative).
