@@ -233,6 +233,32 @@ def test_a_stray_count_costs_the_same_at_every_arrival():
     assert np.ptp(cost) < 1.0
 
 
+def test_an_unsettled_centre_falls_back_on_the_exact_profile():
+    """Where the expansion's centre has not stayed after its moves (here 2 moves from a
+    centre 20 times too low), every arrival's log L is exact at the held A (never above the
+    profile) and the best arrival's is the exact profile's: the maximum over A of the
+    recorded counts' Poisson log L, made anew at each A (a grid of 0.1 % steps here)."""
+    f = Forward(load_instrument("atlas"))
+    surface = synthetic_surface(diffuse_integral=0.5, tau=2.8, wavelength="532 nm")
+    mu, _ = f.waveform(f.photons(response(surface)), 0.0)
+    obs = bright_observation(2.8, 1000, 2)
+    shots = CountShots(obs["sample_time"].values, obs["signal_counts"].values, f)
+    deltas = np.linspace(-0.2, 0.2, 21)
+    ll, a, centre = shots._scan(mu, deltas, 0.05, None, moves=2)
+    top = int(np.argmax(ll))
+
+    def exact(amplitude, delta):
+        m = shots.n * shots.expected(mu, amplitude, delta)
+        return float(np.sum(shots.c * np.log(np.maximum(m, 1e-300)) - m)) - shots.log_factorial
+    grid = np.exp(np.linspace(np.log(0.5), np.log(2.0), 1387))
+    best = max(exact(x, deltas[top]) for x in grid)
+    assert ll[top] == pytest.approx(best, abs=1e-3)
+    assert abs(a[top] - 1.0) < 0.05
+    for i in (0, 10, 20):
+        if i != top:
+            assert ll[i] == pytest.approx(exact(centre, deltas[i]), abs=1e-6)
+
+
 def test_the_amplitude_expansion_stays_nonnegative():
     """_nonnegative: the range of e keeping r0 + e r1 + ½ e² r2 ≥ 0 at every point."""
     r0 = np.array([1.0, 2.0, 1e-20])
