@@ -193,23 +193,30 @@ class DeadTime:
 
     def rate(self, u: np.ndarray) -> np.ndarray:
         """R(u), pe ns⁻¹ on the fine grid."""
-        with_signal, without = self._factors(self.window(u), 0)
-        return self.e_d * (u * with_signal + self.dark * without)
+        return self.expansion(u, order=0)[0]
 
     def along(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
         """DR[u]·w, pe ns⁻¹."""
-        x = self.window(u)
-        f1, _ = self._factors(x, 0)
-        d1, d0 = self._factors(x, 1)
-        return self.e_d * (w * f1 + (u * d1 + self.dark * d0) * self.window(w))
+        return self.expansion(u, w, order=1)[1]
 
     def bend(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
         """D²R[u](w, w), pe ns⁻¹."""
+        return self.expansion(u, w)[2]
+
+    def expansion(self, u: np.ndarray, w: np.ndarray | None = None, order: int = 2) -> tuple:
+        """(R(u), DR[u]·w, D²R[u](w, w)) up to ``order`` (0, 1 or 2), pe ns⁻¹, the windows
+        and factors taken once (the class docstring's formulas)."""
         x = self.window(u)
-        d1, _ = self._factors(x, 1)
-        b1, b0 = self._factors(x, 2)
-        ww = self.window(w)
-        return self.e_d * (2.0 * w * d1 * ww + (u * b1 + self.dark * b0) * ww * ww)
+        f1, f0 = self._factors(x, 0)
+        out = [self.e_d * (u * f1 + self.dark * f0)]
+        if order >= 1:
+            ww = self.window(w)
+            d1, d0 = self._factors(x, 1)
+            out.append(self.e_d * (w * f1 + (u * d1 + self.dark * d0) * ww))
+        if order >= 2:
+            b1, b0 = self._factors(x, 2)
+            out.append(self.e_d * (2.0 * w * d1 * ww + (u * b1 + self.dark * b0) * ww * ww))
+        return tuple(out)
 
 
 def jittered_bins(edges_ns: np.ndarray, rate: np.ndarray, bins_ns: np.ndarray,

@@ -18,7 +18,7 @@ counts of bin k summed over the N shots, c_k, are taken as Poisson of mean N m_k
 
 (the arrival integrated with a flat prior on a coarse, then a fine grid). Without dead time
 m_k = A λ_k(δ) + d Δ, concave in A: A is profiled by Newton's method. With it, ρ is expanded to
-second order in A around a centre A_c (:meth:`.recording.Recording.bend`), A profiled by Newton
+second order in A around a centre A_c (:meth:`.recording.Recording.expansion`), A profiled by Newton
 in that expansion at each δ (within A_c/2 and 2 A_c, where it stays ≥ 0), A_c starting where
 the recorded photons equal the signal that the model without dead time fits at its best arrival,
 and moved to the best arrival's A until it stays (to 1e-6): exact there, third order in A − A_c
@@ -138,12 +138,16 @@ class CountShots:
         which the expansion stays ≥ 0 (:func:`_nonnegative`) within ``TRUST``."""
         rec = self.recording
         if rec.linear:
-            one = self._hits(self.f.jitter(mu), deltas)
-            return (centre * one[0], centre * one[1]), one, None, (1e-6 - centre, np.inf)
-        rows = rec.level(mu, centre), rec.along(mu, centre, mu), rec.bend(mu, centre)
+            return self._linear_rows(self.f.jitter(mu), centre, deltas)
+        rows = rec.expansion(mu, centre)
         lo, hi = _nonnegative(rec.background + rows[0], rows[1], rows[2])
         span = (max(lo, (TRUST[0] - 1.0) * centre), min(hi, (TRUST[1] - 1.0) * centre))
         return (*(self._hits(row, deltas) for row in rows), span)
+
+    def _linear_rows(self, jittered: np.ndarray, centre: float, deltas: np.ndarray) -> tuple:
+        """:meth:`_rows` of the model without dead time, A J ⊗ s (``jittered``: J ⊗ s)."""
+        one = self._hits(jittered, deltas)
+        return (centre * one[0], centre * one[1]), one, None, (1e-6 - centre, np.inf)
 
     def _profile(self, rows: tuple, centre: float, overall) -> tuple[np.ndarray, np.ndarray]:
         """(log L, A) at each arrival, A profiled unless ``overall``: Newton's method on the
@@ -214,27 +218,22 @@ class CountShots:
         """(A, log L) maximising the exact log L over A at one arrival (no expansion: the
         recorded counts made anew at each A), A within e^±12 of ``around``."""
         from scipy.optimize import minimize_scalar     # on use: rare, and 0.3 s to import
-        rec, n, b = self.recording, self.n, self.b
-        c = self.c[self.hit]
+        at = np.array([delta])
 
-        def loglike(x):
-            hits, total = self._hits(rec.level(mu, math.exp(x)), np.array([delta]))
-            hits, total = n * (b + hits[0]), n * (b * self.c.size + total[0])
-            floor = max(NEGLIGIBLE * float(np.max(hits, initial=0.0)), 1e-300)
-            return float(np.sum(c * np.log(np.maximum(hits, floor)))) - total \
-                - self.log_factorial
+        def loglike(x):         # log L with A held at e^x: the expansion's centre, exact
+            a = math.exp(x)
+            return float(self._profile(self._rows(mu, a, at), a, a)[0][0])
         x0 = math.log(max(around, 1e-300))
         found = minimize_scalar(lambda x: -loglike(x), bounds=(x0 - 12.0, x0 + 12.0),
                                 method="bounded", options={"xatol": 1e-9})
         return math.exp(found.x), -float(found.fun)
 
-    def _centre(self, mu: np.ndarray) -> float:
+    def _centre(self, rate: np.ndarray) -> float:
         """The arrival scan's centre (ns): the shift of the model's counts that matches the
         histogram best, their cross-correlation over bins of the histogram's width laid over
         the whole forward grid (the histogram's highest bin alone is a background count
         when the return is weak); for bins with gaps, the shift of the highest bin to the
-        model's peak."""
-        rate = self.f.jitter(mu)
+        model's peak. ``rate``: the model's J ⊗ s."""
         peak = (self.t[np.argmax(self.c)] + 0.5 * self.width) - self.f.t[np.argmax(rate)]
         if not self.contiguous:
             return float(peak)
@@ -257,16 +256,15 @@ class CountShots:
         the fine grid, amplitude 1), with the best arrival and amplitude."""
         sigma = np.hypot(sigma_from_fwhm(self.f.fwhm), self.f.geo.sigma_g)  # nominal σ, ns
         step = COARSE_FRACTION * max(sigma, self.width)
-        centre = self._centre(mu)
+        jittered = self.f.jitter(mu)
+        centre = self._centre(jittered)
         coarse = centre + np.arange(-SCAN_NS, SCAN_NS + 1e-9, step)
         if overall is not None or self.recording.linear:
             start = 1.0 if overall is None else float(overall)
         else:
             # the counts the model without dead time fits at its best arrival, then the
             # amplitude whose recorded photons are those
-            one = self._hits(self.f.jitter(mu), coarse)
-            ll, a = self._profile(((one[0], one[1]), one, None, (-1.0 + 1e-6, np.inf)), 1.0,
-                                  None)
+            ll, a = self._profile(self._linear_rows(jittered, 1.0, coarse), 1.0, None)
             signal = float(a[int(np.argmax(ll))]) * float(np.sum(mu)) * self.f.step
             start = self.recording.amplitude_for(mu, signal)
         ll, _, middle = self._scan(mu, coarse, start, overall, moves=1)   # where the mass is
@@ -287,9 +285,10 @@ class CountShots:
         length, many 0.1 ns bins), bin k's summed counts move by N A Δ G_k e_b, G_k the
         recorded rate's gain for an error constant over the dead time (1 without dead time:
         :meth:`.recording.Recording.gain`); the Poisson log L, quadratic around the fit, has
-        per bin G_k' = N A Δ G_k (c_k − M_k)/M_k and W_k = (N A Δ G_k)²/M_k (M_k = N m_k),
-        summed over the block's bins, and S_b the W-weighted mean of S over them, as for
-        linear-mode samples (docs/inversion.md §4.3).
+        per bin G_k' = N A Δ G_k (c_k − M_k)/M_k and W_k = (N A Δ G_k)² max(c_k, M_k)/M_k²
+        (M_k = N m_k; the comment in the code says why not 1/M_k), summed over the block's
+        bins, and S_b the W-weighted mean of S over them, as for linear-mode samples
+        (docs/inversion.md §4.3).
 
         Parameters
         ----------

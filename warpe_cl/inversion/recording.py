@@ -65,11 +65,15 @@ class Recording:
             return self.f.jitter(w)
         return self.f.jitter(self.dead.along(amplitude * s, w))
 
-    def bend(self, s: np.ndarray, amplitude: float) -> np.ndarray | None:
-        """J ⊗ D²R[A s](s, s) = ∂²/∂A² of the recorded rate, pe ns⁻¹; None without dead time."""
+    def expansion(self, s: np.ndarray, amplitude: float) -> tuple:
+        """(:meth:`level`, ∂/∂A, ∂²/∂A²) of the recorded rate at ``amplitude``, pe ns⁻¹ on the
+        forward grid: J ⊗ of (R(A s) − d E_d, DR[A s]·s, D²R[A s](s, s)); the last is None
+        without dead time."""
         if self.linear:
-            return None
-        return self.f.jitter(self.dead.bend(amplitude * s, s))
+            one = self.f.jitter(s)
+            return amplitude * one, one, None
+        rate, along, bend = self.dead.expansion(amplitude * s, s)
+        return self.f.jitter(rate - self.background), self.f.jitter(along), self.f.jitter(bend)
 
     def gain(self, s: np.ndarray, amplitude: float) -> np.ndarray:
         """J ⊗ DR[A s]·1: the recorded rate's response to an error of the signal rate that is
