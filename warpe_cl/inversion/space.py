@@ -33,16 +33,19 @@ response is convex or concave in the coordinate (the late diffuse tail of a thic
 layer lies low everywhere between nodes). Along each axis of three values or more, node m is
 predicted from its neighbours m ± 1 on their cell (width D, m at fraction f₀ of it); that
 prediction's error, scaled to the point's own cell (width Δ, fraction f) by the quadratic
-law g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), is added back: the response is the interpolation
-plus Σ_axes Σ_corners w g (node m − its prediction), m the corner's index kept off the ends
-(:meth:`Space.bends`), on the diffuse response and the returns' fractions (each floored at 0,
-the diffuse response keeping its integral, :func:`floored`; the delays stay exact). Where node
-m's diffuse return arrives at its round trip (a slab floor's), its difference is first
-stretched in time to the point's own round trip (:func:`stretch`, by the ratio of the first
-back-and-forth delays): that return moves with the thickness, and node m's difference belongs
-where the point's return arrives, not where node m's did. For what is combined linearly this
-is quadratic (Lagrange) interpolation through three nodes, and a blend of the two stencils
-with four or more (tests/test_inversion_curvature.py).
+law g = Δ² f (1 − f) / (D² f₀ (1 − f₀)), is added back, a = w g for each corner (weight w)
+and axis (m the corner's index kept off the ends, :meth:`Space.bends`), in the coordinates
+the interpolation combines: on ln t(q), on the specular and passages' fractions (floored at
+0) and on the axis' coordinate of the total (:meth:`Space.total`). Every node then enters
+with one weight (:meth:`Space.node_weights`: +a on m, −a (1 − f₀) and −a f₀ on its
+neighbours): quadratic Lagrange interpolation through three nodes in each of those
+coordinates, and a blend of the two stencils with four or more
+(tests/test_inversion_curvature.py). Where negative weights make ln t(q) decrease it is
+sorted (the monotone rearrangement: a distribution again). The delays stay exact. Moving
+quantiles, the correction lands where the point's response is: a slab floor's spike moves
+with its round trip, and a tail that ends between nodes ends where the point's does, where
+a correction of the density, added at node m's times, put node m's edges into the point's
+response (docs/inversion.md §2).
 
 At a grid point the corner weights are (1, 0, …), there is no curvature term, and every step
 is exact: the response is the node's own, to rounding (tests/test_inversion.py).
@@ -267,12 +270,6 @@ class NodeResponse:
         self.cdf = cdf / cdf[-1] if cdf[-1] > 0 else cdf
         self.specular = sum(f for c, _, f in r.returns if c == "specular")
         self.first_bf = first_bf_time
-        # a return that arrives at the round trip: half the diffuse amount or more in the
-        # time bin of the first back-and-forth delay (a slab floor's)
-        self.at_round_trip = False
-        if first_bf_time > 0 and self.total > 0:
-            b = int(np.searchsorted(r.edges, first_bf_time, side="right")) - 1
-            self.at_round_trip = 0 <= b < amount.size and amount[b] >= 0.5 * self.total
         self.passages = {}
         for c, t, f in r.returns:
             if c == "bf_direct":
@@ -384,22 +381,28 @@ class Space:
 
     def surface(self, point: dict) -> SurfaceResponse:
         """The surface response at ``point`` (dotted key -> value of every free axis, in the
-        axis unit), by the interpolation of the module docstring, corrected for each axis'
-        curvature (:meth:`bends`)."""
+        axis unit), by the interpolation of the module docstring with each axis' curvature
+        term (:meth:`bends`) in the same coordinates: every node's weight is its
+        :meth:`node_weights` one, on ln t(q), the fractions and (axis by axis) the total."""
         idx, w = corner_weights(self.coords_of(point), [a.nodes for a in self.axes])
-        nodes = [self.nodes[i] for i in idx]
-        if len(nodes) == 1:
-            return nodes[0].surface
-        delay_w = value_weights(self.values_of(point), [a.values for a in self.axes], idx)
-        first_bf = float(np.dot(delay_w, [n.first_bf for n in nodes]))   # 2 Σ h n_eff / c
-        return combine(nodes, w, self.edges, delay_weights=delay_w,
-                       bend=self._bend(self.bends(point), first_bf),
-                       total=self.total(point))
+        if len(idx) == 1:
+            return self.nodes[idx[0]].surface
+        bends = self.bends(point)
+        weights = self.node_weights(point, bends)
+        delay_w = dict(zip(idx, value_weights(self.values_of(point),
+                                              [a.values for a in self.axes], idx)))
+        used = [i for i, x in weights.items() if x != 0.0 or i in delay_w]
+        return combine([self.nodes[i] for i in used], [weights.get(i, 0.0) for i in used],
+                       self.edges, delay_weights=[delay_w.get(i, 0.0) for i in used],
+                       total=self.total(point, bends))
 
-    def total(self, point: dict) -> float:
-        """The diffuse total ∫R_d dt (sr⁻¹) at ``point`` before the curvature correction: the
-        cell's corners combined one axis after the other, in the axis' order, each in its
-        coordinate of ``total_scales`` (module docstring)."""
+    def total(self, point: dict, bends: list | None = None) -> float:
+        """The diffuse total ∫R_d dt (sr⁻¹) at ``point``: the cell's corners combined one
+        axis after the other, in the axis' order, each in its coordinate of
+        ``total_scales`` (module docstring), then each curvature term of :meth:`bends`
+        (given, or computed) in its axis' coordinate: a (ln T_m − ln T̂_m) added to ln ∫R_d,
+        or a (T_m − T̂_m) to ∫R_d (T̂_m node m's total predicted from its neighbours,
+        a = w g); floored at 0."""
         block, steps = self.totals, []
         for x, a in zip(self.coords_of(point), self.axes):
             n = a.nodes
@@ -411,7 +414,18 @@ class Space:
             block = np.take(block, [j, j + 1], axis=len(steps) - 1)
         for f, scale in zip(steps, self.total_scales):
             block = blend_total(block[0], block[-1], f, scale)
-        return float(block)
+        total = float(block)
+        for d, middle, w, g in (self.bends(point) if bends is None else bends):
+            _, _, f0 = self.left_out(middle, d)
+            m = middle[d]
+            lo, hi = (self.totals[middle[:d] + (k,) + middle[d + 1:]] for k in (m - 1, m + 1))
+            own = self.totals[middle]
+            guess = float(blend_total(lo, hi, f0, self.total_scales[d]))
+            if self.total_scales[d] == "log" and own > 0 and guess > 0 and total > 0:
+                total *= math.exp(w * g * math.log(own / guess))
+            else:
+                total += w * g * (own - guess)
+        return max(total, 0.0)
 
     def bends(self, point: dict) -> list:
         """The curvature terms at ``point``: for every corner of its cell (weight w) and every
@@ -468,38 +482,13 @@ class Space:
                                    float(x[m + 1] - x[m - 1]), float(f0))
         return self._left_out[key]
 
-    def _bend(self, terms: list, first_bf: float = math.nan):
-        """The curvature correction Σ w g (node m − its prediction) of the diffuse response
-        (sr⁻¹ ns⁻¹), the specular fraction and each passage's fraction, or None.
-
-        Where node m's diffuse return arrives at its round trip (half its amount or more in
-        the time bin of its first back-and-forth delay: a slab floor's), the difference is
-        taken to the point's own time scale first: stretched in time by the ratio of the
-        point's first back-and-forth delay ``first_bf`` (ns) to node m's, keeping its integral
-        (:func:`stretch`), so that it corrects the point's return where it arrives, not where
-        node m's did. Elsewhere (a granular layer's spread response, or an unknown delay) the
-        difference is added as it is."""
-        if not terms:
-            return None
-        diffuse, specular, passages = np.zeros(self.edges.size - 1), 0.0, {}
-        for d, middle, w, g in terms:
-            node, (guess, _, _) = self.nodes[middle], self.left_out(middle, d)
-            a = w * g
-            ratio = first_bf / node.first_bf if node.at_round_trip else 1.0
-            diffuse += a * stretch(node.surface.diffuse - guess.surface.diffuse, self.edges,
-                                   ratio if math.isfinite(ratio) and ratio > 0 else 1.0)
-            specular += a * (node.specular - guess.specular)
-            for k in set(node.passages) | set(guess.passages):
-                passages[k] = passages.get(k, 0.0) + a * (node.passages.get(k, (0, 0.0))[1]
-                                                          - guess.passages.get(k, (0, 0.0))[1])
-        return diffuse, specular, passages
-
     def node_weights(self, point: dict, bends: list | None = None) -> dict:
         """Each node's weight in the response at ``point`` (index -> weight): the corners'
         multilinear weights and the curvature terms' (+a on m, −a (1 − f₀) and −a f₀ on its
-        neighbours, a = w g), to first order in the nodes: what their Monte Carlo errors are
-        carried by (:mod:`.emulator`). ``bends``: the point's :meth:`bends`, if the caller
-        has them already."""
+        neighbours, a = w g). The response combines the nodes' ln t(q) and fractions with
+        them (:meth:`surface`), and their Monte Carlo errors are carried by them
+        (:mod:`.emulator`). ``bends``: the point's :meth:`bends`, if the caller has them
+        already."""
         idx, w = corner_weights(self.coords_of(point), [a.nodes for a in self.axes])
         out = dict(zip(idx, w))
         for d, middle, wi, g in (self.bends(point) if bends is None else bends):
@@ -509,16 +498,6 @@ class Space:
                 index = middle[:d] + (k,) + middle[d + 1:]
                 out[index] = out.get(index, 0.0) + wi * g * share
         return out
-
-
-def stretch(density: np.ndarray, edges: np.ndarray, ratio: float) -> np.ndarray:
-    """A density per bin (any unit per ns) on ``edges`` (ns) with its time axis multiplied by
-    ``ratio``: what arrived at t arrives at ratio · t, the integral kept."""
-    if ratio == 1.0:
-        return density
-    width = np.diff(edges)
-    cumulative = np.concatenate([[0.0], np.cumsum(density * width)])
-    return np.diff(np.interp(edges / ratio, edges, cumulative)) / width
 
 
 def floored(density: np.ndarray, width: np.ndarray) -> np.ndarray:
@@ -535,27 +514,24 @@ def floored(density: np.ndarray, width: np.ndarray) -> np.ndarray:
 
 
 def combine(nodes: list, weights: list, edges: np.ndarray,
-            delay_weights: list | None = None, bend=None,
-            total: float | None = None) -> SurfaceResponse:
+            delay_weights: list | None = None, total: float | None = None) -> SurfaceResponse:
     """The displacement interpolation of the module docstring.
 
     Parameters
     ----------
     nodes : list of NodeResponse
-        The corners of the cell.
+        The nodes combined: a cell's corners, and the nodes of its curvature terms.
     weights : list of float
-        Their multilinear weights in the interpolation coordinates (sum 1): diffuse response,
-        specular and back-and-forth fractions.
+        Their weights in the interpolation coordinates (sum 1; negative ones where a
+        curvature term takes a neighbour's share off, :meth:`Space.node_weights`): on the
+        diffuse response's ln t(q), the specular and back-and-forth fractions (each floored
+        at 0).
     edges : array
         The common time edges, ns.
     delay_weights : list of float, optional
-        The corners' multilinear weights in the axis values (sum 1,
+        The nodes' multilinear weights in the axis values (sum 1, 0 off the cell's corners,
         :func:`value_weights`), for the back-and-forth delays, which are linear in the
         thicknesses; default ``weights``.
-    bend : tuple, optional
-        The curvature correction (:meth:`Space._bend`): added to the diffuse response
-        (floored at 0 keeping its integral, :func:`floored`), the specular fraction and each
-        passage's fraction (each floored at 0).
     total : float, optional
         The diffuse total ∫R_d dt, sr⁻¹, where every node's is positive
         (:meth:`Space.total`); default the nodes' totals combined in ln with ``weights``.
@@ -563,6 +539,12 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
     Returns
     -------
     SurfaceResponse
+        Where every node's diffuse total is positive, its diffuse response is ``total``
+        spread by the quantile function ln t(q) = Σ w_i ln t_i(q), rearranged to be
+        non-decreasing in q where negative weights make it cross (sorting the quantiles is
+        the monotone rearrangement: a distribution again, closer to the true one); where one
+        is 0, the weighted sum of the densities floored at 0 keeping its integral
+        (:func:`floored`).
     """
     w = np.asarray(weights, float)
     wd = w if delay_weights is None else np.asarray(delay_weights, float)
@@ -574,15 +556,14 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         positive = edges > 0
         log_t = sum(wi * np.log(np.maximum(_quantile(n.cdf, edges, q), edges[positive][0]))
                     for wi, n in zip(w, nodes))
-        t = np.exp(log_t)
+        t = np.exp(np.sort(log_t))
         cdf = np.interp(edges, t, q, left=0.0, right=1.0)
         diffuse = total * np.diff(cdf) / np.diff(edges)
     else:
-        diffuse = sum(wi * n.surface.diffuse for wi, n in zip(w, nodes))
-    d_diffuse, d_specular, d_passages = bend if bend is not None else (0.0, 0.0, {})
-    diffuse = floored(diffuse + d_diffuse, np.diff(edges))
+        diffuse = floored(sum(wi * n.surface.diffuse for wi, n in zip(w, nodes)),
+                          np.diff(edges))
     returns = []
-    specular = max(float(np.sum(w * [n.specular for n in nodes])) + d_specular, 0.0)
+    specular = max(float(np.sum(w * [n.specular for n in nodes])), 0.0)
     if specular > 0:
         returns.append(("specular", 0.0, specular))
     ks = sorted(set(k for n in nodes for k in n.passages))
@@ -594,7 +575,6 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
                 t_k = np.mean([m.passages[k][0] for m in nodes if k in m.passages])
             delay += wdi * t_k              # t_k = 2 k h n_eff / c: linear in h
             frac += wi * (n.passages[k][1] if k in n.passages else 0.0)
-        frac += d_passages.get(k, 0.0)
         if frac > 0:
             returns.append(("bf_direct", float(delay), float(frac)))
     return SurfaceResponse(edges, diffuse, returns, nodes[0].surface.wavelength)
