@@ -255,8 +255,7 @@ class Emulator:
             guess, _, f0 = self.space.left_out(middle, d)
             predicted = self.forward.waveform(self.forward.photons(guess.surface), 0.0)[0]
             mu = self._node(middle)[0]
-            m = middle[d]
-            lo, hi = (middle[:d] + (k,) + middle[d + 1:] for k in (m - 1, m + 1))
+            _, lo, hi = self.space.stencil(d, middle)
             noise = self._own(middle) + (1 - f0) ** 2 * self._own(lo) + f0 ** 2 * self._own(hi)
             self._loo[key] = np.maximum((predicted - mu) ** 2 - noise, 0.0)
         return self._loo[key]

@@ -389,12 +389,23 @@ class Space:
             return self.nodes[idx[0]].surface
         bends = self.bends(point)
         weights = self.node_weights(point, bends)
+        # a term moves quantiles only where its three nodes have a diffuse response (a
+        # shape); elsewhere it still bends the fractions and the total
+        shaped = [b for b in bends if all(self.totals[i] > 0 for i in self.stencil(*b[:2]))]
+        shape = weights if len(shaped) == len(bends) else self.node_weights(point, shaped)
         delay_w = dict(zip(idx, value_weights(self.values_of(point),
                                               [a.values for a in self.axes], idx)))
-        used = [i for i, x in weights.items() if x != 0.0 or i in delay_w]
+        used = [i for i in {**weights, **shape}
+                if weights.get(i, 0.0) != 0.0 or shape.get(i, 0.0) != 0.0 or i in delay_w]
         return combine([self.nodes[i] for i in used], [weights.get(i, 0.0) for i in used],
                        self.edges, delay_weights=[delay_w.get(i, 0.0) for i in used],
-                       total=self.total(point, bends))
+                       total=self.total(point, bends),
+                       shape_weights=[shape.get(i, 0.0) for i in used])
+
+    def stencil(self, d: int, middle: tuple) -> tuple:
+        """Node ``middle`` and its two neighbours along axis ``d``: (m, m − 1, m + 1)."""
+        m = middle[d]
+        return (middle,) + tuple(middle[:d] + (k,) + middle[d + 1:] for k in (m - 1, m + 1))
 
     def total(self, point: dict, bends: list | None = None) -> float:
         """The diffuse total ∫R_d dt (sr⁻¹) at ``point``: the cell's corners combined one
@@ -402,7 +413,7 @@ class Space:
         ``total_scales`` (module docstring), then each curvature term of :meth:`bends`
         (given, or computed) in its axis' coordinate: a (ln T_m − ln T̂_m) added to ln ∫R_d,
         or a (T_m − T̂_m) to ∫R_d (T̂_m node m's total predicted from its neighbours,
-        a = w g); floored at 0."""
+        a = w g; the latter where one of the three totals is 0); floored at 0."""
         block, steps = self.totals, []
         for x, a in zip(self.coords_of(point), self.axes):
             n = a.nodes
@@ -417,14 +428,11 @@ class Space:
         total = float(block)
         for d, middle, w, g in (self.bends(point) if bends is None else bends):
             _, _, f0 = self.left_out(middle, d)
-            m = middle[d]
-            lo, hi = (self.totals[middle[:d] + (k,) + middle[d + 1:]] for k in (m - 1, m + 1))
-            own = self.totals[middle]
-            guess = float(blend_total(lo, hi, f0, self.total_scales[d]))
-            if self.total_scales[d] == "log" and own > 0 and guess > 0 and total > 0:
-                total *= math.exp(w * g * math.log(own / guess))
+            own, lo, hi = (float(self.totals[i]) for i in self.stencil(d, middle))
+            if self.total_scales[d] == "log" and min(own, lo, hi, total) > 0:
+                total *= math.exp(w * g * math.log(own / blend_total(lo, hi, f0, "log")))
             else:
-                total += w * g * (own - guess)
+                total += w * g * (own - blend_total(lo, hi, f0, "linear"))
         return max(total, 0.0)
 
     def bends(self, point: dict) -> list:
@@ -471,7 +479,7 @@ class Space:
         key = (middle, d)
         if key not in self._left_out:
             m = middle[d]
-            lo, hi = (middle[:d] + (k,) + middle[d + 1:] for k in (m - 1, m + 1))
+            _, lo, hi = self.stencil(d, middle)
             x, v = self.axes[d].nodes, self.axes[d].values
             f0 = (x[m] - x[m - 1]) / (x[m + 1] - x[m - 1])
             fv = (v[m] - v[m - 1]) / (v[m + 1] - v[m - 1])
@@ -493,19 +501,16 @@ class Space:
         out = dict(zip(idx, w))
         for d, middle, wi, g in (self.bends(point) if bends is None else bends):
             _, _, f0 = self.left_out(middle, d)
-            m = middle[d]
-            for k, share in ((m, 1.0), (m - 1, -(1 - f0)), (m + 1, -f0)):
-                index = middle[:d] + (k,) + middle[d + 1:]
+            for index, share in zip(self.stencil(d, middle), (1.0, -(1 - f0), -f0)):
                 out[index] = out.get(index, 0.0) + wi * g * share
         return out
 
 
 def floored(density: np.ndarray, width: np.ndarray) -> np.ndarray:
-    """A corrected diffuse response (sr⁻¹ ns⁻¹ on bins ``width`` ns wide) with its negative
-    bins set to 0 and the rest scaled down so that its integral stays what the correction
-    made it: a curvature term's negative lobe, where the response is small (beside a slab
-    floor's spike), would otherwise add its clipped part to the total (up to +2.3 % of it on
-    the rough-slab database, docs/inversion.md §2)."""
+    """A diffuse response combined with negative weights (sr⁻¹ ns⁻¹ on bins ``width`` ns
+    wide; :func:`combine` where a node has none) with its negative bins set to 0 and the
+    rest scaled down so that its integral stays what the weights made it: the clipped part
+    would otherwise be added to the total."""
     kept = np.maximum(density, 0.0)
     intended, total = float(np.sum(density * width)), float(np.sum(kept * width))
     if total > intended > 0.0:
@@ -514,7 +519,8 @@ def floored(density: np.ndarray, width: np.ndarray) -> np.ndarray:
 
 
 def combine(nodes: list, weights: list, edges: np.ndarray,
-            delay_weights: list | None = None, total: float | None = None) -> SurfaceResponse:
+            delay_weights: list | None = None, total: float | None = None,
+            shape_weights: list | None = None) -> SurfaceResponse:
     """The displacement interpolation of the module docstring.
 
     Parameters
@@ -535,29 +541,35 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
     total : float, optional
         The diffuse total ∫R_d dt, sr⁻¹, where every node's is positive
         (:meth:`Space.total`); default the nodes' totals combined in ln with ``weights``.
+    shape_weights : list of float, optional
+        The weights on ln t(q) (sum 1), where they differ from ``weights``: a curvature term
+        whose nodes do not all have a diffuse response bends no shape (:meth:`Space.surface`).
 
     Returns
     -------
     SurfaceResponse
-        Where every node's diffuse total is positive, its diffuse response is ``total``
-        spread by the quantile function ln t(q) = Σ w_i ln t_i(q), rearranged to be
-        non-decreasing in q where negative weights make it cross (sorting the quantiles is
-        the monotone rearrangement: a distribution again, closer to the true one); where one
-        is 0, the weighted sum of the densities floored at 0 keeping its integral
+        Where every node with a shape weight has a positive diffuse total, its diffuse
+        response is ``total`` spread by the quantile function ln t(q) = Σ w_i ln t_i(q),
+        rearranged to be non-decreasing in q where negative weights make it cross (sorting
+        the quantiles is the monotone rearrangement: a distribution again, closer to the true
+        one) and held inside the time edges, so that the whole total stays on them; where
+        one is 0, the weighted sum of the densities floored at 0 keeping its integral
         (:func:`floored`).
     """
     w = np.asarray(weights, float)
     wd = w if delay_weights is None else np.asarray(delay_weights, float)
-    totals = np.array([n.total for n in nodes])
-    if np.all(totals > 0):
+    ws = w if shape_weights is None else np.asarray(shape_weights, float)
+    shaped = [(wi, n) for wi, n in zip(ws, nodes) if wi != 0.0]
+    if all(n.total > 0 for _, n in shaped):
         if total is None:
-            total = float(np.exp(np.sum(w * np.log(totals))))
-        q = np.unique(np.concatenate([n.cdf for n in nodes]))
-        positive = edges > 0
-        log_t = sum(wi * np.log(np.maximum(_quantile(n.cdf, edges, q), edges[positive][0]))
-                    for wi, n in zip(w, nodes))
-        t = np.exp(np.sort(log_t))
+            total = float(np.exp(sum(wi * np.log(n.total) for wi, n in shaped)))
+        q = np.unique(np.concatenate([n.cdf for _, n in shaped]))
+        first = edges[edges > 0][0]
+        log_t = sum(wi * np.log(np.maximum(_quantile(n.cdf, edges, q), first))
+                    for wi, n in shaped)
+        t = np.exp(np.clip(np.sort(log_t), math.log(first), math.log(edges[-1])))
         cdf = np.interp(edges, t, q, left=0.0, right=1.0)
+        cdf[-1] = 1.0
         diffuse = total * np.diff(cdf) / np.diff(edges)
     else:
         diffuse = floored(sum(wi * n.surface.diffuse for wi, n in zip(w, nodes)),
@@ -572,7 +584,8 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         for wi, wdi, n in zip(w, wd, nodes):
             t_k = n.passages[k][0] if k in n.passages else k * n.first_bf
             if not math.isfinite(t_k):      # a node without this passage nor a known period
-                t_k = np.mean([m.passages[k][0] for m in nodes if k in m.passages])
+                known = [m.passages[k][0] for m, x in zip(nodes, wd) if k in m.passages and x]
+                t_k = np.mean(known or [m.passages[k][0] for m in nodes if k in m.passages])
             delay += wdi * t_k              # t_k = 2 k h n_eff / c: linear in h
             frac += wi * (n.passages[k][1] if k in n.passages else 0.0)
         if frac > 0:
