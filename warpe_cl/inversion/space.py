@@ -41,7 +41,9 @@ with one weight (:meth:`Space.node_weights`: +a on m, −a (1 − f₀) and −a
 neighbours): quadratic Lagrange interpolation through three nodes in each of those
 coordinates, and a blend of the two stencils with four or more
 (tests/test_inversion_curvature.py). Where negative weights make ln t(q) decrease it is
-sorted (the monotone rearrangement: a distribution again). The delays stay exact. Moving
+sorted (the monotone rearrangement: a distribution again), and it is held inside the time
+edges (the total kept); a term whose three nodes do not all have a diffuse response bends the
+fractions and the total, not the shape. The delays stay exact. Moving
 quantiles, the correction lands where the point's response is: a slab floor's spike moves
 with its round trip, and a tail that ends between nodes ends where the point's does, where
 a correction of the density, added at node m's times, put node m's edges into the point's
