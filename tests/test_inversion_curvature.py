@@ -224,9 +224,11 @@ def test_quantiles_moved_past_the_last_edge_keep_the_amount():
 def test_a_node_without_a_diffuse_response_bends_no_shape():
     """Node 1 has no diffuse return (a specular one only), nodes 2 and 4 exponential decays of
     2 and 4 ns. Between 2 and 4 the curvature term, whose nodes include node 1, bends the
-    total but not the shape: the decay is the corners' geometric τ = 2√2 ns, its median
-    τ ln 2 to the binning (1 %; a bin-wide error of the CDF's curvature is 0.1 %). Before,
-    the whole cell fell back to summing densities, and the median came 12 % early."""
+    total (the quadratic through the totals 0, 0.05, 0.05: 0.05625 at 2√2, combined
+    linearly since one is 0) but not the shape: the decay is the corners' geometric
+    τ = 2√2 ns, its median τ ln 2 to the binning (1 %; a bin-wide error of the CDF's
+    curvature is 0.1 %). Before, the whole cell fell back to summing densities, and the
+    median came 12 % early."""
     def decay(tau, amount):
         return synthetic_surface(diffuse_integral=amount, tau=tau, f_spec=0.1)
     space = Space(sweep_of([decay(1.0, 0.0), decay(2.0, 0.05), decay(4.0, 0.05)],
@@ -236,15 +238,32 @@ def test_a_node_without_a_diffuse_response_bends_no_shape():
     cdf = np.concatenate([[0.0], np.cumsum(amount)]) / amount.sum()
     median = np.interp(0.5, cdf, r.edges)
     assert median == pytest.approx(2.0 * np.sqrt(2.0) * np.log(2.0), rel=0.01)
+    assert amount.sum() == pytest.approx(0.05625, rel=1e-9)
 
 
 def test_a_passage_missing_at_a_corner_takes_the_other_corners_delay():
     """Echoes at 10 ns (node 1) and 40 ns (node 4), none at node 2 and no known round trips:
-    in the cell [2, 4] the echo's delay is node 4's, the one corner that has it. Averaged over
-    every node of the curvature terms, node 1's 10 ns outside the cell made it 26.5 ns."""
+    in the cell [2, 4] the echo's delay is node 4's, the one corner that has it (node 2, with
+    neither the echo nor a round trip, has no delay to give; its share of the fraction is 0
+    there). Averaged over every node of the curvature terms, node 1's 10 ns outside the cell
+    made it 26.5 ns."""
     parts = [synthetic_surface(diffuse_integral=0.05, tau=1.0, f_spec=0.02, f_bf=fb, t_bf=tb)
              for fb, tb in ((0.01, 10.0), (0.0, 20.0), (0.01, 40.0))]
     space = Space(sweep_of(parts, np.array([1.0, 2.0, 4.0]), KEY))
     assert all(not np.isfinite(n.first_bf) for n in space.nodes)
     delays = [t for c, t, _ in space.surface({KEY: 2.2}).returns if c == "bf_direct"]
     assert delays == [pytest.approx(40.0)]
+
+
+def test_quantiles_held_on_the_first_edge_keep_the_amount():
+    """Decays of 1, 3 and 30 ns at h = 1, 2, 4 on time edges that start at 1 ns (not near 0):
+    at h = 1.2 (node weights 0.64, 0.46, −0.10) the combined quantiles fall below the first
+    edge and are held on it, the whole amount kept. Held in ln t, exp(ln 1) rounded back onto
+    the edge and np.interp gave the first edge the last of them: 3.3 % of the amount lost."""
+    edges = 10 ** (np.arange(0, 101) / 20)              # 1 ns to 1e5 ns, 20 per decade
+    parts = [synthetic_surface(diffuse_integral=0.05, tau=tau, edges=edges)
+             for tau in (1.0, 3.0, 30.0)]
+    space = Space(sweep_of(parts, np.array([1.0, 2.0, 4.0]), KEY))
+    r = space.surface({KEY: 1.2})
+    expected = space.total({KEY: 1.2})
+    assert float(np.sum(r.diffuse * np.diff(r.edges))) == pytest.approx(expected, rel=1e-9)

@@ -415,7 +415,8 @@ class Space:
         ``total_scales`` (module docstring), then each curvature term of :meth:`bends`
         (given, or computed) in its axis' coordinate: a (ln T_m − ln T̂_m) added to ln ∫R_d,
         or a (T_m − T̂_m) to ∫R_d (T̂_m node m's total predicted from its neighbours,
-        a = w g; the latter where one of the three totals is 0); floored at 0."""
+        a = w g; the latter where one of the three totals, or the total so far, is 0);
+        floored at 0."""
         block, steps = self.totals, []
         for x, a in zip(self.coords_of(point), self.axes):
             n = a.nodes
@@ -542,7 +543,7 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         thicknesses; default ``weights``.
     total : float, optional
         The diffuse total ∫R_d dt, sr⁻¹, where every node's is positive
-        (:meth:`Space.total`); default the nodes' totals combined in ln with ``weights``.
+        (:meth:`Space.total`); default the totals combined in ln with the shape weights.
     shape_weights : list of float, optional
         The weights on ln t(q) (sum 1), where they differ from ``weights``: a curvature term
         whose nodes do not all have a diffuse response bends no shape (:meth:`Space.surface`).
@@ -569,9 +570,9 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         first = edges[edges > 0][0]
         log_t = sum(wi * np.log(np.maximum(_quantile(n.cdf, edges, q), first))
                     for wi, n in shaped)
-        t = np.exp(np.clip(np.sort(log_t), math.log(first), math.log(edges[-1])))
+        t = np.clip(np.exp(np.sort(log_t)), first, edges[-1])
         cdf = np.interp(edges, t, q, left=0.0, right=1.0)
-        cdf[-1] = 1.0
+        cdf[0], cdf[-1] = 0.0, 1.0          # quantiles held on an edge keep their mass
         diffuse = total * np.diff(cdf) / np.diff(edges)
     else:
         diffuse = floored(sum(wi * n.surface.diffuse for wi, n in zip(w, nodes)),
