@@ -108,13 +108,18 @@ class CountShots:
         edges = np.concatenate([self.f.t - 0.5 * step, [self.f.t[-1] + 0.5 * step]])
         return edges, np.concatenate([[0.0], np.cumsum(rate) * step])
 
+    def _integrals(self, edges: np.ndarray, cum: np.ndarray, starts: np.ndarray,
+                   deltas: np.ndarray) -> np.ndarray:
+        """The integral of a rate (its :meth:`_cumulative` ``edges`` and ``cum``) over the
+        bins starting at ``starts`` (ns), shifted by each arrival: shape (D, len(starts))."""
+        lo = np.interp(starts[None, :] - deltas[:, None], edges, cum)
+        hi = np.interp(starts[None, :] + self.width - deltas[:, None], edges, cum)
+        return hi - lo
+
     def _lambda(self, mu: np.ndarray, deltas: np.ndarray) -> np.ndarray:
         """The integral of a rate (per ns on the fine grid) over each bin, shifted by each
         arrival: shape (D, K)."""
-        edges, cum = self._cumulative(mu)
-        lo = np.interp(self.t[None, :] - deltas[:, None], edges, cum)
-        hi = np.interp(self.t[None, :] + self.width - deltas[:, None], edges, cum)
-        return hi - lo
+        return self._integrals(*self._cumulative(mu), self.t, deltas)
 
     def _hits(self, rate: np.ndarray, deltas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The integrals of a rate over the bins holding counts, (D, hits), and over all
@@ -124,12 +129,9 @@ class CountShots:
             full = self._lambda(rate, deltas)
             return full[:, self.hit], full.sum(1)
         edges, cum = self._cumulative(rate)
-        t = self.t[self.hit]
-        lo = np.interp(t[None, :] - deltas[:, None], edges, cum)
-        hi = np.interp(t[None, :] + self.width - deltas[:, None], edges, cum)
         total = (np.interp(self.t[-1] + self.width - deltas, edges, cum)
                  - np.interp(self.t[0] - deltas, edges, cum))
-        return hi - lo, total
+        return self._integrals(edges, cum, self.t[self.hit], deltas), total
 
     def _rows(self, mu: np.ndarray, centre: float, deltas: np.ndarray) -> tuple:
         """The recorded signal counts per shot at amplitude ``centre`` and their first two

@@ -101,9 +101,9 @@ class Recording:
         a = min(a, 1.0)         # below the first stall of the rising count, as a rule
 
         def count(x):
-            u = x * s
-            return (float(np.sum(self.dead.rate(u) - self.background)) * step,
-                    float(np.sum(self.dead.along(u, s))) * step)
+            rate, along = self.dead.expansion(x * s, s, order=1)
+            return (float(np.sum(rate - self.background)) * step,
+                    float(np.sum(along)) * step)
         have, slope = count(a)
         for _ in range(AMPLITUDE_STEPS):
             if slope <= 0.0:
