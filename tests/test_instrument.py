@@ -629,6 +629,10 @@ def test_dead_time_derivatives_are_the_rates_own(modes):
         tangent = (dead.rate(a * s + h * w) - dead.rate(a * s - h * w)) / (2 * h)
         np.testing.assert_allclose(dead.along(a * s, w), tangent, rtol=0,
                                    atol=1e-8 * np.abs(tangent).max())
+        # one window of the rate for several directions: the expansion's own bits
+        along = dead.derivative(a * s)
+        for direction in (s, w, np.ones_like(s)):
+            assert np.array_equal(along(direction), dead.expansion(a * s, direction, 1)[1])
     none = photon_counting.DeadTime(edges, 0.4, 16, 0.0, modes)
     assert not none.active and np.array_equal(none.rate(s), s + 0.4)
 

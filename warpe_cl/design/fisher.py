@@ -270,13 +270,14 @@ def counting_information(forward, rate, d_rate, shots: int, *, pulse=None, phase
     step = t[1] - t[0]
     d = d_rate.shape[0]
     rec = Recording(forward)
+    along = rec.derivative(rate, 1.0)       # the dead time's window of the rate, once
     error = np.zeros_like(rate) if variance is None else \
-        np.asarray(variance, float) * rec.gain(rate, 1.0) ** 2
-    rows = [error, rec.level(rate, 1.0), *(rec.along(rate, 1.0, w) for w in d_rate)]
+        np.asarray(variance, float) * rec.gain(rate, 1.0, along) ** 2
+    rows = [error, rec.level(rate, 1.0), *(along(w) for w in d_rate)]
     if "pulse" in nuisances:
-        rows.append(rec.along(rate, 1.0, pulse))
+        rows.append(along(pulse))
     if "amplitude" in nuisances:
-        rows.append(rec.along(rate, 1.0, rate))         # ∂m/∂A
+        rows.append(along(rate))            # ∂m/∂A
     recorded = rows[1]
     table = np.cumsum(np.array(rows), axis=1) * step
     table = np.concatenate([np.zeros((table.shape[0], 1)), table], axis=1)

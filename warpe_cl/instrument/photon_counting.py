@@ -197,7 +197,20 @@ class DeadTime:
 
     def along(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
         """DR[u]·w, pe ns⁻¹."""
-        return self.expansion(u, w, order=1)[1]
+        return self.derivative(u)(w)
+
+    def derivative(self, u: np.ndarray):
+        """DR[u] as a function of the direction w (pe ns⁻¹ -> pe ns⁻¹): the window of u and
+        its factors taken once for any number of directions (the terms and order of
+        :meth:`expansion`'s first derivative, the same bits)."""
+        x = self.window(u)
+        f1, _ = self._factors(x, 0)
+        d1, d0 = self._factors(x, 1)
+        slope = u * d1 + self.dark * d0
+
+        def along(w: np.ndarray) -> np.ndarray:
+            return self.e_d * (w * f1 + slope * self.window(w))
+        return along
 
     def bend(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
         """D²R[u](w, w), pe ns⁻¹."""

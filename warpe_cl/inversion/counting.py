@@ -311,8 +311,9 @@ class CountShots:
         rec = self.recording
         at = np.array([d])
         level = rec.level(mu, a)
+        along = rec.derivative(mu, a)
         gain, s, by_a, by_d = (self._lambda(x, at)[0] / self.width for x in (
-            rec.gain(mu, a), variance, rec.along(mu, a, mu), np.gradient(level, self.f.t)))
+            rec.gain(mu, a, along), variance, along(mu), np.gradient(level, self.f.t)))
         expect = self.n * (self.b + self._lambda(level, at)[0])
         scale = self.n * a * self.width * gain
         # the quadratic form holds where the error of a bin's expected counts (sd scale √S)

@@ -61,9 +61,15 @@ class Recording:
     def along(self, s: np.ndarray, amplitude: float, w: np.ndarray) -> np.ndarray:
         """J ⊗ DR[A s]·w: how the recorded rate moves with the signal rate along w (pe ns⁻¹
         per unit of w; w = s gives ∂/∂A)."""
+        return self.derivative(s, amplitude)(w)
+
+    def derivative(self, s: np.ndarray, amplitude: float):
+        """w -> :meth:`along` (s, amplitude, w), the dead time's window of A s taken once for
+        every direction it is applied to."""
         if self.linear:
-            return self.f.jitter(w)
-        return self.f.jitter(self.dead.along(amplitude * s, w))
+            return self.f.jitter
+        derivative = self.dead.derivative(amplitude * s)
+        return lambda w: self.f.jitter(derivative(w))
 
     def expansion(self, s: np.ndarray, amplitude: float) -> tuple:
         """(:meth:`level`, ∂/∂A, ∂²/∂A²) of the recorded rate at ``amplitude``, pe ns⁻¹ on the
@@ -75,15 +81,16 @@ class Recording:
         rate, along, bend = self.dead.expansion(amplitude * s, s)
         return self.f.jitter(rate - self.background), self.f.jitter(along), self.f.jitter(bend)
 
-    def gain(self, s: np.ndarray, amplitude: float) -> np.ndarray:
+    def gain(self, s: np.ndarray, amplitude: float, derivative=None) -> np.ndarray:
         """J ⊗ DR[A s]·1: the recorded rate's response to an error of the signal rate that is
         constant over the dead time, per unit error; 1 without dead time. The database's error
         is taken as common over blocks at least that long (:attr:`correlation_ns`,
         docs/inversion.md §4.3); within a block's first τ_a the window still reaches into
-        the block before, whose error is independent: there the gain is an approximation."""
+        the block before, whose error is independent: there the gain is an approximation.
+        ``derivative``: :meth:`derivative` (s, amplitude), when already taken."""
         if self.linear:
             return np.ones_like(s)
-        return self.f.jitter(self.dead.along(amplitude * s, np.ones_like(s)))
+        return (derivative or self.derivative(s, amplitude))(np.ones_like(s))
 
     def amplitude_for(self, s: np.ndarray, signal: float) -> float:
         """The amplitude A at which the recorded signal photons per shot (the whole grid)
