@@ -133,14 +133,17 @@ class CountShots:
                  - np.interp(self.t[0] - deltas, edges, cum))
         return self._integrals(edges, cum, self.t[self.hit], deltas), total
 
-    def _rows(self, mu: np.ndarray, centre: float, deltas: np.ndarray) -> tuple:
+    def _rows(self, mu: np.ndarray, centre: float, deltas: np.ndarray,
+              jittered: np.ndarray | None = None) -> tuple:
         """The recorded signal counts per shot at amplitude ``centre`` and their first two
         derivatives in A (None without dead time), at each arrival: per row, the bins holding
         counts (D, hits) and the sum over all bins (D,); and the range of A − centre over
-        which the expansion stays ≥ 0 (:func:`_nonnegative`) within ``TRUST``."""
+        which the expansion stays ≥ 0 (:func:`_nonnegative`) within ``TRUST``.
+        ``jittered``: J ⊗ ``mu``, when already taken (read without dead time only)."""
         rec = self.recording
         if rec.linear:
-            return self._linear_rows(self.f.jitter(mu), centre, deltas)
+            return self._linear_rows(self.f.jitter(mu) if jittered is None else jittered,
+                                     centre, deltas)
         rows = rec.expansion(mu, centre)
         lo, hi = _nonnegative(rec.background + rows[0], rows[1], rows[2])
         span = (max(lo, (TRUST[0] - 1.0) * centre), min(hi, (TRUST[1] - 1.0) * centre))
@@ -193,12 +196,12 @@ class CountShots:
         return ll, centre + e
 
     def _scan(self, mu: np.ndarray, deltas: np.ndarray, centre: float, overall,
-              moves: int = CENTRE_MOVES) -> tuple:
+              moves: int = CENTRE_MOVES, jittered: np.ndarray | None = None) -> tuple:
         """(log L, A, centre) at ``deltas``, the expansion's centre moved to the best arrival's
         A until it stays, at most ``moves`` times (once without dead time or with
-        ``overall``)."""
+        ``overall``). ``jittered``: as for :meth:`_rows`."""
         for _ in range(moves):
-            rows = self._rows(mu, centre, deltas)
+            rows = self._rows(mu, centre, deltas, jittered)
             ll, a = self._profile(rows, centre, overall)
             best = float(a[int(np.argmax(ll))])
             if rows[2] is None or overall is not None \
@@ -269,10 +272,10 @@ class CountShots:
             ll, a = self._profile(self._linear_rows(jittered, 1.0, coarse), 1.0, None)
             signal = float(a[int(np.argmax(ll))]) * float(np.sum(mu)) * self.f.step
             start = self.recording.amplitude_for(mu, signal)
-        ll, _, middle = self._scan(mu, coarse, start, overall, moves=1)   # where the mass is
+        ll, _, middle = self._scan(mu, coarse, start, overall, 1, jittered)  # where the mass is
         (lo,), (hi,) = kept_span(coarse, ll[None, :], KEEP)
         fine = np.linspace(lo, hi, FINE_POINTS)
-        ll, a, _ = self._scan(mu, fine, middle, overall)
+        ll, a, _ = self._scan(mu, fine, middle, overall, jittered=jittered)
         top = int(np.argmax(ll))
         loglike = float(log_trapezoid(ll, fine[1] - fine[0]))
         chi2, groups = pearson(self.c, self.n * self.expected(mu, a[top], fine[top]))
