@@ -41,7 +41,8 @@ with one weight (:meth:`Space.node_weights`: +a on m, −a (1 − f₀) and −a
 neighbours): quadratic Lagrange interpolation through three nodes in each of those
 coordinates, and a blend of the two stencils with four or more
 (tests/test_inversion_curvature.py). Where negative weights make ln t(q) decrease it is
-sorted (the monotone rearrangement: a distribution again), and it is held inside the time
+rearranged to increase, each stretch of q keeping its share of the amount (the monotone
+rearrangement, :func:`rearranged_cdf`: a distribution again), and it is held inside the time
 edges (the total kept); a term whose three nodes do not all have a diffuse response bends the
 fractions and the total, not the shape. The delays stay exact. Moving
 quantiles, the correction lands where the point's response is: a slab floor's spike moves
@@ -259,6 +260,28 @@ def _quantile(cdf: np.ndarray, edges: np.ndarray, q: np.ndarray) -> np.ndarray:
     start = np.searchsorted(cdf, 0.0, side="right") - 1      # the edge where the mass begins
     t = edges[i - 1] + np.clip(frac, 0.0, 1.0) * (edges[i] - edges[i - 1])
     return np.where(q <= 0.0, edges[max(start, 0)], t)
+
+
+def rearranged_cdf(t: np.ndarray, q: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The CDF at ``x`` of t(Q), Q uniform on [q₀, q_n], for t given at the knots ``q`` and
+    linear in t between them (as np.interp reads a CDF from knots), whether or not t is
+    monotone: F(x) = Σ_j Δq_j clip((x − a_j)/(b_j − a_j), 0, 1), a_j and b_j the lower and
+    higher end of knot interval j. Where t decreases this is the monotone rearrangement of
+    t(q) (its quantile function is t sorted as a function on [q₀, q_n]); each knot interval
+    keeps its share Δq_j of the amount, however few or many knots the others hold."""
+    a, b = np.minimum(t[:-1], t[1:]), np.maximum(t[:-1], t[1:])
+    dq = np.diff(q)
+    order = np.argsort(b, kind="stable")            # intervals wholly at or below x
+    below = np.concatenate([[0.0], np.cumsum(dq[order])])
+    cdf = below[np.searchsorted(b[order], x, side="right")]
+    first = np.searchsorted(x, a, side="right")     # and the parts of those x lies inside
+    count = np.maximum(np.searchsorted(x, b, side="left") - first, 0)
+    inside = np.repeat(np.arange(a.size), count)
+    at = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count) \
+        + np.repeat(first, count)
+    part = dq[inside] * (x[at] - a[inside]) / (b[inside] - a[inside])
+    cdf = cdf + np.bincount(at, weights=part, minlength=x.size)
+    return np.maximum.accumulate(cdf)
 
 
 class NodeResponse:
@@ -553,9 +576,9 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
     SurfaceResponse
         Where every node with a shape weight has a positive diffuse total, its diffuse
         response is ``total`` spread by the quantile function ln t(q) = Σ w_i ln t_i(q),
-        rearranged to be non-decreasing in q where negative weights make it cross (sorting
-        the quantiles is the monotone rearrangement: a distribution again, closer to the true
-        one) and held inside the time edges, so that the whole total stays on them; where
+        rearranged to be non-decreasing in q where negative weights make it cross (the
+        monotone rearrangement, :func:`rearranged_cdf`: a distribution again, closer to the
+        true one) and held inside the time edges, so that the whole total stays on them; where
         one is 0, the weighted sum of the densities floored at 0 keeping its integral
         (:func:`floored`).
     """
@@ -570,8 +593,9 @@ def combine(nodes: list, weights: list, edges: np.ndarray,
         first = edges[edges > 0][0]
         log_t = sum(wi * np.log(np.maximum(_quantile(n.cdf, edges, q), first))
                     for wi, n in shaped)
-        t = np.clip(np.exp(np.sort(log_t)), first, edges[-1])
-        cdf = np.interp(edges, t, q, left=0.0, right=1.0)
+        t = np.clip(np.exp(log_t), first, edges[-1])
+        cdf = (np.interp(edges, t, q, left=0.0, right=1.0) if np.all(np.diff(log_t) >= 0)
+               else rearranged_cdf(t, q, edges))
         cdf[0], cdf[-1] = 0.0, 1.0          # quantiles held on an edge keep their mass
         diffuse = total * np.diff(cdf) / np.diff(edges)
     else:
