@@ -38,7 +38,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from emulator_check import point_overrides  # noqa: E402
-from inversion_recovery import StudyError, instrument_source  # noqa: E402
+from inversion_recovery import StudyError, instrument_source, read_injections  # noqa: E402
 
 
 def key_grid(axis, points: int, values: str | None, truth: float) -> np.ndarray:
@@ -94,11 +94,18 @@ def run(args) -> dict:
 
     family = Path(args.work) / args.family
     folder = family / "inj" / f"i{args.injection:03d}"
+    rows, keys, _ = read_injections(family)
+    row = next((r for r in rows if int(r["index"]) == args.injection), None)
+    if row is None:
+        raise StudyError(f"--injection {args.injection}: not a row of {family / 'injections.csv'}")
     space = Space(load_result(family / "db"), source=str(family / "db"))
     if args.key not in [a.key for a in space.free_axes]:
         raise StudyError(f"--key {args.key}: not a swept key of the database "
                          f"({', '.join(a.key for a in space.free_axes)})")
-    row = next(r for r in _rows(family) if int(r["index"]) == args.injection)
+    lacking = [a.key for a in space.free_axes if a.key not in keys]
+    if lacking:
+        raise StudyError(f"{family / 'injections.csv'}: no column {lacking[0]}, a swept key of "
+                         "the database: the injections are of another family")
     truth = {a.key: float(row[a.key]) for a in space.free_axes}
     axes = [next(a for a in space.free_axes if a.key == args.key)] + \
         [a for a in space.free_axes if a.key != args.key]
@@ -130,19 +137,13 @@ def run(args) -> dict:
             shots = (CountShots if forward.counting else Shots)(t, x, forward)
             loglike[index] = Problem(surface, forward, shots, emulator=surface).evaluate(u).loglike
         profiles.append(profile(loglike))
+        at = int(np.flatnonzero(grids[0] == truth[args.key])[0])
         print(f"{'own shots' if r == 0 else f'realisation {r}'}: best "
               f"{grids[0][int(np.argmax(profiles[-1]))]:.6g} {axes[0].units}, delta at the truth "
-              f"{np.max(profiles[-1]) - profiles[-1][np.flatnonzero(grids[0] == truth[args.key])[0]]:.2f}",
-              flush=True)
+              f"{np.max(profiles[-1]) - profiles[-1][at]:.2f}", flush=True)
     return {"key": args.key, "units": axes[0].units, "grid": grids[0].tolist(),
             "profiles": [p.tolist() for p in profiles],
             **summary(grids[0], truth[args.key], profiles)}
-
-
-def _rows(family: Path) -> list:
-    import csv
-    with open(family / "injections.csv", newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def main(argv=None) -> int:
@@ -166,7 +167,13 @@ def main(argv=None) -> int:
            "--realisations must be 0 or more" if args.realisations < 0 else
            f"--injection {args.injection}: no folder {folder}" if not folder.is_dir() else
            f"--instrument {args.instrument}: no shots {folder / (args.instrument + '.nc')}"
-           if not (folder / f"{args.instrument}.nc").is_file() else None)
+           if not (folder / f"{args.instrument}.nc").is_file() else
+           f"--injection {args.injection}: no surface.nc or preset.yaml in {folder}"
+           if not all((folder / n).is_file() for n in ("surface.nc", "preset.yaml")) else
+           f"--photons {args.photons:g}: give a count of rays of 1 or more"
+           if not args.photons >= 1 else
+           f"--out {args.out}: no folder {Path(args.out).parent}"
+           if args.out and not Path(args.out).resolve().parent.is_dir() else None)
     if args.values and not bad:
         try:
             [float(v) for v in args.values.split(",")]
@@ -186,9 +193,10 @@ def main(argv=None) -> int:
     print(f"truth {out['truth']:.6g} {out['units']}; own shots: best {out['own_best']:.6g}, "
           f"delta {out['own_delta']:.2f}")
     if "fresh_median_best" in out:
-        print(f"{args.realisations} fresh realisations: median best {out['fresh_median_best']:.6g}, "
-              f"share above the truth {out['fresh_above']:.2f}, mean 2 delta "
-              f"{out['fresh_mean_2delta']:.2f}, largest delta {out['fresh_max_delta']:.2f}; "
+        print(f"{args.realisations} fresh realisations: median best "
+              f"{out['fresh_median_best']:.6g}, share above the truth {out['fresh_above']:.2f}, "
+              f"mean 2 delta {out['fresh_mean_2delta']:.2f}, largest delta "
+              f"{out['fresh_max_delta']:.2f}; "
               f"the own shots' delta exceeds {out['own_rank']:.0%} of theirs")
     return 0
 

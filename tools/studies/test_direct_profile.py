@@ -51,7 +51,16 @@ def test_bad_options_are_one_line_and_exit_2(capsys, tmp_path):
     folder.mkdir(parents=True)
     assert dp.main(base) == 2                                   # no shots of that instrument
     (folder / "bela.nc").write_text("")
+    assert dp.main(base) == 2                                   # no truth's surface, preset
+    for name in ("surface.nc", "preset.yaml"):
+        (folder / name).write_text("")
     assert dp.main(base + ["--values", "0.1,x"]) == 2
     assert dp.main(base + ["--profile-points", "1"]) == 2
+    assert dp.main(base + ["--photons", "0"]) == 2
+    assert dp.main(base + ["--out", str(tmp_path / "no" / "rows.json")]) == 2
+    assert dp.main(base) == 2                                   # no injections.csv
+    (tmp_path / "fam" / "injections.csv").write_text("index,medium.thickness_text\n1,1 m\n")
+    assert dp.main(base) == 2                                   # injection 3 not a row
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 4 and all(line.startswith("direct_profile: ") for line in err)
+    assert len(err) == 9 and all(line.startswith("direct_profile: ") for line in err)
+    assert "not a row" in err[-1] and "no injections" in err[-2]

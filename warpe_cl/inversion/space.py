@@ -263,12 +263,14 @@ def _quantile(cdf: np.ndarray, edges: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 def rearranged_cdf(t: np.ndarray, q: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The CDF at ``x`` of t(Q), Q uniform on [q₀, q_n], for t given at the knots ``q`` and
-    linear in t between them (as np.interp reads a CDF from knots), whether or not t is
-    monotone: F(x) = Σ_j Δq_j clip((x − a_j)/(b_j − a_j), 0, 1), a_j and b_j the lower and
-    higher end of knot interval j. Where t decreases this is the monotone rearrangement of
-    t(q) (its quantile function is t sorted as a function on [q₀, q_n]); each knot interval
-    keeps its share Δq_j of the amount, however few or many knots the others hold."""
+    """How much of [q₀, q_n] has t(q) ≤ x, at each of the increasing ``x``, for t given at the
+    knots ``q`` and linear in t between them (as np.interp reads a CDF from knots), whether
+    or not t is monotone: F(x) = Σ_j Δq_j clip((x − a_j)/(b_j − a_j), 0, 1), a_j and b_j the
+    lower and higher end of knot interval j. For q from 0 to 1 it is the CDF of t(Q), Q
+    uniform: where t decreases, the monotone rearrangement of t(q) (its quantile function is
+    t sorted as a function on [0, 1]), each knot interval keeping its share Δq_j of the
+    amount however few or many knots the others hold. Held within [0, q_n − q₀] and
+    non-decreasing against rounding."""
     a, b = np.minimum(t[:-1], t[1:]), np.maximum(t[:-1], t[1:])
     dq = np.diff(q)
     order = np.argsort(b, kind="stable")            # intervals wholly at or below x
@@ -281,7 +283,7 @@ def rearranged_cdf(t: np.ndarray, q: np.ndarray, x: np.ndarray) -> np.ndarray:
         + np.repeat(first, count)
     part = dq[inside] * (x[at] - a[inside]) / (b[inside] - a[inside])
     cdf = cdf + np.bincount(at, weights=part, minlength=x.size)
-    return np.maximum.accumulate(cdf)
+    return np.maximum.accumulate(np.minimum(cdf, q[-1] - q[0]))
 
 
 class NodeResponse:
