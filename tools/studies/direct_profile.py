@@ -117,27 +117,28 @@ def run(args) -> dict:
     base = yaml.safe_load((folder / "preset.yaml").read_text())
     base.pop("sweep", None)
     u = np.array([a.nodes[0] for a in space.free_axes])     # not read by a direct surface
+    shape = tuple(g.size for g in grids)
     surfaces = {}
-    for n, index in enumerate(np.ndindex(*(g.size for g in grids))):
+    for n, index in enumerate(np.ndindex(*shape)):
         point = {a.key: float(g[i]) for a, g, i in zip(axes, grids, index)}
         overrides = {**point_overrides(space, point), "simulation.photons": args.photons,
                      "simulation.seed": args.seed + 100000 + n}
         ds = simulate(load_preset(dict(base), overrides=overrides), progress=False)
         surfaces[index] = DirectSurface(response(ds), forward, space.free_axes)
-        print(f"surface {n + 1}/{len(grids[0]) * int(np.prod([g.size for g in grids[1:]]))}",
-              file=sys.stderr, flush=True)
+        print(f"surface {n + 1}/{int(np.prod(shape))}", file=sys.stderr, flush=True)
     truth_ds = xr.open_dataset(folder / "surface.nc")
+    at = int(np.flatnonzero(grids[0] == truth[args.key])[0])
     profiles = []
     for r in range(args.realisations + 1):
         rec = (xr.open_dataset(folder / f"{args.instrument}.nc") if r == 0 else
                apply_instrument(truth_ds, params, shots=int(params["shots"]), seed=args.seed + r))
-        t, x = rec["sample_time"].values, rec[signal].values
-        loglike = np.full([g.size for g in grids], -np.inf)
+        # one set of shots for every surface, as invert reads them: each point starts afresh
+        shots = (CountShots if forward.counting else Shots)(
+            rec["sample_time"].values, rec[signal].values, forward)
+        loglike = np.full(shape, -np.inf)
         for index, surface in surfaces.items():
-            shots = (CountShots if forward.counting else Shots)(t, x, forward)
             loglike[index] = Problem(surface, forward, shots, emulator=surface).evaluate(u).loglike
         profiles.append(profile(loglike))
-        at = int(np.flatnonzero(grids[0] == truth[args.key])[0])
         print(f"{'own shots' if r == 0 else f'realisation {r}'}: best "
               f"{grids[0][int(np.argmax(profiles[-1]))]:.6g} {axes[0].units}, delta at the truth "
               f"{np.max(profiles[-1]) - profiles[-1][at]:.2f}", flush=True)
